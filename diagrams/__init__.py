@@ -1,0 +1,1 @@
+"""Diagram factories and Meshcat wiring (installed as ``pcvfe_drake.diagrams``)."""
