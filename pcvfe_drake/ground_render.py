@@ -1,0 +1,158 @@
+"""Render the textured ground of a :class:`TerrainMap` through any affine pixel-to-world map.
+
+Shared by the downward camera (a small rotated view under the car) and the top-down map image.
+Each terrain's texture is tiled over the world (``tile_m`` metres per tile, north up) and sampled
+with ``cv2.warpAffine`` (``BORDER_WRAP``); where several terrains are visible they are blended
+with masks interpolated from the label raster, so region boundaries show as (slightly soft)
+edges at the map's resolution. Cells with no terrain render black.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from pcvfe_drake.terrain import UNKNOWN, TerrainMap
+from pcvfe_drake.texture_library import TextureSet, default_textures
+
+_MASK_SHARPNESS = 4.0  # power applied to interpolated masks: sharper edges, weights still sum to 1
+
+
+def _compose(outer: np.ndarray, inner: np.ndarray) -> np.ndarray:
+    """2x3 affine ``outer o inner``."""
+    a = np.vstack([outer, [0.0, 0.0, 1.0]])
+    b = np.vstack([inner, [0.0, 0.0, 1.0]])
+    return (a @ b)[:2]
+
+
+class GroundRenderer:
+    """Renders RGB uint8 ground images of ``terrain_map`` with ``textures`` (default: packaged)."""
+
+    def __init__(self, terrain_map: TerrainMap, textures: TextureSet | None = None) -> None:
+        self.map = terrain_map
+        self.textures = textures if textures is not None else default_textures()
+        for t in terrain_map.terrains:
+            self.textures.entry(t.texture)  # fail early on unknown texture names
+        self._levels: dict[tuple[str, int], np.ndarray] = {}
+        m = terrain_map
+        # world (x, y) -> raster coordinates with cell centres at integers
+        self._world_to_raster = np.array(
+            [
+                [1.0 / m.resolution_m, 0.0, -m.x_min_m / m.resolution_m - 0.5],
+                [0.0, -1.0 / m.resolution_m, m.y_max_m / m.resolution_m - 0.5],
+            ]
+        )
+        self._flat_colors = np.zeros((256, 3), dtype=np.float32)
+        for k, t in enumerate(terrain_map.terrains):
+            self._flat_colors[k] = self.textures.mean_rgb(t.texture)
+
+    # ------------------------------------------------------------------------- textures
+    def _texture_level(self, name: str, src_px_per_dst_px: float) -> tuple[np.ndarray, float]:
+        """Texture pre-shrunk by a power of two so one output pixel covers about one texel
+        (avoids aliasing when zoomed out). Returns (image, shrink factor)."""
+        level = 0
+        while src_px_per_dst_px / (2 ** (level + 1)) >= 1.0 and level < 8:
+            level += 1
+        key = (name, level)
+        if key not in self._levels:
+            image = self.textures.image(name)
+            if level:
+                h, w = image.shape[:2]
+                size = (max(1, w >> level), max(1, h >> level))
+                image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+            self._levels[key] = image
+        image = self._levels[key]
+        return image, self.textures.image(name).shape[1] / image.shape[1]
+
+    def _sample_texture(
+        self, name: str, px_to_world: np.ndarray, shape: tuple[int, int]
+    ) -> np.ndarray:
+        base_w = self.textures.image(name).shape[1]
+        texel_per_m = base_w / self.textures.tile_m(name)
+        m_per_px = float(np.sqrt(abs(np.linalg.det(px_to_world[:, :2]))))
+        image, shrink = self._texture_level(name, m_per_px * texel_per_m)
+        h, w = image.shape[:2]
+        s = texel_per_m / shrink
+        world_to_tex = np.array([[s, 0.0, 0.0], [0.0, -s, 0.0]])
+        a = _compose(world_to_tex, px_to_world)
+        a[0, 2] = np.mod(a[0, 2], w)  # wrap translation: exact for BORDER_WRAP
+        a[1, 2] = np.mod(a[1, 2], h)
+        return cv2.warpAffine(
+            image,
+            a,
+            (shape[1], shape[0]),
+            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+            borderMode=cv2.BORDER_WRAP,
+        )
+
+    # ------------------------------------------------------------------------- labels
+    def visible_labels(
+        self, px_to_world: np.ndarray, shape: tuple[int, int]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Labels under the view: (sorted unique labels incl. UNKNOWN if any, label crop, 2x3
+        affine from output pixels to crop coordinates). The crop is the raster window (one cell
+        margin) holding the whole view; cells beyond the map are UNKNOWN, or the map's
+        ``outside`` terrain."""
+        h, w = shape
+        corners = np.array([[0, 0, 1], [w - 1, 0, 1], [0, h - 1, 1], [w - 1, h - 1, 1]], float)
+        px_to_raster = _compose(self._world_to_raster, px_to_world)
+        cr = corners @ px_to_raster.T  # (4, 2) raster (col, row)
+        c0 = int(np.floor(cr[:, 0].min())) - 1
+        c1 = int(np.ceil(cr[:, 0].max())) + 2
+        r0 = int(np.floor(cr[:, 1].min())) - 1
+        r1 = int(np.ceil(cr[:, 1].max())) + 2
+        rows, cols = self.map.labels.shape
+        fill = UNKNOWN if self.map.outside is None else self.map.index_of(self.map.outside)
+        if r0 >= 0 and c0 >= 0 and r1 <= rows and c1 <= cols:
+            crop = self.map.labels[r0:r1, c0:c1]
+        else:
+            crop = np.full((r1 - r0, c1 - c0), fill, dtype=np.uint8)
+            rr0, rr1 = max(r0, 0), min(r1, rows)
+            cc0, cc1 = max(c0, 0), min(c1, cols)
+            if rr1 > rr0 and cc1 > cc0:
+                crop[rr0 - r0 : rr1 - r0, cc0 - c0 : cc1 - c0] = self.map.labels[rr0:rr1, cc0:cc1]
+        if self.map.outside is not None:
+            crop = np.where(crop == UNKNOWN, np.uint8(fill), crop)
+        present = np.flatnonzero(np.bincount(crop.ravel(), minlength=256))
+        px_to_crop = px_to_raster.copy()
+        px_to_crop[0, 2] -= c0
+        px_to_crop[1, 2] -= r0
+        return present, crop, px_to_crop
+
+    # ------------------------------------------------------------------------- render
+    def render(
+        self, px_to_world: np.ndarray, shape: tuple[int, int], *, flat: bool = False
+    ) -> np.ndarray:
+        """RGB uint8 image of ``shape = (H, W)`` whose pixel (col c, row r) shows world point
+        ``px_to_world @ [c, r, 1]`` (2x3 affine, metres)."""
+        px_to_world = np.asarray(px_to_world, dtype=float)
+        if px_to_world.shape != (2, 3) or not np.all(np.isfinite(px_to_world)):
+            raise ValueError(f"px_to_world must be a finite 2x3 affine, got {px_to_world!r}")
+        present, crop, px_to_crop = self.visible_labels(px_to_world, shape)
+        h, w = shape
+
+        def layer(k: int) -> np.ndarray:
+            if k == UNKNOWN:
+                return np.zeros((h, w, 3), np.uint8)
+            if flat:
+                return np.broadcast_to(self._flat_colors[k].astype(np.uint8), (h, w, 3))
+            return self._sample_texture(self.map.terrains[k].texture, px_to_world, shape)
+
+        if present.size == 1:
+            return np.ascontiguousarray(layer(int(present[0])))
+        weights = []
+        for k in present:
+            onehot = (crop == k).astype(np.float32)
+            m = cv2.warpAffine(
+                onehot,
+                px_to_crop,
+                (w, h),
+                flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                borderMode=cv2.BORDER_REPLICATE,
+            )
+            weights.append(np.power(m, _MASK_SHARPNESS, dtype=np.float32))
+        total = np.maximum(np.sum(weights, axis=0), 1e-12)
+        out = np.zeros((h, w, 3), np.float32)
+        for k, wk in zip(present, weights, strict=True):
+            out += layer(int(k)).astype(np.float32) * (wk / total)[..., None]
+        return np.clip(out + 0.5, 0, 255).astype(np.uint8)

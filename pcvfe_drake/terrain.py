@@ -1,0 +1,418 @@
+"""Terrain map: which terrain (name, texture, true friction) lies under each world point.
+
+World frame: x east, y north, metres (the same frame as the single-track state ``sx, sy``).
+
+A :class:`TerrainMap` is a label raster over an axis-aligned world rectangle: cell ``(row, col)``
+covers ``x in [x_min + col * res, x_min + (col + 1) * res)`` and
+``y in (y_max - (row + 1) * res, y_max - row * res]``; row 0 is the northern edge, as in an image
+file. Maps are built from polygons (rasterised at ``resolution_m``: a cell belongs to a region
+when its centre does) or directly from a label image with its world placement. Every look-up
+(the plant's friction, the camera's ground image, the top-down figure) reads the same raster, so
+what the camera shows and the friction the car feels always agree.
+
+Points outside the map (or on cells that no region covers) raise a ``ValueError`` naming the point,
+unless the map was given an ``outside`` terrain, which is then used for them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+UNKNOWN = 255  # label of raster cells that no region covers
+_SUBPIXEL_SHIFT = 8  # fixed-point bits for cv2.fillPoly vertex coordinates
+
+
+@dataclass(frozen=True)
+class Terrain:
+    """One terrain: ``name`` (unique in a map), true friction coefficient ``mu`` [-] and the name
+    of its texture in ``textures/index.yaml``."""
+
+    name: str
+    mu: float
+    texture: str
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError(f"Terrain name must be a non-empty string, got {self.name!r}")
+        if not np.isfinite(self.mu) or not 0.0 < self.mu <= 2.0:
+            raise ValueError(f"Terrain {self.name!r}: mu must be in (0, 2], got {self.mu!r}")
+        if not isinstance(self.texture, str) or not self.texture:
+            raise ValueError(f"Terrain {self.name!r}: texture must be a name, got {self.texture!r}")
+
+
+class TerrainMap:
+    """Label raster of terrains over a world rectangle, with vectorised look-ups.
+
+    Args:
+        labels: (H, W) integer label image; value k means ``terrains[k]``, 255 means no terrain.
+            Row 0 is the northern (max y) edge.
+        terrains: the terrains, indexed by label (at most 255).
+        x_min_m, y_min_m: world coordinates of the south-west corner of the raster [m].
+        resolution_m: side length of one cell [m].
+        outside: name of a terrain used for points outside the raster or on uncovered cells;
+            None (default) makes such look-ups raise ``ValueError``.
+    """
+
+    def __init__(
+        self,
+        labels: np.ndarray,
+        terrains: Sequence[Terrain],
+        *,
+        x_min_m: float,
+        y_min_m: float,
+        resolution_m: float,
+        outside: str | None = None,
+    ) -> None:
+        labels = np.asarray(labels)
+        if labels.ndim != 2 or labels.size == 0:
+            raise ValueError(f"labels must be a non-empty 2-D image, got shape {labels.shape}")
+        if not np.issubdtype(labels.dtype, np.integer):
+            raise ValueError(f"labels must have an integer dtype, got {labels.dtype}")
+        terrains = list(terrains)
+        if not terrains or len(terrains) > UNKNOWN:
+            raise ValueError(f"need between 1 and {UNKNOWN} terrains, got {len(terrains)}")
+        names = [t.name for t in terrains]
+        if len(set(names)) != len(names):
+            raise ValueError(f"terrain names must be unique, got {names}")
+        if labels.min() < 0 or labels.max() > UNKNOWN:
+            present = np.unique(labels)
+        else:
+            present = np.flatnonzero(np.bincount(labels.ravel().astype(np.intp), minlength=256))
+        bad = np.setdiff1d(present, [*range(len(terrains)), UNKNOWN])
+        if bad.size:
+            raise ValueError(
+                f"labels contain values {bad.tolist()} that name no terrain "
+                f"(valid: 0..{len(terrains) - 1}, or {UNKNOWN} for none)"
+            )
+        if not (np.isfinite(resolution_m) and resolution_m > 0):
+            raise ValueError(f"resolution_m must be positive, got {resolution_m!r}")
+        if not (np.isfinite(x_min_m) and np.isfinite(y_min_m)):
+            raise ValueError(f"map origin must be finite, got ({x_min_m!r}, {y_min_m!r})")
+        self.terrains: list[Terrain] = terrains
+        self.labels: np.ndarray = np.ascontiguousarray(labels, dtype=np.uint8)
+        self.labels.flags.writeable = False
+        self.resolution_m = float(resolution_m)
+        self.x_min_m = float(x_min_m)
+        self.y_min_m = float(y_min_m)
+        rows, cols = self.labels.shape
+        self.x_max_m = self.x_min_m + cols * self.resolution_m
+        self.y_max_m = self.y_min_m + rows * self.resolution_m
+        self._name_to_index = {n: i for i, n in enumerate(names)}
+        self.outside = outside
+        if outside is None:
+            self._outside_index = -1
+        elif outside in self._name_to_index:
+            self._outside_index = self._name_to_index[outside]
+        else:
+            raise ValueError(f"outside terrain {outside!r} is not one of {names}")
+        self._mu = np.array([t.mu for t in terrains], dtype=float)
+        self._names = np.array(names, dtype=object)
+        # Python-level copies for the single-point fast path (the plant calls it every step).
+        self._inv_res = 1.0 / self.resolution_m
+        self._mu_list = self._mu.tolist()
+
+    # ----------------------------------------------------------------------------- construction
+    @classmethod
+    def from_label_image(
+        cls,
+        labels: np.ndarray,
+        terrains: Sequence[Terrain],
+        *,
+        x_min_m: float,
+        y_min_m: float,
+        resolution_m: float,
+        outside: str | None = None,
+    ) -> TerrainMap:
+        """A map from a label image (row 0 north) placed with its south-west corner at
+        ``(x_min_m, y_min_m)`` and ``resolution_m`` metres per pixel."""
+        return cls(
+            labels,
+            terrains,
+            x_min_m=x_min_m,
+            y_min_m=y_min_m,
+            resolution_m=resolution_m,
+            outside=outside,
+        )
+
+    @classmethod
+    def from_polygons(
+        cls,
+        regions: Sequence[tuple[Terrain, np.ndarray]],
+        *,
+        bounds_m: tuple[float, float, float, float],
+        resolution_m: float = 0.05,
+        outside: str | None = None,
+    ) -> TerrainMap:
+        """A map from ``(terrain, polygon)`` pairs, painted in order (later regions cover earlier
+        ones). ``polygon`` is an (M, 2) array of world vertices [m], M >= 3.
+        ``bounds_m = (x_min, x_max, y_min, y_max)``. Several regions may share a terrain (same
+        object or an equal one with the same name)."""
+        x_min, x_max, y_min, y_max = (float(b) for b in bounds_m)
+        if not (x_max > x_min and y_max > y_min):
+            raise ValueError(f"bounds_m must be (x_min, x_max, y_min, y_max), got {bounds_m}")
+        if not (np.isfinite(resolution_m) and resolution_m > 0):
+            raise ValueError(f"resolution_m must be positive, got {resolution_m!r}")
+        cols = int(round((x_max - x_min) / resolution_m))
+        rows = int(round((y_max - y_min) / resolution_m))
+        labels = np.full((rows, cols), UNKNOWN, dtype=np.uint8)
+        terrains: list[Terrain] = []
+        index: dict[str, int] = {}
+        for k, (terrain, polygon) in enumerate(regions):
+            poly = np.asarray(polygon, dtype=float)
+            if poly.ndim != 2 or poly.shape[1] != 2 or poly.shape[0] < 3:
+                raise ValueError(
+                    f"region {k} ({terrain.name}): polygon must be (M>=3, 2), got {poly.shape}"
+                )
+            if not np.all(np.isfinite(poly)):
+                raise ValueError(f"region {k} ({terrain.name}): polygon has non-finite vertices")
+            if terrain.name in index:
+                if terrains[index[terrain.name]] != terrain:
+                    raise ValueError(f"two different terrains are named {terrain.name!r}")
+            else:
+                index[terrain.name] = len(terrains)
+                terrains.append(terrain)
+            # Pixel coordinates with integer values at cell centres (OpenCV's convention).
+            u = (poly[:, 0] - x_min) / resolution_m - 0.5
+            v = (y_max - poly[:, 1]) / resolution_m - 0.5
+            uv = np.stack([u, v], axis=1)
+            _rasterise_polygon(labels, uv, index[terrain.name])
+        if not terrains:
+            raise ValueError("from_polygons needs at least one region")
+        return cls(
+            labels,
+            terrains,
+            x_min_m=x_min,
+            y_min_m=y_min,
+            resolution_m=resolution_m,
+            outside=outside,
+        )
+
+    # ----------------------------------------------------------------------------- look-ups
+    @property
+    def bounds_m(self) -> tuple[float, float, float, float]:
+        """(x_min, x_max, y_min, y_max) of the raster [m]."""
+        return (self.x_min_m, self.x_max_m, self.y_min_m, self.y_max_m)
+
+    @property
+    def names(self) -> list[str]:
+        return [t.name for t in self.terrains]
+
+    def terrain(self, name: str) -> Terrain:
+        """The terrain called ``name``."""
+        if name not in self._name_to_index:
+            raise ValueError(f"unknown terrain {name!r}; this map has {self.names}")
+        return self.terrains[self._name_to_index[name]]
+
+    def index_of(self, name: str) -> int:
+        """Label index of the terrain called ``name``."""
+        self.terrain(name)
+        return self._name_to_index[name]
+
+    def world_to_cell(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(row, col) float raster coordinates of world points ``xy`` (..., 2), cell centres at
+        integer + 0.5 (i.e. ``floor`` gives the cell)."""
+        xy = np.asarray(xy, dtype=float)
+        col = (xy[..., 0] - self.x_min_m) * self._inv_res
+        row = (self.y_max_m - xy[..., 1]) * self._inv_res
+        return row, col
+
+    def index_at(self, xy: np.ndarray) -> np.ndarray | int:
+        """Terrain index at world points ``xy`` [m]: (N, 2) -> (N,) int array; (2,) -> int."""
+        xy_arr = np.asarray(xy, dtype=float)
+        if xy_arr.shape == (2,):
+            return self._index_at_point(float(xy_arr[0]), float(xy_arr[1]))
+        if xy_arr.ndim != 2 or xy_arr.shape[1] != 2:
+            raise ValueError(f"xy must have shape (N, 2) or (2,), got {xy_arr.shape}")
+        if not np.all(np.isfinite(xy_arr)):
+            bad = int(np.flatnonzero(~np.all(np.isfinite(xy_arr), axis=1))[0])
+            raise ValueError(f"xy[{bad}] = {xy_arr[bad].tolist()} is not finite")
+        row_f, col_f = self.world_to_cell(xy_arr)
+        row = np.floor(row_f).astype(np.int64)
+        col = np.floor(col_f).astype(np.int64)
+        rows, cols = self.labels.shape
+        inside = (row >= 0) & (row < rows) & (col >= 0) & (col < cols)
+        out = np.full(xy_arr.shape[0], UNKNOWN, dtype=np.int64)
+        out[inside] = self.labels[row[inside], col[inside]]
+        unknown = out == UNKNOWN
+        if np.any(unknown):
+            if self._outside_index < 0:
+                k = int(np.flatnonzero(unknown)[0])
+                raise ValueError(self._unknown_message(xy_arr[k, 0], xy_arr[k, 1], inside[k]))
+            out[unknown] = self._outside_index
+        return out
+
+    def _index_at_point(self, x: float, y: float) -> int:
+        if not (np.isfinite(x) and np.isfinite(y)):
+            raise ValueError(f"xy = [{x}, {y}] is not finite")
+        col = int(np.floor((x - self.x_min_m) * self._inv_res))
+        row = int(np.floor((self.y_max_m - y) * self._inv_res))
+        rows, cols = self.labels.shape
+        inside = 0 <= row < rows and 0 <= col < cols
+        k = int(self.labels[row, col]) if inside else UNKNOWN
+        if k == UNKNOWN:
+            if self._outside_index < 0:
+                raise ValueError(self._unknown_message(x, y, inside))
+            return self._outside_index
+        return k
+
+    def _unknown_message(self, x: float, y: float, inside: bool) -> str:
+        if not inside:
+            x0, x1, y0, y1 = self.bounds_m
+            return (
+                f"point ({x:.3f}, {y:.3f}) m is outside the terrain map "
+                f"(x in [{x0:g}, {x1:g}], y in [{y0:g}, {y1:g}] m) and the map has no "
+                "'outside' terrain"
+            )
+        return f"point ({x:.3f}, {y:.3f}) m lies on no terrain region of the map"
+
+    def mu_at(self, xy: np.ndarray) -> np.ndarray | float:
+        """True friction coefficient at world points: (N, 2) -> (N,); (2,) -> float."""
+        k = self.index_at(xy)
+        if isinstance(k, int):
+            return self._mu_list[k]
+        return self._mu[k]
+
+    def name_at(self, xy: np.ndarray) -> np.ndarray | str:
+        """Terrain name at world points: (N, 2) -> (N,) object array of str; (2,) -> str."""
+        k = self.index_at(xy)
+        if isinstance(k, int):
+            return self.terrains[k].name
+        return self._names[k]
+
+    # ----------------------------------------------------------------------------- rendering
+    def render_topdown(
+        self, px_per_m: float = 4.0, *, flat: bool = False, textures=None
+    ) -> np.ndarray:
+        """Top-down RGB image (H, W, 3) uint8 of the whole map, north up, ``px_per_m`` pixels per
+        metre. ``flat=True`` paints each terrain in its texture's mean colour instead of the
+        tiled texture. ``textures``: a ``TextureSet`` (default: the packaged textures)."""
+        from pcvfe_drake.ground_render import GroundRenderer
+
+        if not (np.isfinite(px_per_m) and px_per_m > 0):
+            raise ValueError(f"px_per_m must be positive, got {px_per_m!r}")
+        width = int(round((self.x_max_m - self.x_min_m) * px_per_m))
+        height = int(round((self.y_max_m - self.y_min_m) * px_per_m))
+        if width * height > 40_000_000:
+            raise ValueError(f"px_per_m={px_per_m} gives a {width}x{height} image; use fewer")
+        renderer = GroundRenderer(self, textures)
+        m_per_px = 1.0 / px_per_m
+        # pixel (c, r) -> world: x = x_min + (c + 0.5) / ppm, y = y_max - (r + 0.5) / ppm
+        px_to_world = np.array(
+            [
+                [m_per_px, 0.0, self.x_min_m + 0.5 * m_per_px],
+                [0.0, -m_per_px, self.y_max_m - 0.5 * m_per_px],
+            ]
+        )
+        return renderer.render(px_to_world, (height, width), flat=flat)
+
+
+def _rasterise_polygon(labels: np.ndarray, uv: np.ndarray, value: int) -> None:
+    """Set ``labels`` to ``value`` on the cells whose centre (integer pixel coordinates) lies
+    inside polygon ``uv`` (M, 2, pixel coordinates). ``cv2.fillPoly`` fills the interior
+    quickly; cells within two pixels of an edge, where it can be off by a pixel, are decided
+    exactly with ``matplotlib.path.Path``. Works on the polygon's bounding box only."""
+    from matplotlib.path import Path as _Path
+
+    rows, cols = labels.shape
+    c0 = max(int(np.floor(uv[:, 0].min())) - 3, 0)
+    c1 = min(int(np.ceil(uv[:, 0].max())) + 4, cols)
+    r0 = max(int(np.floor(uv[:, 1].min())) - 3, 0)
+    r1 = min(int(np.ceil(uv[:, 1].max())) + 4, rows)
+    if c1 <= c0 or r1 <= r0:
+        return
+    local = uv - [c0, r0]
+    pts = np.round(local * float(1 << _SUBPIXEL_SHIFT)).astype(np.int32)
+    mask = np.zeros((r1 - r0, c1 - c0), dtype=np.uint8)
+    cv2.fillPoly(mask, [pts], 1, cv2.LINE_8, _SUBPIXEL_SHIFT)
+    band = np.zeros_like(mask)
+    cv2.polylines(band, [pts], True, 1, 5, cv2.LINE_8, _SUBPIXEL_SHIFT)
+    rr, cc = np.nonzero(band)
+    if rr.size:
+        mask[rr, cc] = _Path(local).contains_points(np.stack([cc, rr], axis=1).astype(float))
+    labels[r0:r1, c0:c1][mask.view(bool)] = value
+
+
+# --------------------------------------------------------------------------------- default map
+DEFAULT_BOUNDS_M = (-90.0, 90.0, -60.0, 60.0)
+
+
+def default_terrains() -> dict[str, Terrain]:
+    """The terrains of the default map, by name.
+
+    The four quadrant terrains use the public PC-VFE simulator's friction values (patchy grass
+    0.3, brick 0.8, sand 0.45, concrete 0.6). The paper's Fig. 4 shows dry soil where the
+    simulator code says sand; here that quadrant is ``sand`` (texture ``sand``) and dry soil
+    appears in a transition strip. Transition strips: ``gravel`` (mu 0.55) along x = 0 and
+    ``dry_soil`` (mu 0.5) along y = 0.
+    """
+    return {
+        "patchy_grass": Terrain("patchy_grass", 0.30, "patchy_grass"),
+        "brick": Terrain("brick", 0.80, "brick"),
+        "sand": Terrain("sand", 0.45, "sand"),
+        "concrete": Terrain("concrete", 0.60, "concrete"),
+        "gravel": Terrain("gravel", 0.55, "gravel"),
+        "dry_soil": Terrain("dry_soil", 0.50, "dry_soil"),
+    }
+
+
+def _wavy_strip(axis: str, half_width_m: float, extent_m: float, phase: float) -> np.ndarray:
+    """Polygon of a strip centred on the line x = 0 (axis 'y': strip runs along y) or y = 0
+    (axis 'x'), with gently wavy, deterministic edges (amplitude about 0.35 m)."""
+    s = np.linspace(-extent_m, extent_m, int(2 * extent_m / 0.25) + 1)
+
+    def wobble(s: np.ndarray, p: float) -> np.ndarray:
+        return 0.25 * np.sin(2 * np.pi * s / 7.3 + p) + 0.12 * np.sin(2 * np.pi * s / 2.9 + 2 * p)
+
+    lo = -half_width_m + wobble(s, phase)
+    hi = half_width_m + wobble(s, phase + 1.7)
+    if axis == "y":  # strip along y at x ~ 0
+        left = np.stack([lo, s], axis=1)
+        right = np.stack([hi[::-1], s[::-1]], axis=1)
+    else:  # strip along x at y ~ 0
+        left = np.stack([s, lo], axis=1)
+        right = np.stack([s[::-1], hi[::-1]], axis=1)
+    return np.concatenate([left, right], axis=0)
+
+
+def default_terrain_map(
+    *,
+    strip_width_m: float = 3.0,
+    resolution_m: float = 0.05,
+    outside: str | None = None,
+) -> TerrainMap:
+    """The paper's simulation layout, centred on the world origin, x in [-90, 90] m,
+    y in [-60, 60] m.
+
+    Quadrants (counter-clockwise, the order a counter-clockwise lap meets them starting east):
+    x > 0, y > 0 ``patchy_grass`` (mu 0.3); x < 0, y > 0 ``brick`` (0.8); x < 0, y < 0 ``sand``
+    (0.45); x > 0, y < 0 ``concrete`` (0.6). Transition strips ``strip_width_m`` wide (wavy
+    edges): ``gravel`` (0.55) along x = 0 and ``dry_soil`` (0.5) along y = 0, crossing at the
+    origin. A course around the origin (e.g. a 120 m x 80 m rounded rectangle) crosses each
+    quadrant for about a quarter of its length and each strip twice.
+    """
+    if not (np.isfinite(strip_width_m) and strip_width_m >= 0):
+        raise ValueError(f"strip_width_m must be >= 0, got {strip_width_m!r}")
+    t = default_terrains()
+    x0, x1, y0, y1 = DEFAULT_BOUNDS_M
+    pad = 1.0
+
+    def rect(xa: float, xb: float, ya: float, yb: float) -> np.ndarray:
+        return np.array([[xa, ya], [xb, ya], [xb, yb], [xa, yb]])
+
+    regions: list[tuple[Terrain, np.ndarray]] = [
+        (t["patchy_grass"], rect(0.0, x1 + pad, 0.0, y1 + pad)),
+        (t["brick"], rect(x0 - pad, 0.0, 0.0, y1 + pad)),
+        (t["sand"], rect(x0 - pad, 0.0, y0 - pad, 0.0)),
+        (t["concrete"], rect(0.0, x1 + pad, y0 - pad, 0.0)),
+    ]
+    if strip_width_m > 0:
+        half = 0.5 * strip_width_m
+        regions.append((t["dry_soil"], _wavy_strip("x", half, x1 + pad, phase=0.3)))
+        regions.append((t["gravel"], _wavy_strip("y", half, y1 + pad, phase=1.1)))
+    return TerrainMap.from_polygons(
+        regions, bounds_m=DEFAULT_BOUNDS_M, resolution_m=resolution_m, outside=outside
+    )

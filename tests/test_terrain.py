@@ -1,0 +1,204 @@
+import numpy as np
+import pytest
+from matplotlib.path import Path
+
+from pcvfe_drake.terrain import Terrain, TerrainMap, default_terrain_map, default_terrains
+from pcvfe_drake.texture_library import TextureSet
+
+
+@pytest.fixture(scope="module")
+def default_map():
+    return default_terrain_map()
+
+
+def solid_textures(names, colors):
+    return TextureSet.from_arrays(
+        {n: (np.full((8, 8, 3), c, np.uint8), 1.0) for n, c in zip(names, colors, strict=True)}
+    )
+
+
+def test_default_map_layout_and_public_simulator_mu(default_map):
+    m = default_map
+    assert m.bounds_m == (-90.0, 90.0, -60.0, 60.0)
+    probes = {
+        (30.0, 20.0): ("patchy_grass", 0.3),
+        (-30.0, 20.0): ("brick", 0.8),
+        (-30.0, -20.0): ("sand", 0.45),
+        (30.0, -20.0): ("concrete", 0.6),
+        (0.0, 30.0): ("gravel", 0.55),
+        (0.0, -45.0): ("gravel", 0.55),
+        (55.0, 0.0): ("dry_soil", 0.5),
+        (-62.0, 0.0): ("dry_soil", 0.5),
+    }
+    xy = np.array(list(probes))
+    assert m.name_at(xy).tolist() == [v[0] for v in probes.values()]
+    np.testing.assert_allclose(m.mu_at(xy), [v[1] for v in probes.values()])
+
+
+def test_default_map_strip_width_is_respected(default_map):
+    # Strip edges wobble by at most 0.37 m around +-1.5 m (plus up to a 5 cm cell).
+    y = np.linspace(-58, 58, 500)
+    y = y[np.abs(y) > 3.0]
+    for x, expect_gravel in [
+        (0.0, True),
+        (1.05, True),
+        (-1.05, True),
+        (1.95, False),
+        (-1.95, False),
+    ]:
+        names = default_map.name_at(np.stack([np.full_like(y, x), y], axis=1))
+        assert np.all((names == "gravel") == expect_gravel), x
+    # Cross-section along y = 30: strip width in cells is 3 m +- wobble.
+    x = np.arange(-5, 5, 0.01)
+    names = default_map.name_at(np.stack([x, np.full_like(x, 30.0)], axis=1))
+    width = np.count_nonzero(names == "gravel") * 0.01
+    assert 2.3 < width < 3.7
+
+
+def test_a_lap_of_a_course_crosses_every_quadrant_for_a_quarter(default_map):
+    # A 120 m x 80 m rectangle with rounded corners (a clipped ellipse), sampled densely.
+    a, b = 60.0, 40.0
+    t = np.linspace(0, 2 * np.pi, 20000, endpoint=False)
+    x = np.clip(a * np.cos(t) * 1.3, -a, a)
+    y = np.clip(b * np.sin(t) * 1.3, -b, b)
+    names = default_map.name_at(np.stack([x, y], axis=1))
+    seg = np.hypot(np.diff(x, append=x[0]), np.diff(y, append=y[0]))
+    total = seg.sum()
+    for name in ("patchy_grass", "brick", "sand", "concrete"):
+        share = seg[names == name].sum() / total
+        assert 0.2 < share < 0.27, (name, share)
+
+
+def test_scalar_and_batch_lookups_agree(default_map):
+    rng = np.random.default_rng(1)
+    xy = rng.uniform([-90, -60], [90, 60], size=(500, 2))
+    idx = default_map.index_at(xy)
+    assert idx.shape == (500,) and idx.dtype.kind == "i"
+    for p, k in zip(xy[:50], idx[:50], strict=True):
+        assert default_map.index_at(p) == k
+        assert isinstance(default_map.mu_at(p), float)
+        assert default_map.name_at(p) == default_map.terrains[k].name
+
+
+def test_polygon_rasterisation_matches_exact_point_in_polygon():
+    grass = Terrain("grass", 0.3, "g")
+    rock = Terrain("rock", 0.9, "r")
+    tri = np.array([[-3.3, -2.1], [4.7, -1.2], [0.4, 3.9]])
+    m = TerrainMap.from_polygons(
+        [(grass, np.array([[-5, -5], [5, -5], [5, 5], [-5, 5]])), (rock, tri)],
+        bounds_m=(-5, 5, -5, 5),
+        resolution_m=0.1,
+    )
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-4.99, 4.99, size=(20000, 2))
+    exact = Path(tri).contains_points(xy)
+    got = m.name_at(xy) == "rock"
+    # distance to the triangle's edges
+    d = np.full(len(xy), np.inf)
+    for i in range(3):
+        p, q = tri[i], tri[(i + 1) % 3]
+        t = np.clip(((xy - p) @ (q - p)) / ((q - p) @ (q - p)), 0, 1)
+        d = np.minimum(d, np.linalg.norm(xy - (p + t[:, None] * (q - p)), axis=1))
+    far = d > 0.071  # more than half a cell diagonal from an edge
+    assert np.array_equal(got[far], exact[far])
+    assert np.mean(got != exact) < 0.01
+
+
+def test_label_image_world_placement():
+    a, b = Terrain("a", 0.5, "ta"), Terrain("b", 0.7, "tb")
+    labels = np.array([[0, 0, 1], [1, 1, 1]])  # row 0 is north
+    m = TerrainMap.from_label_image(labels, [a, b], x_min_m=10.0, y_min_m=-4.0, resolution_m=2.0)
+    assert m.bounds_m == (10.0, 16.0, -4.0, 0.0)
+    xy = np.array([[10.5, -0.5], [13.9, -1.9], [14.1, -0.5], [10.5, -2.1], [15.9, -3.9]])
+    assert m.name_at(xy).tolist() == ["a", "a", "b", "b", "b"]
+    np.testing.assert_allclose(m.mu_at(xy), [0.5, 0.5, 0.7, 0.7, 0.7])
+
+
+def test_outside_and_uncovered_points_raise_or_use_outside_policy():
+    a = Terrain("a", 0.5, "ta")
+    labels = np.array([[0, 255], [0, 0]])
+    m = TerrainMap.from_label_image(labels, [a], x_min_m=0, y_min_m=0, resolution_m=1.0)
+    with pytest.raises(ValueError, match=r"\(5.000, 0.500\) m is outside"):
+        m.mu_at(np.array([5.0, 0.5]))
+    with pytest.raises(ValueError, match=r"outside"):
+        m.mu_at(np.array([[0.5, 0.5], [-0.1, 0.5]]))
+    with pytest.raises(ValueError, match="no terrain region"):
+        m.index_at(np.array([1.5, 1.5]))
+    with pytest.raises(ValueError, match="not finite"):
+        m.mu_at(np.array([np.nan, 0.5]))
+    with pytest.raises(ValueError, match=r"xy\[1\]"):
+        m.mu_at(np.array([[0.5, 0.5], [np.inf, 0.5]]))
+    with pytest.raises(ValueError, match="shape"):
+        m.mu_at(np.zeros((3, 3)))
+    m2 = TerrainMap.from_label_image(
+        labels,
+        [a, Terrain("void", 1.0, "tv")],
+        x_min_m=0,
+        y_min_m=0,
+        resolution_m=1.0,
+        outside="void",
+    )
+    assert m2.name_at(np.array([[5.0, 0.5], [1.5, 1.5], [0.5, 0.5]])).tolist() == [
+        "void",
+        "void",
+        "a",
+    ]
+
+
+def test_bad_construction_inputs_are_named():
+    a = Terrain("a", 0.5, "ta")
+    with pytest.raises(ValueError, match="mu must be"):
+        Terrain("x", -0.1, "t")
+    with pytest.raises(ValueError, match=r"values \[3\]"):
+        TerrainMap(np.array([[0, 3]]), [a], x_min_m=0, y_min_m=0, resolution_m=1)
+    with pytest.raises(ValueError, match="unique"):
+        TerrainMap(np.array([[0]]), [a, a], x_min_m=0, y_min_m=0, resolution_m=1)
+    with pytest.raises(ValueError, match="integer dtype"):
+        TerrainMap(np.array([[0.0]]), [a], x_min_m=0, y_min_m=0, resolution_m=1)
+    with pytest.raises(ValueError, match="outside terrain 'zz'"):
+        TerrainMap(np.array([[0]]), [a], x_min_m=0, y_min_m=0, resolution_m=1, outside="zz")
+    with pytest.raises(ValueError, match=r"region 0 \(a\)"):
+        TerrainMap.from_polygons([(a, np.zeros((2, 2)))], bounds_m=(0, 1, 0, 1))
+    with pytest.raises(ValueError, match="two different terrains"):
+        TerrainMap.from_polygons(
+            [(a, np.eye(3)[:, :2]), (Terrain("a", 0.9, "tb"), np.eye(3)[:, :2])],
+            bounds_m=(0, 1, 0, 1),
+        )
+
+
+def test_topdown_render_shows_each_terrain_where_the_map_has_it(default_map):
+    names = [t.texture for t in default_map.terrains]
+    colors = [
+        (40, 160, 40),
+        (170, 60, 40),
+        (220, 200, 150),
+        (150, 150, 150),
+        (120, 90, 60),
+        (90, 90, 100),
+    ]
+    textures = solid_textures(names, colors)
+    img = default_map.render_topdown(2.0, textures=textures)
+    assert img.shape == (240, 360, 3) and img.dtype == np.uint8
+    # pixel (col, row) <-> world (x_min + (c + .5)/2, y_max - (r + .5)/2)
+    rng = np.random.default_rng(3)
+    rc = rng.integers([0, 0], [240, 360], size=(400, 2))
+    xy = np.stack([-90 + (rc[:, 1] + 0.5) / 2, 60 - (rc[:, 0] + 0.5) / 2], axis=1)
+    idx = default_map.index_at(xy)
+    # compare away from boundaries (where colours blend)
+    near = (np.abs(xy[:, 0]) < 3) | (np.abs(xy[:, 1]) < 3)
+    expected = np.array(colors)[idx]
+    got = img[rc[:, 0], rc[:, 1]].astype(int)
+    assert np.abs(got[~near] - expected[~near]).max() <= 1
+    flat = default_map.render_topdown(1.0, flat=True, textures=textures)
+    assert flat.shape == (120, 180, 3)
+    assert tuple(flat[30, 150]) == colors[0]  # x = 60.5, y = 29.5 -> patchy grass
+
+
+def test_default_terrains_are_the_public_simulator_values():
+    t = default_terrains()
+    assert {n: t[n].mu for n in ("patchy_grass", "brick", "sand", "concrete")} == {
+        "patchy_grass": 0.3,
+        "brick": 0.8,
+        "sand": 0.45,
+        "concrete": 0.6,
+    }
