@@ -126,7 +126,7 @@ class Scenario:
     name: str = DEFAULT_SCENARIO
     description: str = ""
     vehicle: str = "ford_escort"
-    """Vehicle preset name (see params.PRESETS) or a vehicle YAML file (relative to the scenario)."""
+    """Vehicle preset (see params.PRESETS) or a vehicle YAML file (relative to the scenario)."""
     course: str = "slalom"
     """Course name (see course.py)."""
     terrain_layout: str = "paper"
