@@ -1,0 +1,118 @@
+"""ContextClustering: zero-shot terrain contexts from information vectors z(t) (paper IV-A)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import BasicVector, Context, EventStatus, LeafSystem, State
+
+from pcvfe_drake.clustering import NOISE, ClusteringParams, ClusterTable, ContextClusterer
+
+
+class ContextClustering(LeafSystem):
+    """Assigns every camera frame a terrain context id; re-clusters with HDBSCAN every 10 s.
+
+    .. pydrake_system::
+
+        name: ContextClustering
+        input_ports:
+        - features
+        output_ports:
+        - context_id
+        - cluster_table
+
+    - ``features``: vector of ``feature_dim`` numbers, z(t) from ClipFeatures (any backend).
+    - ``context_id``: 1-element vector, the current context id (an integer; -1 = noise or a
+      terrain not seen before). From state: a zero-order hold at the frame rate, no feedthrough.
+    - ``cluster_table``: abstract :class:`pcvfe_drake.clustering.ClusterTable` (id, centroid,
+      size, first/last seen time of every context, vanished ones included).
+
+    Rates: a periodic unrestricted update every ``frame_period_s`` (default 1 / frame rate of
+    ``params``, 0.1 s) reads ``features`` and assigns and stores the frame at once; a periodic
+    unrestricted update every ``recluster_period_s`` (default 10 s = 0.1 Hz, first at t = 10 s)
+    re-clusters and keeps ids by centroid persistence (paper Algorithm 1). When both fire at the
+    same time the frame is taken first. The :class:`ContextClusterer` (store, table, random
+    generator) lives in the context's abstract state. A frame with non-finite features gets -1
+    and is not stored.
+    """
+
+    def __init__(
+        self,
+        feature_dim: int = 36,
+        params: ClusteringParams | None = None,
+        *,
+        frame_period_s: float | None = None,
+        recluster_period_s: float = 10.0,
+    ) -> None:
+        super().__init__()
+        if not (isinstance(feature_dim, int | np.integer) and feature_dim >= 1):
+            raise ValueError(f"feature_dim must be a positive int, got {feature_dim!r}")
+        self._params = params if params is not None else ClusteringParams()
+        if frame_period_s is None:
+            frame_period_s = 1.0 / self._params.frame_rate_hz
+        for name, value in (
+            ("frame_period_s", frame_period_s),
+            ("recluster_period_s", recluster_period_s),
+        ):
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number of seconds, got {value!r}")
+        self._feature_dim = int(feature_dim)
+        self._frame_period_s = float(frame_period_s)
+        self._recluster_period_s = float(recluster_period_s)
+
+        self._features_port = self.DeclareVectorInputPort("features", self._feature_dim)
+        self._clusterer_index = self.DeclareAbstractState(
+            AbstractValue.Make(ContextClusterer(self._params))
+        )
+        self._id_index = self.DeclareDiscreteState(BasicVector([float(NOISE)]))
+        self.DeclarePeriodicUnrestrictedUpdateEvent(
+            period_sec=self._frame_period_s, offset_sec=0.0, update=self._on_frame
+        )
+        self.DeclarePeriodicUnrestrictedUpdateEvent(
+            period_sec=self._recluster_period_s,
+            offset_sec=self._recluster_period_s,
+            update=self._on_recluster,
+        )
+        self._context_id_port = self.DeclareStateOutputPort("context_id", self._id_index)
+        self._table_port = self.DeclareAbstractOutputPort(
+            "cluster_table",
+            lambda: AbstractValue.Make(ClusterTable()),
+            self._calc_table,
+            prerequisites_of_calc={self.abstract_state_ticket(self._clusterer_index)},
+        )
+
+    @property
+    def params(self) -> ClusteringParams:
+        """The clustering parameters."""
+        return self._params
+
+    @property
+    def frame_period_s(self) -> float:
+        """Period of the per-frame assignment [s]."""
+        return self._frame_period_s
+
+    @property
+    def recluster_period_s(self) -> float:
+        """Period of the HDBSCAN re-clustering [s]."""
+        return self._recluster_period_s
+
+    def clusterer(self, context: Context) -> ContextClusterer:
+        """The clusterer held in ``context`` (read only: change it through events)."""
+        return context.get_abstract_state(self._clusterer_index).get_value()
+
+    def _on_frame(self, context: Context, state: State) -> EventStatus:
+        z = np.asarray(self._features_port.Eval(context), dtype=float)
+        clusterer = state.get_mutable_abstract_state(self._clusterer_index).get_mutable_value()
+        context_id = clusterer.assign(z, context.get_time())
+        state.get_mutable_discrete_state(self._id_index).SetAtIndex(0, float(context_id))
+        return EventStatus.Succeeded()
+
+    def _on_recluster(self, context: Context, state: State) -> EventStatus:
+        clusterer = state.get_mutable_abstract_state(self._clusterer_index).get_mutable_value()
+        clusterer.recluster(context.get_time())
+        return EventStatus.Succeeded()
+
+    def _calc_table(self, context: Context, output: AbstractValue) -> None:
+        output.set_value(self.clusterer(context).table())
