@@ -3,8 +3,8 @@
 Shared by the downward camera (a small rotated view under the car) and the top-down map image.
 Each terrain's texture is tiled over the world (``tile_m`` metres per tile, north up) and sampled
 with ``cv2.warpAffine`` (``BORDER_WRAP``); where several terrains are visible they are blended
-with masks interpolated from the label raster, so region boundaries show as (slightly soft)
-edges at the map's resolution. Cells with no terrain render black.
+by the largest of the bilinearly interpolated one-hot label masks, so region boundaries show as
+sharp, smooth edges (no raster stairs). Cells with no terrain render black.
 """
 
 from __future__ import annotations
@@ -14,8 +14,6 @@ import numpy as np
 
 from pcvfe_drake.terrain import UNKNOWN, TerrainMap
 from pcvfe_drake.texture_library import TextureSet, default_textures
-
-_MASK_SHARPNESS = 4.0  # power applied to interpolated masks: sharper edges, weights still sum to 1
 
 
 def _compose(outer: np.ndarray, inner: np.ndarray) -> np.ndarray:
@@ -47,9 +45,9 @@ class GroundRenderer:
             self._flat_colors[k] = self.textures.mean_rgb(t.texture)
 
     # ------------------------------------------------------------------------- textures
-    def _texture_level(self, name: str, src_px_per_dst_px: float) -> tuple[np.ndarray, float]:
+    def _texture_level(self, name: str, src_px_per_dst_px: float) -> tuple[np.ndarray, float, int]:
         """Texture pre-shrunk by a power of two so one output pixel covers about one texel
-        (avoids aliasing when zoomed out). Returns (image, shrink factor)."""
+        (avoids aliasing when zoomed out). Returns (image, shrink factor, level)."""
         level = 0
         while src_px_per_dst_px / (2 ** (level + 1)) >= 1.0 and level < 8:
             level += 1
@@ -62,7 +60,13 @@ class GroundRenderer:
                 image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
             self._levels[key] = image
         image = self._levels[key]
-        return image, self.textures.image(name).shape[1] / image.shape[1]
+        return image, self.textures.image(name).shape[1] / image.shape[1], level
+
+    def _tiled(self, name: str, image: np.ndarray, level: int, reps: int) -> np.ndarray:
+        key = (f"{name}@tiled{reps}", level)
+        if key not in self._levels:
+            self._levels[key] = np.ascontiguousarray(np.tile(image, (reps, reps, 1)))
+        return self._levels[key]
 
     def _sample_texture(
         self, name: str, px_to_world: np.ndarray, shape: tuple[int, int]
@@ -70,20 +74,25 @@ class GroundRenderer:
         base_w = self.textures.image(name).shape[1]
         texel_per_m = base_w / self.textures.tile_m(name)
         m_per_px = float(np.sqrt(abs(np.linalg.det(px_to_world[:, :2]))))
-        image, shrink = self._texture_level(name, m_per_px * texel_per_m)
+        image, shrink, level = self._texture_level(name, m_per_px * texel_per_m)
         h, w = image.shape[:2]
         s = texel_per_m / shrink
         world_to_tex = np.array([[s, 0.0, 0.0], [0.0, -s, 0.0]])
         a = _compose(world_to_tex, px_to_world)
-        a[0, 2] = np.mod(a[0, 2], w)  # wrap translation: exact for BORDER_WRAP
-        a[1, 2] = np.mod(a[1, 2], h)
-        return cv2.warpAffine(
-            image,
-            a,
-            (shape[1], shape[0]),
-            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-            borderMode=cv2.BORDER_WRAP,
-        )
+        # Texel footprint of the view; shift it (by whole tiles) to start inside the first tile.
+        hh, ww = shape
+        corners = np.array([[0, 0, 1], [ww, 0, 1], [0, hh, 1], [ww, hh, 1]], float) @ a.T
+        lo = corners.min(axis=0) - 2.0
+        hi = corners.max(axis=0) + 2.0
+        a[0, 2] -= np.floor(lo[0] / w) * w
+        a[1, 2] -= np.floor(lo[1] / h) * h
+        reps = int(np.ceil((w + hi[0] - lo[0]) / w)), int(np.ceil((h + hi[1] - lo[1]) / h))
+        flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+        if max(reps) <= 4:
+            # A pre-tiled canvas holds the whole view: no per-pixel wrapping (faster).
+            canvas = self._tiled(name, image, level, max(reps))
+            return cv2.warpAffine(canvas, a, (ww, hh), flags=flags, borderMode=cv2.BORDER_REPLICATE)
+        return cv2.warpAffine(image, a, (ww, hh), flags=flags, borderMode=cv2.BORDER_WRAP)
 
     # ------------------------------------------------------------------------- labels
     def visible_labels(
@@ -131,28 +140,49 @@ class GroundRenderer:
         present, crop, px_to_crop = self.visible_labels(px_to_world, shape)
         h, w = shape
 
-        def layer(k: int) -> np.ndarray:
+        def layer(k: int, x0: int = 0, y0: int = 0, ww: int = w, hh: int = h) -> np.ndarray:
+            """Terrain k drawn on the sub-rectangle (x0, y0, ww, hh) of the output."""
             if k == UNKNOWN:
-                return np.zeros((h, w, 3), np.uint8)
+                return np.zeros((hh, ww, 3), np.uint8)
             if flat:
-                return np.broadcast_to(self._flat_colors[k].astype(np.uint8), (h, w, 3))
-            return self._sample_texture(self.map.terrains[k].texture, px_to_world, shape)
+                return np.full((hh, ww, 3), self._flat_colors[k].astype(np.uint8))
+            sub = px_to_world.copy()
+            sub[:, 2] += px_to_world[:, :2] @ [x0, y0]
+            return self._sample_texture(self.map.terrains[k].texture, sub, (hh, ww))
 
         if present.size == 1:
             return np.ascontiguousarray(layer(int(present[0])))
-        weights = []
-        for k in present:
-            onehot = (crop == k).astype(np.float32)
+        # Several terrains: each pixel shows the terrain whose one-hot label mask, interpolated
+        # bilinearly, is largest there (a smooth boundary instead of the raster's stairs). The
+        # masks are evaluated every `step` pixels and upsampled: the raster is far coarser.
+        step = 4 if (h % 4 == 0 and w % 4 == 0 and min(h, w) >= 32) else 1
+        low = _compose(px_to_crop, np.array([[step, 0, (step - 1) / 2], [0, step, (step - 1) / 2]]))
+        winner = np.zeros((h, w), np.uint8)
+        best = None
+        for i, k in enumerate(present):
             m = cv2.warpAffine(
-                onehot,
-                px_to_crop,
-                (w, h),
+                (crop == k).astype(np.float32),
+                low,
+                (w // step, h // step),
                 flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                 borderMode=cv2.BORDER_REPLICATE,
             )
-            weights.append(np.power(m, _MASK_SHARPNESS, dtype=np.float32))
-        total = np.maximum(np.sum(weights, axis=0), 1e-12)
-        out = np.zeros((h, w, 3), np.float32)
-        for k, wk in zip(present, weights, strict=True):
-            out += layer(int(k)).astype(np.float32) * (wk / total)[..., None]
-        return np.clip(out + 0.5, 0, 255).astype(np.uint8)
+            if step > 1:
+                m = cv2.resize(m, (w, h), interpolation=cv2.INTER_LINEAR)
+            if best is None:
+                best = m
+            else:
+                winner[m > best] = i
+                best = np.maximum(best, m)
+        out = np.empty((h, w, 3), np.uint8)
+        for i, k in enumerate(present):
+            mask = (winner == i).view(np.uint8)
+            x0, y0, ww, hh = cv2.boundingRect(mask)
+            if ww == 0 or hh == 0:
+                continue
+            cv2.copyTo(
+                layer(int(k), x0, y0, ww, hh),
+                mask[y0 : y0 + hh, x0 : x0 + ww],
+                out[y0 : y0 + hh, x0 : x0 + ww],
+            )
+        return out
