@@ -1,0 +1,305 @@
+"""The summary of a closed-loop PC-VFE run, computed from its run log (plain arrays, no pydrake).
+
+The run log is the drive log of the run (``pcvfe_drake.drivelog`` format) with the run's extra
+columns: ``terrain`` (true terrain name), ``mu_true``, ``context`` (reported context id, -1 =
+noise), ``mu_hat`` (the friction the controller was given), and optionally ``C_Sf_hat``,
+``C_Sr_hat``, feature columns ``f_00``... and ``image``. :func:`summarize_run` turns it into the
+dict written as ``summary.json``:
+
+- ``sim_time_s``, ``wall_time_s``, ``realtime_factor`` (simulated / wall time).
+- ``laps_completed``, ``lap_time_s`` (time of the first full lap, null if none), from the
+  projection of the driven path onto the course; ``mean_speed_mps``.
+- ``catastrophic_failures``: number of events where the car left the course by more than its
+  half width, spun (|beta| > ``SPIN_BETA_RAD`` or heading error > 90 deg) or had a non-finite
+  state; ``max_abs_lateral_error_m``, ``lateral_error_rms_m``.
+- Context discovery (``pcvfe_drake.metrics``; transition-strip terrains excluded): ``ari``,
+  ``contexts_discovered``, ``true_terrains_visited``, ``noise_fraction``,
+  ``reidentification_latency_s`` (one entry per re-entry of a terrain that already had an id),
+  ``new_terrain_latency_s`` (per terrain, time to its first id).
+- Friction: ``mu_estimates`` (per context: id, mu_hat, std, samples, majority true terrain, its
+  true mu, abs error, and the time-weighted mean abs error once the context has 20 s of data),
+  ``mu_abs_error_time_weighted`` (|mu_hat - mu_true| over the whole run, weighted by time).
+
+Non-finite numbers (a re-identification that never happened: infinite latency) are written as
+null in JSON, with the count of such cases beside them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Collection, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from pcvfe_drake import metrics
+
+SPIN_BETA_RAD = 0.6
+"""Side-slip angle beyond which the car counts as spinning (about 34 deg)."""
+SPIN_HEADING_ERROR_RAD = math.pi / 2
+"""Heading error to the course beyond which the car counts as spinning or turned around."""
+SETTLE_TIME_S = 20.0
+"""A context's friction error is scored once it has this much driving in it (issue 7)."""
+
+REQUIRED = ("t", "sx", "sy", "v", "psi", "beta", "terrain", "mu_true", "context", "mu_hat")
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if x is not None and math.isfinite(float(x)) else None
+
+
+def sample_weights(t_s: np.ndarray) -> np.ndarray:
+    """Time each sample stands for [s]: the step to the next sample (the last repeats the one
+    before), i.e. a zero-order hold of the logged values."""
+    t = np.asarray(t_s, dtype=float)
+    if t.size < 2:
+        return np.ones_like(t)
+    dt = np.diff(t)
+    return np.append(dt, dt[-1])
+
+
+def _rising_edges(flag: np.ndarray) -> int:
+    flag = np.asarray(flag, dtype=bool)
+    if flag.size == 0:
+        return 0
+    return int(flag[0]) + int(np.count_nonzero(flag[1:] & ~flag[:-1]))
+
+
+def course_tracking(log: pd.DataFrame, course) -> dict[str, Any]:
+    """Lap count, lap time and failure events of the driven path against ``course``.
+
+    ``course`` is a ``pcvfe_drake.course.Course`` (or None: lap and tracking entries are None).
+    """
+    t = log["t"].to_numpy(float)
+    xy = log[["sx", "sy"]].to_numpy(float)
+    finite = np.all(np.isfinite(log[["sx", "sy", "v", "psi", "beta"]].to_numpy(float)), axis=1)
+    beta = np.nan_to_num(log["beta"].to_numpy(float), nan=np.inf)
+    spin = np.abs(beta) > SPIN_BETA_RAD
+    out: dict[str, Any] = {
+        "laps_completed": None,
+        "lap_time_s": None,
+        "max_abs_lateral_error_m": None,
+        "lateral_error_rms_m": None,
+        "course_half_width_m": None,
+    }
+    off_course = np.zeros(len(t), dtype=bool)
+    if course is not None and np.any(finite):
+        proj = course.project(xy[finite], heading=log["psi"].to_numpy(float)[finite])
+        lat = np.full(len(t), np.nan)
+        lat[finite] = proj.lateral_error
+        herr = np.zeros(len(t))
+        herr[finite] = proj.heading_error + log["beta"].to_numpy(float)[finite]
+        spin |= np.abs(np.angle(np.exp(1j * herr))) > SPIN_HEADING_ERROR_RAD
+        off_course = np.abs(np.nan_to_num(lat, nan=np.inf)) > course.half_width
+        progress = course.unwrap_progress(np.asarray(proj.s))
+        travelled = progress - progress[0]
+        laps = int(np.floor(travelled[-1] / course.length + 1e-9))
+        lap_time = None
+        if laps >= 1:
+            k = int(np.argmax(travelled >= course.length))
+            tf = t[finite]
+            if k > 0:
+                frac = (course.length - travelled[k - 1]) / (travelled[k] - travelled[k - 1])
+                lap_time = float(tf[k - 1] + frac * (tf[k] - tf[k - 1]) - tf[0])
+            else:
+                lap_time = float(tf[k] - tf[0])
+        out.update(
+            laps_completed=laps,
+            lap_time_s=lap_time,
+            laps_fraction=float(travelled[-1] / course.length),
+            max_abs_lateral_error_m=float(np.nanmax(np.abs(lat))),
+            lateral_error_rms_m=float(np.sqrt(np.nanmean(lat**2))),
+            course_half_width_m=float(course.half_width),
+        )
+    failure = ~finite | spin | off_course
+    out["catastrophic_failures"] = _rising_edges(failure)
+    out["failure_time_s"] = float(np.sum(sample_weights(t)[failure]))
+    return out
+
+
+def mu_estimates(
+    log: pd.DataFrame,
+    terrain_mu: Mapping[str, float],
+    *,
+    excluded_terrains: Collection[str] = (),
+    estimate_table: Sequence[Mapping[str, Any]] | None = None,
+    settle_time_s: float = SETTLE_TIME_S,
+) -> list[dict[str, Any]]:
+    """Per discovered context: the friction estimate against the true mu of its majority terrain.
+
+    ``estimate_table``: the fitter's final per-context table (dicts with ``id``, ``mu``,
+    ``mu_std``, ``samples``); where a context is missing from it, the last ``mu_hat`` logged while
+    the context was current is used and ``std`` is None.
+    """
+    t = log["t"].to_numpy(float)
+    w = sample_weights(t)
+    ctx = log["context"].to_numpy(int)
+    terrain = log["terrain"].astype(str).to_numpy()
+    mu_hat = log["mu_hat"].to_numpy(float)
+    table = {int(r["id"]): r for r in (estimate_table or [])}
+    excluded = set(excluded_terrains)
+    out = []
+    for k in sorted(int(c) for c in np.unique(ctx) if c >= 0):
+        rows = np.flatnonzero(ctx == k)
+        names = [n for n in terrain[rows] if n not in excluded and n]
+        majority = max(set(names), key=names.count) if names else None
+        true_mu = float(terrain_mu[majority]) if majority in terrain_mu else None
+        entry = table.get(k)
+        if entry is not None:
+            est = float(entry["mu"])
+            std = _finite_or_none(entry.get("mu_std", math.nan))
+            samples = int(entry.get("samples", 0))
+        else:
+            est = float(mu_hat[rows[-1]])
+            std = None
+            samples = 0
+        in_context_time = np.cumsum(w[rows])
+        settled = rows[(in_context_time > settle_time_s) & (terrain[rows] == majority)]
+        err_after = None
+        if true_mu is not None and settled.size:
+            err_after = float(np.average(np.abs(mu_hat[settled] - true_mu), weights=w[settled]))
+        out.append(
+            {
+                "id": k,
+                "mu_hat": est,
+                "std": std,
+                "samples": samples,
+                "time_in_context_s": float(np.sum(w[rows])),
+                "majority_terrain": majority,
+                "majority_share": (names.count(majority) / len(rows)) if majority else 0.0,
+                "true_mu": true_mu,
+                "abs_error": abs(est - true_mu) if true_mu is not None else None,
+                "abs_error_after_settle_mean": err_after,
+            }
+        )
+    return out
+
+
+def summarize_run(
+    log: pd.DataFrame,
+    *,
+    scenario: str,
+    wall_time_s: float,
+    terrain_mu: Mapping[str, float],
+    excluded_terrains: Collection[str] = (),
+    course=None,
+    estimate_table: Sequence[Mapping[str, Any]] | None = None,
+    interrupted: bool = False,
+) -> dict[str, Any]:
+    """The run's summary dict (see the module docstring); JSON-ready (no NaN/inf)."""
+    missing = [c for c in REQUIRED if c not in log.columns]
+    if missing:
+        raise ValueError(f"run log lacks column(s) {missing}; it has {list(log.columns)}")
+    if len(log) == 0:
+        raise ValueError("run log is empty: nothing was logged")
+    t = log["t"].to_numpy(float)
+    w = sample_weights(t)
+    sim_time = float(t[-1] - t[0] + (w[-1] if len(t) > 1 else 0.0))
+    wall = float(wall_time_s)
+    excluded = tuple(excluded_terrains) + metrics.DEFAULT_EXCLUDED
+    terrain = log["terrain"].astype(str).to_numpy()
+    ctx = log["context"].to_numpy(int)
+    m = metrics.context_metrics(t, terrain, ctx, excluded_labels=excluded)
+    reid = metrics.reidentification_latencies(t, terrain, ctx, excluded_labels=excluded)
+    visited = sorted({n for n in terrain if n and n not in set(excluded_terrains)})
+    mu_true = log["mu_true"].to_numpy(float)
+    mu_hat = log["mu_hat"].to_numpy(float)
+    ok = np.isfinite(mu_true) & np.isfinite(mu_hat)
+    mu_err = float(np.average(np.abs(mu_hat - mu_true)[ok], weights=w[ok])) if ok.any() else None
+    speed = log["v"].to_numpy(float)
+    fin = np.isfinite(speed)
+    summary: dict[str, Any] = {
+        "scenario": scenario,
+        "interrupted": bool(interrupted),
+        "sim_time_s": sim_time,
+        "wall_time_s": wall,
+        "realtime_factor": sim_time / wall if wall > 0 else None,
+        "log_rows": len(log),
+        "mean_speed_mps": float(np.average(speed[fin], weights=w[fin])) if fin.any() else None,
+    }
+    summary.update(course_tracking(log, course))
+    lat = [r[2] for r in reid]
+    summary.update(
+        {
+            "contexts_discovered": int(m.n_contexts),
+            "true_terrains_visited": visited,
+            "excluded_terrains": sorted(set(excluded_terrains)),
+            "ari": _finite_or_none(m.ari),
+            "noise_fraction": _finite_or_none(m.noise_fraction),
+            "reidentification_latency_s": [
+                {"terrain": str(lab), "t_enter_s": t0, "latency_s": _finite_or_none(x)}
+                for lab, t0, x in reid
+            ],
+            "reidentification_latency_median_s": _finite_or_none(
+                float(np.median(lat)) if lat else math.nan
+            ),
+            "reidentifications_missed": int(sum(not math.isfinite(x) for x in lat)),
+            "new_terrain_latency_s": {
+                k: _finite_or_none(v) for k, v in sorted(m.first_id_time_s.items())
+            },
+            "mu_estimates": mu_estimates(
+                log,
+                terrain_mu,
+                excluded_terrains=excluded_terrains,
+                estimate_table=estimate_table,
+            ),
+            "mu_abs_error_time_weighted": mu_err,
+        }
+    )
+    return summary
+
+
+def summary_table(summary: Mapping[str, Any]) -> str:
+    """The summary as a plain-text table for the terminal."""
+
+    def fmt(v, unit: str = "") -> str:
+        if v is None:
+            return "-"
+        if isinstance(v, float):
+            return f"{v:.3f}{unit}"
+        return f"{v}{unit}"
+
+    s = summary
+    reid = [e["latency_s"] for e in s.get("reidentification_latency_s", [])]
+    rows = [
+        ("scenario", s.get("scenario")),
+        ("simulated time", fmt(s.get("sim_time_s"), " s")),
+        ("wall time", fmt(s.get("wall_time_s"), " s")),
+        ("real-time factor", fmt(s.get("realtime_factor"), "x")),
+        ("laps completed", fmt(s.get("laps_completed"))),
+        ("lap time", fmt(s.get("lap_time_s"), " s")),
+        ("mean speed", fmt(s.get("mean_speed_mps"), " m/s")),
+        (
+            "lateral error rms / max",
+            f"{fmt(s.get('lateral_error_rms_m'))} / {fmt(s.get('max_abs_lateral_error_m'), ' m')}",
+        ),
+        ("catastrophic failures", fmt(s.get("catastrophic_failures"))),
+        ("contexts discovered", fmt(s.get("contexts_discovered"))),
+        ("true terrains visited", ", ".join(s.get("true_terrains_visited", [])) or "-"),
+        ("ARI", fmt(s.get("ari"))),
+        ("noise fraction", fmt(s.get("noise_fraction"))),
+        ("re-identification latency", ", ".join(fmt(x, " s") for x in reid) or "-"),
+        (
+            "time to first id",
+            ", ".join(f"{k} {fmt(v, ' s')}" for k, v in s.get("new_terrain_latency_s", {}).items())
+            or "-",
+        ),
+        ("mu error (time-weighted)", fmt(s.get("mu_abs_error_time_weighted"))),
+    ]
+    if s.get("interrupted"):
+        rows.insert(1, ("status", "interrupted (summary of what was logged)"))
+    width = max(len(r[0]) for r in rows)
+    lines = [f"{name.ljust(width)}  {value}" for name, value in rows]
+    est = s.get("mu_estimates", [])
+    if est:
+        lines.append("")
+        lines.append("context  terrain        mu_true  mu_hat   std      |err|    after 20 s  time")
+        for e in est:
+            lines.append(
+                f"{e['id']:>7}  {str(e['majority_terrain'] or '-'):<13}  "
+                f"{fmt(e['true_mu']):>7}  {fmt(e['mu_hat']):>7}  {fmt(e['std']):>7}  "
+                f"{fmt(e['abs_error']):>7}  {fmt(e['abs_error_after_settle_mean']):>10}  "
+                f"{e['time_in_context_s']:.1f} s"
+            )
+    return "\n".join(lines)
