@@ -1,0 +1,532 @@
+"""Closed reference courses as data, projection onto them, and friction-aware speed profiles.
+
+A course is described compactly by a :class:`CourseSpec` (YAML-able): a start pose and a list of
+:class:`Segment` primitives (straights, circular arcs, S-curve sections). :func:`build_course`
+chains the primitives into a piecewise-constant curvature profile kappa(s), checks that the chain
+closes on itself, smooths the curvature with a circular moving average (so the curvature ramps
+linearly between primitives, like clothoids, and the steering can follow at a finite rate),
+integrates heading and position, and returns a :class:`Course`: the closed path sampled every
+``spacing_m`` in arc length s, with x, y [m], heading psi [rad] (unwrapped) and curvature kappa
+[1/m] (positive turning left).
+
+Frames: world frame, x east, y north, heading from +x counter-clockwise. The lateral error of a
+point is positive to the left of the path (seen in the direction of travel).
+
+Shipped courses live in ``pcvfe_drake/data/courses/<name>.yaml``:
+
+- ``slalom``: the paper's course (Appendix D, Fig. 4) for the Ford Escort: a closed loop of about
+  120 m x 80 m centred at the world origin, driven counter-clockwise, with two S-curve sides
+  (y = -40 m and y = +40 m, three waves of radius 12 m each, bulging inwards) and two straight sides
+  (x = -60 m and x = +60 m), joined by 12 m corners. Each quadrant of the four-terrain map holds a
+  quarter of the course (about 99 m, about 20 s at the planned 5 m/s).
+- ``slalom_small``: the same course at 1/5 scale for the RoboRacer (24 m x 16 m, 2.24 m/s, the
+  speed scaled by sqrt(1/5) so the lateral accelerations match).
+
+Speed profile: :func:`speed_profile` gives v_ref(s) <= ``speed_margin`` * sqrt(mu g / |kappa|),
+capped by a cruise speed, with forward (acceleration) and backward (braking) passes whose limits
+are a fraction of mu g. The passes are closed-form cumulative minima (no Python loop), so the
+profile is cheap to recompute whenever the friction estimate changes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from pcvfe_drake.params import G_MPS2
+
+SEGMENT_KINDS = ("straight", "arc", "scurve")
+
+
+@dataclass
+class Segment:
+    """One primitive of a course.
+
+    ``kind``:
+      - ``"straight"``: ``length_m`` of zero curvature.
+      - ``"arc"``: a circular arc of ``radius_m`` turning by ``angle_deg`` (positive: left).
+      - ``"scurve"``: ``waves`` S-curve waves of arc radius ``radius_m`` covering ``length_m``
+        along the section's initial direction. Each wave is the arc sequence (+a, -2a, +a), which
+        returns to the initial line and heading; ``a`` follows from
+        ``length_m = 4 radius_m sin(a) waves``. The first turn is to the left when ``angle_deg``
+        is positive or zero, to the right when negative (only its sign is used).
+    """
+
+    kind: str = "straight"
+    length_m: float = 0.0
+    radius_m: float = 0.0
+    angle_deg: float = 0.0
+    waves: int = 1
+
+    def arcs(self) -> list[tuple[float, float]]:
+        """The segment as (arc length [m], curvature [1/m]) pieces."""
+        if self.kind == "straight":
+            _require(self.length_m > 0, "straight length_m", self.length_m, "> 0")
+            return [(float(self.length_m), 0.0)]
+        if self.kind == "arc":
+            _require(self.radius_m > 0, "arc radius_m", self.radius_m, "> 0")
+            _require(self.angle_deg != 0, "arc angle_deg", self.angle_deg, "!= 0")
+            angle = math.radians(self.angle_deg)
+            return [(abs(angle) * self.radius_m, math.copysign(1.0 / self.radius_m, angle))]
+        if self.kind == "scurve":
+            _require(self.radius_m > 0, "scurve radius_m", self.radius_m, "> 0")
+            _require(self.length_m > 0, "scurve length_m", self.length_m, "> 0")
+            _require(int(self.waves) >= 1, "scurve waves", self.waves, ">= 1")
+            ratio = self.length_m / (4.0 * self.radius_m * int(self.waves))
+            _require(
+                ratio < 1.0,
+                "scurve length_m / (4 radius_m waves)",
+                ratio,
+                "< 1 (radius too small for the length)",
+            )
+            a = math.asin(ratio)
+            k = (1.0 if self.angle_deg >= 0 else -1.0) / self.radius_m
+            pieces = []
+            for _ in range(int(self.waves)):
+                pieces += [(a * self.radius_m, k), (2 * a * self.radius_m, -k)]
+                pieces += [(a * self.radius_m, k)]
+            return pieces
+        raise ValueError(f"segment kind={self.kind!r} is not one of {SEGMENT_KINDS}")
+
+
+@dataclass
+class CourseSpec:
+    """Compact, YAML-able description of a closed course (lengths in m, angles in degrees).
+
+    Attributes:
+        name: label.
+        start_x_m, start_y_m, start_heading_deg: start pose (s = 0) in the world frame.
+        segments: primitives driven in order; they must close the loop.
+        smoothing_m: window of the circular moving average applied to the curvature [m]
+            (0: no smoothing).
+        spacing_m: arc-length spacing of the samples [m].
+        half_width_m: lateral distance from the path beyond which the vehicle has left the
+            course [m] (the failure margin of benchmarks and the soft corridor of the NMPC).
+        speed_mps: planned cruise speed on the course [m/s].
+        closure_tol_m: largest allowed gap between the end and the start of the segment chain.
+    """
+
+    name: str = "course"
+    start_x_m: float = 0.0
+    start_y_m: float = 0.0
+    start_heading_deg: float = 0.0
+    segments: list[Segment] = field(default_factory=list)
+    smoothing_m: float = 0.0
+    spacing_m: float = 0.1
+    half_width_m: float = 3.0
+    speed_mps: float = 5.0
+    closure_tol_m: float = 0.05
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> CourseSpec:
+        if not isinstance(data, dict):
+            raise ValueError(f"course description must be a mapping, got {type(data).__name__}")
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"unknown course field(s) {unknown}; known: {sorted(known)}")
+        values = dict(data)
+        segments = []
+        seg_known = {f.name for f in dataclasses.fields(Segment)}
+        for i, seg in enumerate(values.pop("segments", []) or []):
+            if not isinstance(seg, dict) or set(seg) - seg_known:
+                raise ValueError(
+                    f"course segment {i}: {seg!r} must be a mapping with keys in "
+                    f"{sorted(seg_known)}"
+                )
+            segments.append(Segment(**seg))
+        return cls(segments=segments, **values)
+
+    def scaled(self, factor: float, name: str | None = None) -> CourseSpec:
+        """The same course with every length multiplied by ``factor`` and the speed by its root."""
+        _require(factor > 0, "scale factor", factor, "> 0")
+        segs = [
+            dataclasses.replace(s, length_m=s.length_m * factor, radius_m=s.radius_m * factor)
+            for s in self.segments
+        ]
+        return dataclasses.replace(
+            self,
+            name=name or f"{self.name}_x{factor:g}",
+            start_x_m=self.start_x_m * factor,
+            start_y_m=self.start_y_m * factor,
+            segments=segs,
+            smoothing_m=self.smoothing_m * factor,
+            spacing_m=self.spacing_m * factor,
+            half_width_m=self.half_width_m * factor,
+            speed_mps=self.speed_mps * math.sqrt(factor),
+            closure_tol_m=self.closure_tol_m * factor,
+        )
+
+
+@dataclass(frozen=True)
+class Projection:
+    """Closest points on the course: arc length s [m] in [0, length), lateral error [m] (positive
+    left), heading error [rad] (wrapped, ``heading - path heading``; zeros if no heading given),
+    and the path's point, heading and curvature there."""
+
+    s: np.ndarray
+    lateral_error: np.ndarray
+    heading_error: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    heading: np.ndarray
+    curvature: np.ndarray
+
+
+class Course:
+    """A closed path sampled uniformly in arc length (see the module docstring for frames).
+
+    Attributes:
+        name, length (total arc length [m]), ds (sample spacing [m]), half_width (failure margin
+        [m]), speed (planned cruise speed [m/s]); arrays s, x, y, heading (unwrapped), curvature
+        of the samples (shape (n,)).
+    """
+
+    def __init__(
+        self,
+        name: str,
+        x: np.ndarray,
+        y: np.ndarray,
+        heading: np.ndarray,
+        curvature: np.ndarray,
+        length: float,
+        half_width: float,
+        speed: float,
+    ) -> None:
+        self.name = name
+        self.x = np.asarray(x, dtype=float)
+        self.y = np.asarray(y, dtype=float)
+        self.heading = np.asarray(heading, dtype=float)
+        self.curvature = np.asarray(curvature, dtype=float)
+        self.n = self.x.size
+        self.length = float(length)
+        self.ds = self.length / self.n
+        self.s = np.arange(self.n) * self.ds
+        self.half_width = float(half_width)
+        self.speed = float(speed)
+        turns = (self.heading[-1] + self.curvature[-1] * self.ds - self.heading[0]) / (2 * np.pi)
+        self.turns = int(np.round(turns))
+        # Closed copies (sample n equals sample 0) for interpolation across s = length.
+        self._xc = np.append(self.x, self.x[0])
+        self._yc = np.append(self.y, self.y[0])
+        self._hc = np.append(self.heading, self.heading[0] + 2 * np.pi * self.turns)
+        self._kc = np.append(self.curvature, self.curvature[0])
+        self._tree = cKDTree(np.column_stack([self.x, self.y]))
+
+    # ------------------------------------------------------------------ sampling
+    def wrap_s(self, s) -> np.ndarray:
+        """Arc length wrapped into [0, length)."""
+        return np.mod(np.asarray(s, dtype=float), self.length)
+
+    def _interp(self, s):
+        sw = self.wrap_s(s)
+        pos = sw / self.ds
+        i = np.minimum(np.floor(pos).astype(int), self.n - 1)
+        t = pos - i
+        return i, t
+
+    def sample(self, s):
+        """Path point at arc length(s) ``s`` [m]: ``(x, y, heading (wrapped), curvature)``."""
+        i, t = self._interp(s)
+        x = self._xc[i] + t * (self._xc[i + 1] - self._xc[i])
+        y = self._yc[i] + t * (self._yc[i + 1] - self._yc[i])
+        h = self._hc[i] + t * (self._hc[i + 1] - self._hc[i])
+        k = self._kc[i] + t * (self._kc[i + 1] - self._kc[i])
+        return x, y, _wrap(h), k
+
+    # ---------------------------------------------------------------- projection
+    def project(self, xy, heading=None, s_hint=None, window_m: float = 10.0) -> Projection:
+        """Closest points on the course to positions ``xy`` (shape (2,) or (N, 2)) [m].
+
+        Without ``s_hint`` the search is global (k-d tree over the samples); with ``s_hint``
+        (scalar or (N,)) only samples within ``window_m`` of the hint are searched, which keeps
+        the progress consistent where the course passes near itself. ``heading`` [rad], optional,
+        gives the heading error. The closest sample is refined on its two adjacent chords.
+        """
+        xy = np.asarray(xy, dtype=float)
+        single = xy.ndim == 1
+        p = np.atleast_2d(xy)
+        if p.shape[-1] != 2 or not np.all(np.isfinite(p)):
+            raise ValueError(f"project: xy must be finite with shape (N, 2), got {xy!r}")
+        if s_hint is None:
+            _, idx = self._tree.query(p)
+            idx = np.asarray(idx, dtype=int)
+        else:
+            w = max(1, int(math.ceil(window_m / self.ds)))
+            base = np.round(self.wrap_s(np.broadcast_to(s_hint, p.shape[:1])) / self.ds)
+            cand = np.mod(base.astype(int)[:, None] + np.arange(-w, w + 1)[None, :], self.n)
+            d2 = (self.x[cand] - p[:, :1]) ** 2 + (self.y[cand] - p[:, 1:]) ** 2
+            idx = cand[np.arange(p.shape[0]), np.argmin(d2, axis=1)]
+        best_s = np.empty(p.shape[0])
+        best_d = np.full(p.shape[0], np.inf)
+        for i0 in (np.mod(idx - 1, self.n), idx):
+            i1 = i0 + 1
+            ax, ay = self._xc[i0], self._yc[i0]
+            bx, by = self._xc[i1], self._yc[i1]
+            ex, ey = bx - ax, by - ay
+            t = np.clip(((p[:, 0] - ax) * ex + (p[:, 1] - ay) * ey) / (ex * ex + ey * ey), 0, 1)
+            d = (ax + t * ex - p[:, 0]) ** 2 + (ay + t * ey - p[:, 1]) ** 2
+            better = d < best_d
+            best_d = np.where(better, d, best_d)
+            best_s = np.where(better, (i0 + t) * self.ds, best_s)
+        s = self.wrap_s(best_s)
+        cx, cy, ch, ck = self.sample(s)
+        lat = -(p[:, 0] - cx) * np.sin(ch) + (p[:, 1] - cy) * np.cos(ch)
+        if heading is None:
+            herr = np.zeros_like(s)
+        else:
+            herr = _wrap(np.broadcast_to(np.asarray(heading, dtype=float), s.shape) - ch)
+        if single:
+            return Projection(s[0], lat[0], herr[0], cx[0], cy[0], ch[0], ck[0])
+        return Projection(s, lat, herr, cx, cy, ch, ck)
+
+    def unwrap_progress(self, s) -> np.ndarray:
+        """Cumulative progress [m] from a time series of wrapped arc lengths ``s``.
+
+        Each step is taken as the shortest way round the loop (valid while the vehicle moves less
+        than half a lap between samples); ``progress[0] = s[0]``. Laps completed between the first
+        and last sample: ``floor((progress[-1] - progress[0]) / length)``.
+        """
+        s = np.asarray(s, dtype=float)
+        if s.size == 0:
+            return s.copy()
+        d = np.diff(s)
+        d -= self.length * np.round(d / self.length)
+        return np.concatenate([[s[0]], s[0] + np.cumsum(d)])
+
+    def state_on_path(self, s, speed, wheelbase: float, lr: float) -> np.ndarray:
+        """ST states (N, 7) of a vehicle driving exactly on the path at arc lengths ``s`` with
+        speed(s) ``speed`` [m/s] in steady kinematic cornering (steering atan(L kappa))."""
+        x, y, h, k = self.sample(s)
+        v = np.broadcast_to(np.asarray(speed, dtype=float), x.shape)
+        delta = np.arctan(wheelbase * k)
+        beta = np.arctan(lr / wheelbase * np.tan(delta))
+        return np.column_stack([x, y, delta, v, h - beta, v * k, beta])
+
+
+def _wrap(a):
+    return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2.0 * np.pi)
+
+
+def _require(ok: bool, name: str, value, rule: str) -> None:
+    if not ok:
+        raise ValueError(f"course: {name}={value!r} must be {rule}")
+
+
+def build_course(spec: CourseSpec) -> Course:
+    """Build the sampled closed :class:`Course` of a :class:`CourseSpec` (see module docstring).
+
+    Raises:
+        ValueError: on invalid segments, or when the segment chain does not close (end position
+            farther than ``closure_tol_m`` from the start, or total turn not a multiple of 360 deg).
+    """
+    _require(len(spec.segments) > 0, "segments", spec.segments, "a non-empty list")
+    _require(spec.spacing_m > 0, "spacing_m", spec.spacing_m, "> 0")
+    _require(spec.smoothing_m >= 0, "smoothing_m", spec.smoothing_m, ">= 0")
+    _require(spec.half_width_m > 0, "half_width_m", spec.half_width_m, "> 0")
+    _require(spec.speed_mps > 0, "speed_mps", spec.speed_mps, "> 0")
+    pieces = [piece for seg in spec.segments for piece in seg.arcs()]
+    lengths = np.array([p[0] for p in pieces])
+    kappas = np.array([p[1] for p in pieces])
+
+    # Exact closure check of the unsmoothed chain (arcs integrated in closed form).
+    x, y = spec.start_x_m, spec.start_y_m
+    h = math.radians(spec.start_heading_deg)
+    for ln, k in zip(lengths, kappas, strict=True):
+        if k == 0.0:
+            x, y = x + ln * math.cos(h), y + ln * math.sin(h)
+        else:
+            h2 = h + k * ln
+            x, y = x + (math.sin(h2) - math.sin(h)) / k, y - (math.cos(h2) - math.cos(h)) / k
+            h = h2
+    gap = math.hypot(x - spec.start_x_m, y - spec.start_y_m)
+    turn = (h - math.radians(spec.start_heading_deg)) / (2 * math.pi)
+    if gap > spec.closure_tol_m or abs(turn - round(turn)) > 1e-6 or round(turn) == 0:
+        raise ValueError(
+            f"course '{spec.name}': segments do not close: end is {gap:.3f} m from the start "
+            f"(tolerance {spec.closure_tol_m} m) after {turn * 360:.2f} deg of turning"
+        )
+
+    total = float(lengths.sum())
+    n = max(8, int(round(total / spec.spacing_m)))
+    ds = total / n
+    # Curvature on sample midpoints of the piecewise-constant profile (exact cell averages).
+    edges = np.concatenate([[0.0], np.cumsum(lengths)])
+    cum_k = np.concatenate([[0.0], np.cumsum(kappas * lengths)])  # heading change at edges
+    grid = np.arange(n + 1) * ds
+    heading_at = np.interp(grid, edges, cum_k)
+    kappa = np.diff(heading_at) / ds  # average curvature of each cell [i ds, (i+1) ds]
+    if spec.smoothing_m > 0:
+        w = max(1, int(round(spec.smoothing_m / ds)))
+        kernel = np.zeros(n)
+        kernel[np.arange(-(w // 2), w - w // 2) % n] = 1.0 / w
+        kappa = np.real(np.fft.ifft(np.fft.fft(kappa) * np.fft.fft(kernel)))
+    h0 = math.radians(spec.start_heading_deg)
+    heading = h0 + np.concatenate([[0.0], np.cumsum(kappa)[:-1]]) * ds
+    # Positions by exact integration of each constant-curvature cell.
+    hm = heading + 0.5 * kappa * ds
+    sinc = np.sinc(kappa * ds / (2 * np.pi))  # sin(k ds / 2) / (k ds / 2)
+    dx = ds * sinc * np.cos(hm)
+    dy = ds * sinc * np.sin(hm)
+    xs = spec.start_x_m + np.concatenate([[0.0], np.cumsum(dx)])
+    ys = spec.start_y_m + np.concatenate([[0.0], np.cumsum(dy)])
+    # Smoothing leaves a small closure residual: spread it linearly along the lap.
+    frac = np.arange(n + 1) / n
+    xs -= frac * (xs[-1] - xs[0])
+    ys -= frac * (ys[-1] - ys[0])
+    # Curvature at the samples (average of the adjacent cells) for sampling and profiles.
+    kappa_nodes = 0.5 * (kappa + np.roll(kappa, 1))
+    return Course(
+        spec.name,
+        xs[:-1],
+        ys[:-1],
+        heading,
+        kappa_nodes,
+        total,
+        spec.half_width_m,
+        spec.speed_mps,
+    )
+
+
+COURSE_DIR = "data/courses"
+
+
+def course_names() -> list[str]:
+    """Names of the shipped courses."""
+    folder = resources.files("pcvfe_drake").joinpath(COURSE_DIR)
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".yaml"))
+
+
+def load_course_spec(spec: str | Path | None = None) -> CourseSpec:
+    """A :class:`CourseSpec` from a shipped course name or a YAML file (None: ``slalom``)."""
+    import yaml
+
+    key = "slalom" if spec is None else str(spec)
+    shipped = resources.files("pcvfe_drake").joinpath(COURSE_DIR, f"{key}.yaml")
+    if shipped.is_file():
+        text, source = shipped.read_text(), key
+    else:
+        path = Path(key)
+        if not path.is_file():
+            raise ValueError(
+                f"course '{key}' is neither a shipped course ({', '.join(course_names())}) "
+                "nor a file"
+            )
+        text, source = path.read_text(), str(path)
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ValueError(f"course file {source}: not valid YAML: {exc}") from exc
+    try:
+        return CourseSpec.from_dict(data)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"course file {source}: {exc}") from exc
+
+
+def load_course(spec: str | Path | CourseSpec | None = None) -> Course:
+    """A built :class:`Course` from a shipped name, a YAML file or a spec (None: ``slalom``)."""
+    if isinstance(spec, CourseSpec):
+        return build_course(spec)
+    return build_course(load_course_spec(spec))
+
+
+# ---------------------------------------------------------------------------- speed profile
+@dataclass(frozen=True)
+class SpeedProfile:
+    """Reference speed over the course samples, with its time parametrisation.
+
+    Attributes:
+        v: reference speed at each course sample [m/s] (shape (n,)).
+        t: time at which each sample is reached from s = 0 [s] (shape (n + 1,), ``t[n]`` is the
+            lap time).
+        mu: friction value(s) the profile was built for.
+    """
+
+    course: Course
+    v: np.ndarray
+    t: np.ndarray
+    mu: float | np.ndarray
+
+    @property
+    def lap_time(self) -> float:
+        return float(self.t[-1])
+
+    def speed_at(self, s) -> np.ndarray:
+        """Reference speed [m/s] at arc length(s) ``s`` (linear interpolation, wrapped)."""
+        i, t = self.course._interp(s)
+        vc = np.append(self.v, self.v[0])
+        return vc[i] + t * (vc[i + 1] - vc[i])
+
+    def advance(self, s0: float, times) -> np.ndarray:
+        """Arc lengths (unwrapped, >= s0) reached after ``times`` [s] when starting at ``s0``."""
+        c = self.course
+        s0w = float(c.wrap_s(s0))
+        t0 = float(np.interp(s0w, np.append(c.s, c.length), self.t))
+        tt = t0 + np.asarray(times, dtype=float)
+        laps = np.floor(tt / self.lap_time)
+        s_grid = np.append(c.s, c.length)
+        s = np.interp(tt - laps * self.lap_time, self.t, s_grid) + laps * c.length
+        return s - c.wrap_s(s0) + s0
+
+
+def speed_profile(
+    course: Course,
+    mu,
+    *,
+    v_max: float | None = None,
+    speed_margin: float = 0.8,
+    long_fraction: float = 0.5,
+    a_drive_max: float = np.inf,
+    v_min: float = 0.5,
+    g: float = G_MPS2,
+) -> SpeedProfile:
+    """Friction-limited reference speed over a course.
+
+    v(s) <= ``speed_margin`` * sqrt(mu g / |kappa(s)|), <= ``v_max`` (default: the course's
+    planned speed), >= ``v_min``; then forward and backward passes with acceleration and braking
+    limits ``long_fraction`` * mu g (the drive side also <= ``a_drive_max``). With the defaults the
+    combined demand stays inside the friction circle: lateral (0.8^2 = 0.64) and longitudinal
+    (0.5) fractions of mu g give sqrt(0.64^2 + 0.5^2) = 0.81 < 1.
+
+    Args:
+        course: the course.
+        mu: friction coefficient the controller believes, a scalar or one value per course sample.
+    """
+    mu_arr = np.broadcast_to(np.asarray(mu, dtype=float), course.s.shape)
+    if not np.all(np.isfinite(mu_arr)) or np.any(mu_arr <= 0):
+        raise ValueError(f"speed_profile: mu must be finite and > 0, got {mu!r}")
+    _require(0 < speed_margin <= 1, "speed_margin", speed_margin, "in (0, 1]")
+    _require(0 < long_fraction <= 1, "long_fraction", long_fraction, "in (0, 1]")
+    v_cap = course.speed if v_max is None or v_max <= 0 else float(v_max)
+    k = np.maximum(np.abs(course.curvature), 1e-9)
+    v = np.minimum(speed_margin * np.sqrt(mu_arr * g / k), v_cap)
+    v = np.maximum(v, min(v_min, v_cap))
+    a_acc = np.minimum(long_fraction * mu_arr * g, a_drive_max)
+    a_brk = long_fraction * mu_arr * g
+    n, ds = course.n, course.ds
+    # Three laps so the passes wrap around the loop; the middle lap is kept.
+    v3 = np.tile(v, 3)
+    s3 = np.arange(3 * n) * ds
+    # Forward pass with a constant limit per sample (piecewise): v^2(s) <= v^2(s') + 2 a (s - s').
+    # Using the smallest limit of the loop keeps the closed form exact and conservative.
+    a_f = float(np.min(a_acc))
+    a_b = float(np.min(a_brk))
+    fwd = 2 * a_f * s3 + np.minimum.accumulate(v3**2 - 2 * a_f * s3)
+    v3 = np.sqrt(np.maximum(np.minimum(v3**2, fwd), 0.0))
+    rev = s3[::-1]
+    bwd = (-2 * a_b * rev + np.minimum.accumulate((v3**2 + 2 * a_b * s3)[::-1]))[::-1]
+    v3 = np.sqrt(np.maximum(np.minimum(v3**2, bwd), 0.0))
+    v = v3[n : 2 * n]
+    vc = np.append(v, v[0])
+    dt = 2 * ds / np.maximum(vc[:-1] + vc[1:], 1e-6)
+    t = np.concatenate([[0.0], np.cumsum(dt)])
+    return SpeedProfile(course, v, t, mu if np.ndim(mu) == 0 else mu_arr.copy())
