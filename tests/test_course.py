@@ -1,0 +1,164 @@
+"""Courses: construction and closure, projection, progress, speed profiles."""
+
+import math
+
+import numpy as np
+import pytest
+
+from pcvfe_drake.course import (
+    CourseSpec,
+    Segment,
+    build_course,
+    course_names,
+    load_course,
+    load_course_spec,
+    speed_profile,
+)
+from pcvfe_drake.params import G_MPS2
+
+
+def circle(radius=10.0, spacing=0.05):
+    spec = CourseSpec(
+        name="circle",
+        start_x_m=0.0,
+        start_y_m=-radius,
+        segments=[Segment(kind="arc", radius_m=radius, angle_deg=360.0)],
+        spacing_m=spacing,
+        half_width_m=1.0,
+        speed_mps=4.0,
+    )
+    return build_course(spec)
+
+
+def test_shipped_courses_listed_and_slalom_is_the_papers_layout():
+    assert {"slalom", "slalom_small"} <= set(course_names())
+    c = load_course("slalom")
+    assert c.turns == 1  # counter-clockwise, one turn
+    # ~120 m x 80 m centred at the origin, inside the terrain map (x in [-90, 90], y in [-60, 60])
+    assert 118 < c.x.max() - c.x.min() < 125
+    assert 78 < c.y.max() - c.y.min() < 82
+    assert abs(0.5 * (c.x.max() + c.x.min())) < 1.5
+    assert abs(0.5 * (c.y.max() + c.y.min())) < 0.5
+    # Two straight sides (zero curvature over >= 40 m) and S-curves (curvature changes sign).
+    straight = np.abs(c.curvature) < 1e-9
+    assert straight.sum() * c.ds > 80
+    signs = np.sign(c.curvature[np.abs(c.curvature) > 0.05])
+    assert np.count_nonzero(np.diff(signs)) >= 10
+    # Closed and consistent: the last sample leads smoothly back to the first.
+    gap = math.hypot(c.x[0] - c.x[-1], c.y[0] - c.y[-1])
+    assert abs(gap - c.ds) < 1e-3
+    chord_heading = np.arctan2(np.diff(c.y), np.diff(c.x))
+    mid_heading = 0.5 * (c.heading[:-1] + c.heading[1:])
+    assert np.max(np.abs(np.angle(np.exp(1j * (chord_heading - mid_heading))))) < 1e-6
+
+
+def test_each_quadrant_gets_about_20_s_at_the_planned_speed():
+    c = load_course("slalom")
+    for mu in (0.3, 0.45, 0.6, 0.8):
+        prof = speed_profile(c, mu)
+        dt = np.diff(prof.t)
+        for sx in (-1, 1):
+            for sy in (-1, 1):
+                in_quadrant = (np.sign(c.x) == sx) & (np.sign(c.y) == sy)
+                assert dt[in_quadrant].sum() > 19.5
+
+
+def test_small_course_is_the_slalom_at_one_fifth_scale():
+    big = load_course_spec("slalom")
+    small = load_course("slalom_small")
+    scaled = build_course(big.scaled(0.2))
+    assert small.length == pytest.approx(scaled.length, rel=1e-9)
+    assert small.length == pytest.approx(load_course("slalom").length / 5, rel=1e-9)
+    assert small.speed == pytest.approx(scaled.speed, rel=1e-3)
+
+
+def test_yaml_round_trip(tmp_path):
+    import yaml
+
+    spec = load_course_spec("slalom")
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump(spec.to_dict()))
+    again = load_course(path)
+    ref = load_course("slalom")
+    np.testing.assert_allclose(again.x, ref.x)
+    np.testing.assert_allclose(again.curvature, ref.curvature)
+
+
+def test_bad_descriptions_raise_clear_errors(tmp_path):
+    with pytest.raises(ValueError, match="do not close"):
+        build_course(CourseSpec(segments=[Segment(kind="straight", length_m=10.0)]))
+    with pytest.raises(ValueError, match="kind='zigzag'"):
+        build_course(CourseSpec(segments=[Segment(kind="zigzag", length_m=10.0)]))
+    with pytest.raises(ValueError, match="radius too small"):
+        Segment(kind="scurve", length_m=100.0, radius_m=1.0).arcs()
+    with pytest.raises(ValueError, match="neither a shipped course"):
+        load_course("no_such_course")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\nwheels: 4\n")
+    with pytest.raises(ValueError, match="unknown course field"):
+        load_course(bad)
+
+
+def test_scurve_returns_to_its_line_and_heading():
+    spec = CourseSpec(segments=[Segment(kind="scurve", length_m=30.0, radius_m=5.0, waves=2)])
+    pieces = spec.segments[0].arcs()
+    x = y = h = 0.0
+    for ln, k in pieces:
+        h2 = h + k * ln
+        x, y = x + (math.sin(h2) - math.sin(h)) / k, y - (math.cos(h2) - math.cos(h)) / k
+        h = h2
+    assert (x, y, h) == pytest.approx((30.0, 0.0, 0.0), abs=1e-9)
+
+
+def test_projection_on_a_circle_matches_geometry():
+    r = 10.0
+    c = circle(r)
+    assert c.length == pytest.approx(2 * math.pi * r)
+    ang = np.array([0.3, 1.7, 4.0])  # polar angle around the centre (0, 0)
+    dist = np.array([9.5, 10.8, 10.0])
+    xy = np.column_stack([dist * np.cos(ang), dist * np.sin(ang)])
+    heading = ang + math.pi / 2 + np.array([0.1, -0.2, 0.0])
+    p = c.project(xy, heading=heading)
+    # Start at (0, -r) (polar angle -pi/2), counter-clockwise: s = r (angle + pi/2).
+    np.testing.assert_allclose(p.s, c.wrap_s(r * (ang + math.pi / 2)), atol=1e-3)
+    np.testing.assert_allclose(p.lateral_error, r - dist, atol=1e-4)  # inside = left = +
+    np.testing.assert_allclose(p.heading_error, [0.1, -0.2, 0.0], atol=1e-3)
+    np.testing.assert_allclose(p.curvature, 1 / r, rtol=1e-6)
+    # Vectorised equals one-by-one; a hinted local search gives the same answer.
+    for i in range(3):
+        one = c.project(xy[i], heading=heading[i])
+        assert float(one.s) == pytest.approx(p.s[i])
+    hinted = c.project(xy, s_hint=p.s + 0.7, window_m=2.0)
+    np.testing.assert_allclose(hinted.s, p.s, atol=1e-9)
+    with pytest.raises(ValueError, match="xy"):
+        c.project(np.array([np.nan, 0.0]))
+
+
+def test_progress_counts_laps():
+    c = circle(5.0)
+    s_true = np.linspace(0.0, 2.5 * c.length, 400)
+    progress = c.unwrap_progress(c.wrap_s(s_true))
+    np.testing.assert_allclose(progress, s_true, atol=1e-9)
+    assert math.floor((progress[-1] - progress[0]) / c.length) == 2
+
+
+def test_speed_profile_respects_friction_and_acceleration_limits():
+    c = load_course("slalom")
+    lo = speed_profile(c, 0.3, v_max=12.0)
+    hi = speed_profile(c, 0.8, v_max=12.0)
+    for prof, mu in ((lo, 0.3), (hi, 0.8)):
+        k = np.abs(c.curvature)
+        assert np.all(prof.v**2 * k <= 0.8**2 * mu * G_MPS2 + 1e-9)
+        dv2 = np.diff(np.append(prof.v, prof.v[0]) ** 2) / (2 * c.ds)
+        assert np.all(np.abs(dv2) <= 0.5 * mu * G_MPS2 + 1e-6)
+        assert prof.v.max() <= 12.0
+    assert np.all(lo.v <= hi.v + 1e-12) and lo.lap_time > hi.lap_time
+    # On the straights, far from curves, the cap is reached.
+    assert hi.v.max() == pytest.approx(12.0)
+    # The time parametrisation advances consistently.
+    s = lo.advance(100.0, [0.0, 1.0, lo.lap_time])
+    assert s[0] == pytest.approx(100.0)
+    assert s[1] - s[0] == pytest.approx(lo.speed_at(100.0), rel=0.05)
+    assert s[2] - s[0] == pytest.approx(c.length, rel=1e-6)
+    with pytest.raises(ValueError, match="mu"):
+        speed_profile(c, -0.1)
