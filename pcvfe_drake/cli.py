@@ -9,6 +9,7 @@ import sys
 # Subcommand modules under pcvfe_drake.commands, in the order --help lists them.
 COMMANDS = [
     "demo",
+    "simulate",
 ]
 
 

@@ -56,18 +56,23 @@ class Rates:
 
 @dataclass
 class CameraSettings:
-    """Downward texture camera (sizes in pixels and metres)."""
+    """Downward texture camera (``pcvfe_drake.camera.CameraConfig``; None: the camera's default).
 
-    width_px: int = 224
-    height_px: int = 224
-    ground_size_m: float = 1.0
-    """Side of the ground square seen by the camera [m]."""
-    motion_blur: bool = True
-    """Blur along the direction of travel, growing with speed."""
-    noise_std: float = 0.01
-    """Sensor noise standard deviation (image values in [0, 1])."""
-    exposure_jitter: float = 0.05
-    """Relative exposure change per frame (standard deviation)."""
+    The scenario defaults switch the realistic effects on: motion blur from a 2 ms exposure,
+    per-frame exposure changes and sensor noise, all seeded from the scenario's seed.
+    """
+
+    height_m: float | None = None
+    fov_deg: float | None = None
+    width_px: int | None = None
+    height_px: int | None = None
+    forward_offset_m: float | None = None
+    exposure_s: float | None = 0.002
+    """Exposure time [s]; motion blur is ``v * exposure_s`` metres long."""
+    exposure_jitter: float | None = 0.05
+    """Standard deviation of the log exposure gain per frame."""
+    noise_std: float | None = 3.0
+    """Sensor noise standard deviation on the 0-255 scale."""
 
 
 @dataclass
@@ -81,42 +86,49 @@ class FeatureSettings:
 
 @dataclass
 class ClusteringSettings:
-    """Context clustering (paper section IV-A, Algorithm 1); sizes in seconds of driving."""
+    """Context clustering (``pcvfe_drake.clustering.ClusteringParams``; None: its default).
 
-    min_cluster_size_s: float = 3.0
-    """Smallest cluster, in seconds of frames at the camera rate."""
-    epsilon: float = 0.0
-    """Centroid persistence threshold of Algorithm 1 (0: the clustering's own default)."""
-    outlier_gate: float = 0.0
-    """Gate of the online assignment between re-clusterings (0: the clustering's own default)."""
+    Durations are seconds of driving at the camera rate (converted to frame counts there).
+    """
+
+    min_cluster_duration_s: float | None = None
+    min_samples_duration_s: float | None = None
+    noise_memory_s: float | None = None
+    max_stored: int | None = None
+    gate_scale: float | None = None
+    persistence_scale: float | None = None
+    persistence_epsilon: float | None = None
 
 
 @dataclass
 class FitterSettings:
-    """Context fitter (paper eq. 5a-5d)."""
+    """Context fitter (paper eq. 5a-5d; None: the fitter's default)."""
 
-    horizon_steps: int = 10
+    horizon_steps: int | None = None
     """Rollout window length H in samples."""
-    stride_steps: int = 5
+    stride_steps: int | None = None
     """Window start stride in samples."""
-    min_speed_mps: float = 1.0
+    min_speed_mps: float | None = None
     """Windows only from samples with v >= this speed (eq. 6)."""
     fit_stiffness: bool = False
     """Fit C_Sf, C_Sr too (needs priors, see params.py); default: mu only."""
     state_noise_std: float = 0.0
-    """Standard deviation of the measurement noise added to the state the fitter sees (0: none)."""
+    """Measurement noise added to the state the fitter sees, as a fraction of each state's
+    nominal scale (0: none)."""
 
 
 @dataclass
 class NmpcSettings:
-    """Friction-aware NMPC."""
+    """Friction-aware NMPC (``pcvfe_drake.nmpc.NmpcConfig``; None: its default)."""
 
-    horizon_s: float = 2.0
-    """Prediction horizon [s]."""
-    speed_margin: float = 0.8
+    horizon_s: float | None = None
+    """Prediction horizon [s] (steps = horizon_s / rates.nmpc_period_s)."""
+    model: str | None = None
+    """Prediction model: "st" (single track with theta_hat) or "ks" (kinematic baseline)."""
+    speed_margin: float | None = None
     """Fraction of the friction-limited speed sqrt(mu_hat g / |kappa|) the reference uses."""
-    max_speed_mps: float = 0.0
-    """Cap on the reference speed (0: the course's own)."""
+    max_speed_mps: float | None = None
+    """Cap on the reference speed (None: the course's planned speed)."""
 
 
 @dataclass
@@ -236,81 +248,26 @@ def scenario_problems(scenario: Scenario) -> list[str]:
             s.rates.recluster_period_s,
             "must not be shorter than rates.camera_period_s",
         )
-    c = s.camera
-    need(isinstance(c.width_px, int) and c.width_px >= 8, "camera.width_px", c.width_px, ">= 8")
-    need(isinstance(c.height_px, int) and c.height_px >= 8, "camera.height_px", c.height_px, ">= 8")
-    need(
-        _is_number(c.ground_size_m) and c.ground_size_m > 0,
-        "camera.ground_size_m",
-        c.ground_size_m,
-        "must be > 0",
-    )
-    need(_is_number(c.noise_std) and c.noise_std >= 0, "camera.noise_std", c.noise_std, ">= 0")
-    need(
-        _is_number(c.exposure_jitter) and c.exposure_jitter >= 0,
-        "camera.exposure_jitter",
-        c.exposure_jitter,
-        "must be >= 0",
-    )
+    for group in ("camera", "clustering", "fitter", "nmpc"):
+        settings = getattr(s, group)
+        for f in dataclasses.fields(settings):
+            value = getattr(settings, f.name)
+            if value is None or isinstance(value, bool | str):
+                continue
+            need(
+                _is_number(value) and value >= 0,
+                f"{group}.{f.name}",
+                value,
+                "must be a finite number >= 0",
+            )
+    if s.nmpc.model is not None:
+        need(s.nmpc.model in ("st", "ks"), "nmpc.model", s.nmpc.model, "must be 'st' or 'ks'")
     need(bool(s.features.backend.strip()), "features.backend", s.features.backend, "empty")
     need(
         _is_number(s.features.lambda_c) and s.features.lambda_c >= 0,
         "features.lambda_c",
         s.features.lambda_c,
         "must be >= 0",
-    )
-    k = s.clustering
-    need(
-        _is_number(k.min_cluster_size_s) and k.min_cluster_size_s > 0,
-        "clustering.min_cluster_size_s",
-        k.min_cluster_size_s,
-        "must be > 0",
-    )
-    need(_is_number(k.epsilon) and k.epsilon >= 0, "clustering.epsilon", k.epsilon, ">= 0")
-    need(
-        _is_number(k.outlier_gate) and k.outlier_gate >= 0,
-        "clustering.outlier_gate",
-        k.outlier_gate,
-        "must be >= 0",
-    )
-    fz = s.fitter
-    need(
-        isinstance(fz.horizon_steps, int) and fz.horizon_steps >= 1,
-        "fitter.horizon_steps",
-        fz.horizon_steps,
-        "must be an integer >= 1",
-    )
-    need(
-        isinstance(fz.stride_steps, int) and fz.stride_steps >= 1,
-        "fitter.stride_steps",
-        fz.stride_steps,
-        "must be an integer >= 1",
-    )
-    need(
-        _is_number(fz.min_speed_mps) and fz.min_speed_mps >= 0,
-        "fitter.min_speed_mps",
-        fz.min_speed_mps,
-        "must be >= 0",
-    )
-    need(
-        _is_number(fz.state_noise_std) and fz.state_noise_std >= 0,
-        "fitter.state_noise_std",
-        fz.state_noise_std,
-        "must be >= 0",
-    )
-    n = s.nmpc
-    need(_is_number(n.horizon_s) and n.horizon_s > 0, "nmpc.horizon_s", n.horizon_s, "> 0")
-    need(
-        _is_number(n.speed_margin) and 0 < n.speed_margin <= 1,
-        "nmpc.speed_margin",
-        n.speed_margin,
-        "must be in (0, 1]",
-    )
-    need(
-        _is_number(n.max_speed_mps) and n.max_speed_mps >= 0,
-        "nmpc.max_speed_mps",
-        n.max_speed_mps,
-        "must be >= 0 (0: the course's own)",
     )
     return problems
 
@@ -338,3 +295,46 @@ def resolve_scenario_path(path_or_name: str | Path | None) -> Path:
         f"scenario {str(path_or_name)!r} is neither a file nor a shipped scenario "
         f"(shipped: {', '.join(shipped_scenarios())})"
     )
+
+
+# ------------------------------------------------------------------ building from a scenario
+TERRAIN_LAYOUTS: dict[str, dict] = {
+    "paper": {},
+    "paper_small": {"strip_width_m": 0.6},
+    "paper_no_strips": {"strip_width_m": 0.0},
+}
+"""Terrain layouts by name: keyword arguments of ``terrain.default_terrain_map``. ``paper`` is
+the paper's four quadrants with 3 m transition strips; ``paper_small`` the same with 0.6 m
+strips for the 1/5-scale course; ``paper_no_strips`` without strips."""
+
+TRANSITION_TERRAINS = ("gravel", "dry_soil")
+"""Terrains of the paper layouts' transition strips: left out of the context scores."""
+
+
+def build_terrain_map(scenario: Scenario):
+    """The scenario's ``TerrainMap``; unknown layout names raise ValueError listing the known."""
+    from pcvfe_drake.terrain import default_terrain_map
+
+    layout = scenario.terrain_layout
+    if layout not in TERRAIN_LAYOUTS:
+        raise ValueError(
+            f"scenario {scenario.name!r}: terrain_layout={layout!r} is unknown "
+            f"(known: {', '.join(sorted(TERRAIN_LAYOUTS))})"
+        )
+    return default_terrain_map(**TERRAIN_LAYOUTS[layout])
+
+
+def excluded_terrains(scenario: Scenario) -> tuple[str, ...]:
+    """Terrain names left out of the context scores (the layout's transition strips)."""
+    if TERRAIN_LAYOUTS.get(scenario.terrain_layout, {}).get("strip_width_m", 1.0) == 0.0:
+        return ()
+    return TRANSITION_TERRAINS
+
+
+def settings_kwargs(settings) -> dict:
+    """The fields of a settings dataclass that are set (not None), as keyword arguments."""
+    return {
+        f.name: getattr(settings, f.name)
+        for f in dataclasses.fields(settings)
+        if getattr(settings, f.name) is not None
+    }

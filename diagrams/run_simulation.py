@@ -1,0 +1,234 @@
+"""Running a scenario end to end: simulate in chunks, record Meshcat, write the run folder.
+
+:func:`run_simulation` builds ``MakeSimulation``, advances the simulator in chunks of simulated
+time (progress bar with simulated time and real-time factor), stops at the scenario's duration or
+lap count, and on any ending (done, Ctrl-C, or an error inside the simulation) closes the drive
+log, saves the Meshcat recording as ``playback.html``, and writes ``summary.json`` and the
+figures from what was logged.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pcvfe_drake.diagrams.simulation import MakeSimulation, course_xy
+from pydrake.geometry import Meshcat
+from pydrake.systems.analysis import Simulator
+
+from pcvfe_drake.course import Course
+from pcvfe_drake.figures import write_figures
+from pcvfe_drake.scenario import Scenario, excluded_terrains
+from pcvfe_drake.summary import summarize_run
+
+
+class RunFolder:
+    """File names of a run folder."""
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+        self.drive_log = self.root / "drive_log.csv"
+        self.summary = self.root / "summary.json"
+        self.playback = self.root / "playback.html"
+        self.figures = self.root / "figures"
+        self.scenario = self.root / "scenario.yaml"
+
+
+@dataclass
+class SimulationResult:
+    summary: dict[str, Any]
+    figures: dict[str, str | None] = field(default_factory=dict)
+    figure_notes: dict[str, str] = field(default_factory=dict)
+    playback: Path | None = None
+    log_errors: list[str] = field(default_factory=list)
+
+
+class LapProgress:
+    """Progress along the course [m] from a stream of positions (wrap-around aware)."""
+
+    def __init__(self, course: Course) -> None:
+        self.course = course
+        self._s_prev: float | None = None
+        self.travelled_m = 0.0
+
+    def update(self, xy: np.ndarray) -> float:
+        """Feed new positions (N, 2) in time order; returns laps travelled so far."""
+        xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+        xy = xy[np.all(np.isfinite(xy), axis=1)]
+        if len(xy):
+            s = np.asarray(self.course.project(xy).s, dtype=float).reshape(-1)
+            if self._s_prev is not None:
+                s = np.concatenate([[self._s_prev], s])
+            if len(s) > 1:
+                self.travelled_m += float(self.course.unwrap_progress(s)[-1] - s[0])
+            self._s_prev = float(s[-1])
+        return self.travelled_m / self.course.length
+
+
+def _estimate_table(diagram, context) -> list[dict]:
+    """The fitter's final per-context estimates as dicts (id, mu, mu_std, samples)."""
+    fitter = diagram.GetSubsystemByName("fitter")
+    table = fitter.GetOutputPort("estimate_table").Eval(fitter.GetMyContextFromRoot(context))
+    rows = []
+    for entry in getattr(table, "entries", table) or []:
+        get = entry.get if isinstance(entry, dict) else lambda k, e=entry: getattr(e, k, None)
+        ident = get("id") if get("id") is not None else get("context_id")
+        if ident is None or int(ident) < 0:
+            continue
+        theta = get("theta")
+        mu = get("mu") if get("mu") is not None else (theta[0] if theta is not None else None)
+        std = get("mu_std")
+        if std is None and get("theta_std") is not None:
+            std = get("theta_std")[0]
+        samples = get("samples") if get("samples") is not None else get("n_samples")
+        if mu is None:
+            continue
+        rows.append(
+            {
+                "id": int(ident),
+                "mu": float(mu),
+                "mu_std": float(std) if std is not None else math.nan,
+                "samples": int(samples or 0),
+            }
+        )
+    return rows
+
+
+def run_simulation(
+    scenario: Scenario,
+    folder: RunFolder | None,
+    *,
+    meshcat: Meshcat | None = None,
+    progress: bool = True,
+    chunk_s: float = 1.0,
+    write_outputs: bool = True,
+) -> SimulationResult:
+    """Simulate ``scenario``; write drive log, playback, summary and figures into ``folder``.
+
+    The run stops at ``scenario.duration_s``, or when ``scenario.laps`` laps are completed (at
+    ``scenario.max_duration_s`` at the latest), or at Ctrl-C (``summary["interrupted"]``), or
+    when the simulation raises (``summary["error"]``; the outputs are still written).
+    """
+    folder = folder if folder is not None else None
+    log_path = folder.drive_log if folder is not None and write_outputs else None
+    if folder is not None:
+        folder.root.mkdir(parents=True, exist_ok=True)
+    parts = MakeSimulation(scenario, meshcat, log_path=log_path)
+    diagram, course, run_log = parts.diagram, parts.course, parts.run_log
+    simulator = Simulator(diagram)
+    simulator.set_target_realtime_rate(0.0)
+    integrator = simulator.get_mutable_integrator()
+    integrator.set_maximum_step_size(scenario.rates.plant_max_step_s)
+    if meshcat is not None:
+        meshcat.StartRecording(frames_per_second=1.0 / scenario.rates.log_period_s)
+    stop_t = scenario.stop_time_s()
+    laps_goal = scenario.laps if scenario.duration_s is None else None
+    lap_progress = LapProgress(course)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(
+            total=stop_t,
+            unit="s sim",
+            bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}{postfix}]",
+        )
+    interrupted = False
+    error = None
+    rows_seen = 0
+    wall = 0.0
+    try:
+        simulator.Initialize()
+        t = 0.0
+        while t < stop_t - 1e-9:
+            target = min(t + chunk_s, stop_t)
+            w0 = time.perf_counter()
+            simulator.AdvanceTo(target)
+            wall += time.perf_counter() - w0
+            t = simulator.get_context().get_time()
+            rows = run_log.rows_since(rows_seen)
+            rows_seen += len(rows)
+            laps = lap_progress.update(np.array([[r[1], r[2]] for r in rows]).reshape(-1, 2))
+            if bar is not None:
+                bar.update(target - bar.n)
+                ctx = int(rows[-1][run_log.columns.index("context")]) if rows else -1
+                bar.set_postfix_str(
+                    f"t={t:.0f}s rtf={t / max(wall, 1e-9):.1f}x laps={laps:.2f} ctx={ctx}"
+                )
+            if laps_goal is not None and laps >= laps_goal:
+                break
+    except KeyboardInterrupt:
+        interrupted = True
+    except (RuntimeError, ValueError) as exc:
+        error = f"{type(exc).__name__}: {exc}"
+    finally:
+        if bar is not None:
+            bar.close()
+        run_log.close()
+    context = simulator.get_context()
+    result = SimulationResult(summary={}, log_errors=list(run_log.errors))
+    if meshcat is not None:
+        view = diagram.GetSubsystemByName("meshcat_view")
+        view.flush(view.GetMyContextFromRoot(context))
+        meshcat.StopRecording()
+        meshcat.PublishRecording()
+        if folder is not None and write_outputs:
+            folder.playback.write_text(meshcat.StaticHtml())
+            result.playback = folder.playback
+    log = run_log.to_frame()
+    if len(log) == 0:
+        raise ValueError(f"scenario {scenario.name!r}: nothing was logged ({error or 'stopped'})")
+    terrain_map = parts.terrain_map
+    try:
+        table = _estimate_table(diagram, context)
+    except (RuntimeError, ValueError, AttributeError, TypeError):
+        table = None
+    summary = summarize_run(
+        log,
+        scenario=scenario.name,
+        wall_time_s=wall,
+        terrain_mu={t.name: t.mu for t in terrain_map.terrains},
+        excluded_terrains=excluded_terrains(scenario),
+        course=course,
+        estimate_table=table,
+        interrupted=interrupted,
+    )
+    summary["truth_model"] = scenario.truth_model
+    summary["feature_backend"] = scenario.features.backend
+    summary["seed"] = scenario.seed
+    if error is not None:
+        summary["error"] = error
+    nmpc = diagram.GetSubsystemByName("nmpc")
+    diag = nmpc.GetOutputPort("diagnostics").Eval(nmpc.GetMyContextFromRoot(context))
+    summary["nmpc_fallbacks"] = int(getattr(diag, "fallback_count", 0))
+    summary["nmpc_updates"] = int(getattr(diag, "updates", 0))
+    result.summary = summary
+    if folder is not None and write_outputs:
+        x0, x1, y0, y1 = terrain_map.bounds_m
+        map_image = terrain_map.render_topdown(px_per_m=2.0)
+        result.figures = write_figures(
+            log,
+            folder.figures,
+            summary,
+            map_image=map_image,
+            map_bounds_m=(x0, x1, y0, y1),
+            reference_xy=course_xy(course),
+            log_dir=folder.root,
+        )
+        if result.figures.get("fig7_reidentification") is None:
+            result.figure_notes["fig7_reidentification"] = "no re-identification in this run"
+        summary["files"] = {
+            "drive_log": folder.drive_log.name,
+            "playback": folder.playback.name if result.playback else None,
+            "figures": {
+                k: (Path(v).relative_to(folder.root).as_posix() if v else None)
+                for k, v in result.figures.items()
+            },
+        }
+        folder.summary.write_text(json.dumps(summary, indent=2, allow_nan=False))
+    return result

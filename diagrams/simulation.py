@@ -1,0 +1,172 @@
+"""The PC-VFE closed loop as one Drake diagram (paper Fig. 3).
+
+``MakeSimulation(scenario, meshcat)`` wires the vehicle station (plant + camera, see
+``station.py``) to the estimator and the controller::
+
+    station.image -> features -> clustering.context_id --+
+    station.state ------------------------------------> fitter.theta_hat -> nmpc -> station.actuation
+    station.state ------------------------------------------------------------^
+
+plus a ``run_logger`` (drive log written as the run goes), ``VectorLogSink`` loggers on the
+signals the summary needs (``log_state``, ``log_context_id``, ``log_theta_hat``,
+``log_true_mu``), and, with a Meshcat, the ``meshcat_view``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from pcvfe_drake.diagrams.station import MakeVehicleStation
+from pcvfe_drake.systems.clip_features import ClipFeatures
+from pcvfe_drake.systems.context_clustering import ContextClustering
+from pcvfe_drake.systems.context_fitter import ContextFitter
+from pcvfe_drake.systems.meshcat_view import MeshcatView
+from pcvfe_drake.systems.nmpc import Nmpc
+from pcvfe_drake.systems.run_logger import RunLogger
+from pydrake.geometry import Meshcat
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import LogVectorOutput
+
+from pcvfe_drake.clustering import ClusteringParams
+from pcvfe_drake.course import Course, load_course
+from pcvfe_drake.nmpc import NmpcConfig
+from pcvfe_drake.params import VehicleParams, load_vehicle
+from pcvfe_drake.runlog import RunLog
+from pcvfe_drake.scenario import Scenario, build_terrain_map, settings_kwargs
+from pcvfe_drake.terrain import TerrainMap
+
+
+@dataclass
+class SimulationParts:
+    """What a caller needs besides the diagram: the shared course, map, vehicle, run log."""
+
+    diagram: Diagram
+    course: Course
+    terrain_map: TerrainMap
+    params: VehicleParams
+    run_log: RunLog
+
+
+def nmpc_config(scenario: Scenario) -> NmpcConfig:
+    """The scenario's NMPC settings as an ``NmpcConfig`` (None fields: the NMPC's defaults)."""
+    kw = settings_kwargs(scenario.nmpc)
+    dt = scenario.rates.nmpc_period_s
+    horizon_s = kw.pop("horizon_s", None)
+    if horizon_s is not None:
+        kw["horizon"] = max(1, int(round(horizon_s / dt)))
+    return NmpcConfig(dt_s=dt, **kw)
+
+
+def clustering_params(scenario: Scenario) -> ClusteringParams:
+    """The scenario's clustering settings (frame rate from the camera period, seed)."""
+    return ClusteringParams(
+        frame_rate_hz=1.0 / scenario.rates.camera_period_s,
+        seed=scenario.seed,
+        **settings_kwargs(scenario.clustering),
+    )
+
+
+def MakeSimulation(
+    scenario: Scenario,
+    meshcat: Meshcat | None = None,
+    *,
+    log_path: str | Path | None = None,
+) -> SimulationParts:
+    """The closed loop of ``scenario`` as a diagram named ``pcvfe_simulation``.
+
+    Args:
+        scenario: the scenario.
+        meshcat: a Meshcat (created once by the caller) for the ``meshcat_view``; None: no view.
+        log_path: CSV drive log the ``run_logger`` appends to as the run goes (None: in memory).
+
+    Systems (names): ``station`` (exports actuation / state / image / true_mu / true_terrain),
+    ``features``, ``clustering``, ``fitter``, ``nmpc``, ``run_logger``, the ``log_*`` vector
+    loggers, and ``meshcat_view`` when a Meshcat is given.
+    """
+    params = load_vehicle(scenario.vehicle)
+    terrain_map = build_terrain_map(scenario)
+    course = load_course(scenario.course)
+    rates = scenario.rates
+
+    builder = DiagramBuilder()
+    station = builder.AddNamedSystem(
+        "station", MakeVehicleStation(scenario, terrain_map=terrain_map, course=course)
+    )
+    features = builder.AddNamedSystem(
+        "features",
+        ClipFeatures(scenario.features.backend, lambda_c=scenario.features.lambda_c),
+    )
+    feature_dim = features.GetOutputPort("features").size()
+    clustering = builder.AddNamedSystem(
+        "clustering",
+        ContextClustering(
+            feature_dim,
+            clustering_params(scenario),
+            frame_period_s=rates.camera_period_s,
+            recluster_period_s=rates.recluster_period_s,
+        ),
+    )
+    fitter = builder.AddNamedSystem(
+        "fitter",
+        ContextFitter(
+            params,
+            period_s=rates.fitter_period_s,
+            sample_period_s=rates.fitter_sample_period_s,
+        ),
+    )
+    nmpc = builder.AddNamedSystem("nmpc", Nmpc(course, params, nmpc_config(scenario)))
+
+    state = station.GetOutputPort("state")
+    builder.Connect(station.GetOutputPort("image"), features.GetInputPort("image"))
+    builder.Connect(features.GetOutputPort("features"), clustering.GetInputPort("features"))
+    builder.Connect(state, fitter.GetInputPort("state"))
+    builder.Connect(nmpc.GetOutputPort("actuation"), fitter.GetInputPort("actuation"))
+    builder.Connect(clustering.GetOutputPort("context_id"), fitter.GetInputPort("context_id"))
+    builder.Connect(state, nmpc.GetInputPort("state"))
+    builder.Connect(fitter.GetOutputPort("theta_hat"), nmpc.GetInputPort("theta_hat"))
+    builder.Connect(nmpc.GetOutputPort("actuation"), station.GetInputPort("actuation"))
+
+    run_log = RunLog(log_path, terrain_map.names, feature_dim)
+    logger = builder.AddNamedSystem("run_logger", RunLogger(run_log, rates.log_period_s))
+    sources = {
+        "state": state,
+        "actuation": nmpc.GetOutputPort("actuation"),
+        "features": features.GetOutputPort("features"),
+        "context_id": clustering.GetOutputPort("context_id"),
+        "theta_hat": fitter.GetOutputPort("theta_hat"),
+        "true_mu": station.GetOutputPort("true_mu"),
+        "true_terrain": station.GetOutputPort("true_terrain"),
+        "image": station.GetOutputPort("image"),
+    }
+    for name, port in sources.items():
+        builder.Connect(port, logger.GetInputPort(name))
+    for name in ("state", "context_id", "theta_hat", "true_mu"):
+        sink = LogVectorOutput(sources[name], builder, publish_period=rates.log_period_s)
+        sink.set_name(f"log_{name}")
+
+    if meshcat is not None:
+        view = builder.AddNamedSystem(
+            "meshcat_view",
+            MeshcatView(
+                meshcat,
+                terrain_map,
+                course_xy(course),
+                vehicle_length_m=params.length,
+                vehicle_width_m=params.width,
+                period_s=rates.log_period_s,
+            ),
+        )
+        for name in ("state", "context_id", "theta_hat", "true_mu"):
+            builder.Connect(sources[name], view.GetInputPort(name))
+
+    diagram = builder.Build()
+    diagram.set_name("pcvfe_simulation")
+    return SimulationParts(diagram, course, terrain_map, params, run_log)
+
+
+def course_xy(course: Course):
+    """(N, 2) points of the course's reference path [m]."""
+    import numpy as np
+
+    return np.column_stack([course.x, course.y])

@@ -1,0 +1,108 @@
+"""The vehicle station: the car and its downward camera behind a fixed set of exported ports.
+
+``MakeVehicleStation`` returns a Diagram whose exported ports are the contract between the
+vehicle and everything that estimates or controls it. The simulated station (this version) holds
+the ``VehiclePlant`` (single-track or multi-body truth over the scenario's terrain map) and the
+``TextureCamera``. The hardware station (the project's next step: the real car over LCM) will
+export the same ports, so ``MakeSimulation`` and any other consumer connect only to these names:
+
+====================  ======  ===============================================================
+port                  dir     meaning
+====================  ======  ===============================================================
+``actuation``         input   (2) [steer_rate rad/s, accel m/s^2]
+``state``             output  (7) ST state [sx, sy, delta, v, psi, psi_dot, beta] (SI units)
+``image``             output  abstract Drake image of the downward camera (RGBA, 8 bit)
+``true_mu``           output  (1) **sim only**: true friction coefficient under the car
+``true_terrain``      output  (1) **sim only**: index of the true terrain (-1: none)
+====================  ======  ===============================================================
+
+The hardware station will not have the sim-only ports (``SIM_ONLY_OUTPUTS``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pcvfe_drake.systems.texture_camera import TextureCamera
+from pcvfe_drake.systems.vehicle_plant import VehiclePlant
+from pydrake.geometry import Meshcat
+from pydrake.systems.framework import Diagram, DiagramBuilder
+
+from pcvfe_drake.camera import CameraConfig
+from pcvfe_drake.course import Course, load_course
+from pcvfe_drake.params import VehicleParams, load_vehicle
+from pcvfe_drake.scenario import Scenario, build_terrain_map, settings_kwargs
+from pcvfe_drake.terrain import TerrainMap
+
+STATION_INPUTS = ("actuation",)
+"""Input ports of every station variant."""
+STATION_OUTPUTS = ("state", "image")
+"""Output ports of every station variant."""
+SIM_ONLY_OUTPUTS = ("true_mu", "true_terrain")
+"""Outputs of the simulated station only (ground truth a real car does not have)."""
+
+
+def initial_state(course: Course, params: VehicleParams, speed_mps: float) -> np.ndarray:
+    """ST state on the course start (s = 0) at ``speed_mps`` in steady kinematic cornering."""
+    return course.state_on_path(np.array([0.0]), speed_mps, params.L, params.lr)[0]
+
+
+def camera_config(scenario: Scenario) -> CameraConfig:
+    """The scenario's camera settings as a ``CameraConfig`` (None fields: camera defaults)."""
+    return CameraConfig(**settings_kwargs(scenario.camera))
+
+
+def MakeVehicleStation(
+    scenario: Scenario,
+    meshcat: Meshcat | None = None,
+    *,
+    hardware: bool = False,
+    terrain_map: TerrainMap | None = None,
+    course: Course | None = None,
+) -> Diagram:
+    """The station diagram of ``scenario`` (named ``vehicle_station``; ports in the module doc).
+
+    Args:
+        scenario: the scenario (vehicle, truth model, terrain layout, camera, rates, seed).
+        meshcat: accepted so every station factory has the same signature; the simulated
+            station draws nothing itself (``MakeSimulation`` adds the ``MeshcatView``).
+        hardware: True asks for the real-car station, which this version does not have.
+        terrain_map, course: already built ones to share (default: built from the scenario).
+
+    Subsystems: ``plant`` (VehiclePlant, its default state on the course start at the
+    scenario's initial speed) and ``camera`` (TextureCamera).
+    """
+    if hardware:
+        raise NotImplementedError(
+            "MakeVehicleStation(hardware=True): the hardware interface is not available in this "
+            "version; the hardware station (next step of the project) will export the same "
+            f"ports: inputs {list(STATION_INPUTS)}, outputs {list(STATION_OUTPUTS)} (the "
+            f"sim-only outputs {list(SIM_ONLY_OUTPUTS)} exist only in simulation)"
+        )
+    params = load_vehicle(scenario.vehicle)
+    terrain_map = terrain_map if terrain_map is not None else build_terrain_map(scenario)
+    course = course if course is not None else load_course(scenario.course)
+    x0 = initial_state(course, params, scenario.initial_speed_mps)
+
+    builder = DiagramBuilder()
+    plant = builder.AddNamedSystem(
+        "plant",
+        VehiclePlant(params, terrain_map=terrain_map, truth=scenario.truth_model, x0=x0),
+    )
+    camera = builder.AddNamedSystem(
+        "camera",
+        TextureCamera(
+            terrain_map,
+            camera_config(scenario),
+            period_s=scenario.rates.camera_period_s,
+            seed=scenario.seed,
+        ),
+    )
+    builder.Connect(plant.GetOutputPort("state"), camera.GetInputPort("state"))
+    builder.ExportInput(plant.GetInputPort("actuation"), "actuation")
+    builder.ExportOutput(plant.GetOutputPort("state"), "state")
+    builder.ExportOutput(camera.GetOutputPort("image"), "image")
+    builder.ExportOutput(plant.GetOutputPort("true_mu"), "true_mu")
+    builder.ExportOutput(plant.GetOutputPort("true_terrain"), "true_terrain")
+    diagram = builder.Build()
+    diagram.set_name("vehicle_station")
+    return diagram

@@ -1,0 +1,162 @@
+"""The run log of a closed-loop simulation: drive-log rows written to disk as the run goes.
+
+A :class:`RunLog` receives one sample at a time (from the ``RunLogger`` LeafSystem's periodic
+publish), keeps every row in memory for the summary, and appends chunks of ``chunk_rows`` rows to
+a CSV drive log through :class:`pcvfe_drake.drivelog.DriveLogWriter`, which flushes each chunk:
+a run interrupted at any point keeps everything up to its last chunk (call :meth:`close` to
+write the rest).
+
+Columns: the drive-log columns (``t``, the ST state, the inputs), then ``terrain`` (true terrain
+name; sim-only), ``terrain_index``, ``mu_true`` (sim-only), ``context`` (reported context id, -1 =
+noise), ``mu_hat``, ``C_Sf_hat``, ``C_Sr_hat`` (the estimate the controller was given), the
+features ``f_00``... and ``image`` (path of a saved camera frame relative to the log's folder,
+empty on rows without one; a frame is saved every ``frame_period_s``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pandas as pd
+
+from pcvfe_drake.drivelog import DriveLogError, DriveLogWriter
+from pcvfe_drake.vehicle import INPUT_NAMES, NX, STATE_NAMES
+
+ESTIMATE_COLUMNS = ("mu_hat", "C_Sf_hat", "C_Sr_hat")
+
+
+def feature_columns(n: int) -> list[str]:
+    """Names of the feature columns: f_00, f_01, ..."""
+    return [f"f_{i:02d}" for i in range(n)]
+
+
+class RunLog:
+    """Rows of one run, in memory and appended to ``path`` (a .csv drive log) chunk by chunk.
+
+    Args:
+        path: the CSV drive log to write (its folder also receives ``frames/``); None keeps the
+            rows in memory only.
+        terrain_names: names of the terrain map's terrains, by index (for the ``terrain`` column).
+        feature_dim: length of the feature vector.
+        chunk_rows: rows per appended chunk (at 10 Hz, 10 rows = 1 s of the run at risk).
+        frame_period_s: save a camera frame (PNG) every this many seconds; 0 saves none.
+    """
+
+    def __init__(
+        self,
+        path: str | Path | None,
+        terrain_names: list[str],
+        feature_dim: int,
+        *,
+        chunk_rows: int = 10,
+        frame_period_s: float = 2.0,
+    ) -> None:
+        if chunk_rows < 1:
+            raise ValueError(f"RunLog: chunk_rows={chunk_rows!r} must be >= 1")
+        self.path = Path(path) if path is not None else None
+        self.terrain_names = list(terrain_names)
+        self.columns = [
+            "t",
+            *STATE_NAMES,
+            *INPUT_NAMES,
+            "terrain",
+            "terrain_index",
+            "mu_true",
+            "context",
+            *ESTIMATE_COLUMNS,
+            *feature_columns(feature_dim),
+            "image",
+        ]
+        self.feature_dim = int(feature_dim)
+        self.chunk_rows = int(chunk_rows)
+        self.frame_period_s = float(frame_period_s)
+        self._rows: list[list] = []
+        self._pending: list[list] = []
+        self._next_frame_t = 0.0
+        self.errors: list[str] = []
+        self._writer = DriveLogWriter(self.path) if self.path is not None else None
+        self.frame_dir = self.path.parent / "frames" if self.path is not None else None
+
+    def __len__(self) -> int:
+        return len(self._rows)
+
+    def wants_frame(self, t_s: float) -> bool:
+        """True when a camera frame should be saved with the sample at ``t_s``."""
+        return self.frame_dir is not None and self.frame_period_s > 0 and t_s >= self._next_frame_t
+
+    def append(
+        self,
+        t_s: float,
+        state: np.ndarray,
+        actuation: np.ndarray,
+        features: np.ndarray,
+        context_id: float,
+        theta_hat: np.ndarray,
+        mu_true: float,
+        terrain_index: float,
+        image_rgb: np.ndarray | None = None,
+    ) -> None:
+        """Add one sample (``image_rgb``: an (H, W, 3) uint8 frame to save, or None)."""
+        state = np.asarray(state, dtype=float).reshape(NX)
+        actuation = np.asarray(actuation, dtype=float).reshape(len(INPUT_NAMES))
+        features = np.asarray(features, dtype=float).reshape(-1)
+        if features.size != self.feature_dim:
+            raise ValueError(
+                f"RunLog: features has {features.size} entries, not {self.feature_dim}"
+            )
+        k = int(round(float(terrain_index)))
+        terrain = self.terrain_names[k] if 0 <= k < len(self.terrain_names) else ""
+        image = ""
+        if image_rgb is not None and self.wants_frame(t_s):
+            self.frame_dir.mkdir(parents=True, exist_ok=True)
+            name = f"frame_{int(round(t_s * 1000)):08d}.png"
+            bgr = cv2.cvtColor(np.ascontiguousarray(image_rgb[..., :3]), cv2.COLOR_RGB2BGR)
+            if cv2.imwrite(str(self.frame_dir / name), bgr):
+                image = f"frames/{name}"
+            self._next_frame_t = t_s + self.frame_period_s - 1e-9
+        row = [
+            float(t_s),
+            *state.tolist(),
+            *actuation.tolist(),
+            terrain,
+            k,
+            float(mu_true),
+            int(round(float(context_id))),
+            *np.asarray(theta_hat, dtype=float).reshape(3).tolist(),
+            *features.tolist(),
+            image,
+        ]
+        self._rows.append(row)
+        self._pending.append(row)
+        if len(self._pending) >= self.chunk_rows:
+            self.flush()
+
+    def flush(self) -> None:
+        """Append the pending rows to the CSV file now. A chunk the drive-log format rejects
+        (e.g. a non-finite state) is kept in memory and its error noted in ``errors``."""
+        if not self._pending or self._writer is None:
+            self._pending = []
+            return
+        chunk = pd.DataFrame(self._pending, columns=self.columns)
+        self._pending = []
+        try:
+            self._writer.append(chunk)
+        except DriveLogError as exc:
+            self.errors.append(str(exc))
+
+    def close(self) -> None:
+        """Write the pending rows and close the file (idempotent)."""
+        self.flush()
+        if self._writer is not None:
+            self._writer.close()
+
+    def rows_since(self, start: int) -> list[list]:
+        """The rows logged from row index ``start`` on (for progress reports)."""
+        return self._rows[start:]
+
+    def to_frame(self) -> pd.DataFrame:
+        """All rows logged so far as a DataFrame."""
+        df = pd.DataFrame(self._rows, columns=self.columns)
+        return df.astype({"terrain_index": int, "context": int})

@@ -1,0 +1,121 @@
+"""Scenario dataclasses, shipped scenario files and the YAML loader's error messages."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from pcvfe_drake.scenario import (
+    DEFAULT_SCENARIO,
+    Scenario,
+    build_terrain_map,
+    excluded_terrains,
+    resolve_scenario_path,
+    settings_kwargs,
+    shipped_scenarios,
+)
+
+
+def test_core_scenario_module_does_not_import_pydrake():
+    code = (
+        "import sys, pcvfe_drake.scenario, pcvfe_drake.summary, pcvfe_drake.figures, "
+        "pcvfe_drake.runlog, pcvfe_drake.commands.simulate, pcvfe_drake.cli; "
+        "pcvfe_drake.cli.build_parser(); "
+        "print('pydrake' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_shipped_scenarios_load_with_their_values():
+    from pcvfe_drake.diagrams.scenario_io import load_scenario
+
+    assert {"paper_sim", "paper_sim_mb", "roboracer"} <= set(shipped_scenarios())
+    default = load_scenario(None)
+    assert default.name == DEFAULT_SCENARIO == "paper_sim"
+    assert (default.vehicle, default.course, default.truth_model) == ("ford_escort", "slalom", "st")
+    assert default.laps == 1.0 and default.duration_s is None
+    assert default.features.backend == "descriptor" and not default.uses_clip
+    mb = load_scenario("paper_sim_mb")
+    assert mb.truth_model == "mb"
+    rr = load_scenario("roboracer")
+    assert (rr.vehicle, rr.course, rr.terrain_layout) == (
+        "roboracer",
+        "slalom_small",
+        "paper_small",
+    )
+    assert rr.camera.height_m == 0.5
+    for s in (default, mb, rr):
+        assert build_terrain_map(s).names[:4] == ["patchy_grass", "brick", "sand", "concrete"]
+
+
+def test_yaml_overrides_nested_fields_and_keeps_defaults(tmp_path):
+    from pcvfe_drake.diagrams.scenario_io import load_scenario, save_scenario
+
+    path = tmp_path / "mine.yaml"
+    path.write_text(
+        "name: mine\nduration_s: 12.5\nrates: {camera_period_s: 0.05}\n"
+        "clustering: {min_cluster_duration_s: 3.0, max_stored: 2000}\n"
+        "nmpc: {horizon_s: 1.5, model: ks}\n"
+    )
+    s = load_scenario(path)
+    assert s.name == "mine" and s.duration_s == 12.5 and s.stop_time_s() == 12.5
+    assert (
+        s.rates.camera_period_s == 0.05 and s.rates.nmpc_period_s == Scenario().rates.nmpc_period_s
+    )
+    assert settings_kwargs(s.clustering) == {"min_cluster_duration_s": 3.0, "max_stored": 2000}
+    assert settings_kwargs(s.nmpc) == {"horizon_s": 1.5, "model": "ks"}
+    again = load_scenario(save_scenario(s, tmp_path / "again.yaml"))
+    assert again == s
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("clustering: {min_cluster_size: 3}", "unknown field 'clustering.min_cluster_size'"),
+        ("rates: {camera_period_s: fast}", "'rates.camera_period_s' must be a number"),
+        ("seed: 1.5", "'seed' must be an integer"),
+        ("rates: 3", "field 'rates' must be a mapping"),
+        ("truth_model: rigid", "truth_model='rigid'"),
+        ("rates: {nmpc_period_s: -0.05}", "rates.nmpc_period_s=-0.05"),
+        ("laps: null", "laps and duration_s are both unset"),
+        ("nmpc: {model: pid}", "nmpc.model='pid'"),
+        ("name: [1, 2", "not valid YAML"),
+        ("- 1\n- 2", "the document must be a mapping"),
+    ],
+)
+def test_malformed_scenarios_name_file_and_field(tmp_path, text, message):
+    from pcvfe_drake.diagrams.scenario_io import load_scenario
+
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match="bad.yaml") as info:
+        load_scenario(path)
+    assert message in str(info.value)
+
+
+def test_unknown_names_are_clear_errors(tmp_path):
+    from pcvfe_drake.diagrams.scenario_io import load_scenario
+
+    with pytest.raises(FileNotFoundError, match="neither a file nor a shipped scenario"):
+        resolve_scenario_path("no_such_scenario")
+    path = tmp_path / "v.yaml"
+    path.write_text("vehicle: my_car.yaml\n")
+    with pytest.raises(FileNotFoundError, match="field 'vehicle'"):
+        load_scenario(path)
+    with pytest.raises(ValueError, match="terrain_layout='moon'"):
+        build_terrain_map(Scenario(terrain_layout="moon"))
+
+
+def test_run_length_overrides():
+    s = Scenario()
+    assert s.with_run_length(duration_s=5).stop_time_s() == 5.0
+    by_laps = s.with_run_length(laps=2)
+    assert by_laps.laps == 2.0 and by_laps.duration_s is None
+    assert by_laps.stop_time_s() == s.max_duration_s
+    with pytest.raises(ValueError, match="either"):
+        s.with_run_length(laps=1, duration_s=3)
+    assert excluded_terrains(s) == ("gravel", "dry_soil")
+    assert excluded_terrains(Scenario(terrain_layout="paper_no_strips")) == ()
