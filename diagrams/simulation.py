@@ -3,9 +3,10 @@
 ``MakeSimulation(scenario, meshcat)`` wires the vehicle station (plant + camera, see
 ``station.py``) to the estimator and the controller::
 
-    station.image -> features -> clustering.context_id --+
-    station.state ------------------------------------> fitter.theta_hat -> nmpc -> station.actuation
-    station.state ------------------------------------------------------------^
+    station.image -> features -> clustering --context_id--> fitter
+    station.state ----------------------------------------> fitter --theta_hat--> nmpc
+    station.state ------------------------------------------------------------> nmpc
+    nmpc.actuation -> station.actuation (and fitter.actuation)
 
 plus a ``run_logger`` (drive log written as the run goes), ``VectorLogSink`` loggers on the
 signals the summary needs (``log_state``, ``log_context_id``, ``log_theta_hat``,
