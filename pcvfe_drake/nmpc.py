@@ -471,8 +471,8 @@ class NmpcController:
         self._profiles: dict[float, SpeedProfile] = {}
         self._weights()
         self._build_patterns()
-        self._solver: osqp.OSQP | None = None
         self._shift_rows = self.layout.shift_rows()
+        self._solver = self._setup_solver()
         self.memory = NmpcMemory()
         self.last_diagnostics = NmpcDiagnostics()
 
@@ -733,6 +733,29 @@ class NmpcController:
         A = sp.csc_matrix((ax, self._A.indices, self._A.indptr), shape=self._A.shape)
         return P, q, A, lo, hi
 
+    def _setup_solver(self) -> osqp.OSQP:
+        """OSQP workspace on the fixed patterns (template values), set up once.
+
+        One solve of the template problem completes OSQP's first run here, so that its time
+        limit (which counts the setup time on the first solve) applies to control updates only.
+        """
+        lay = self.layout
+        solver = osqp.OSQP()
+        solver.setup(
+            self._P.csc(self._p_template),
+            np.zeros(lay.nz),
+            self._A.csc(self._a_template),
+            np.full(lay.m, -1.0),
+            np.full(lay.m, 1.0),
+            **self.osqp_settings(),
+        )
+        solver.update_settings(max_iter=1, time_limit=1e10)
+        solver.solve(raise_error=False)
+        solver.update_settings(
+            max_iter=int(self.config.max_iter), time_limit=self.config.time_limit_s
+        )
+        return solver
+
     def osqp_settings(self) -> dict:
         cfg = self.config
         return dict(
@@ -772,18 +795,7 @@ class NmpcController:
             prof = self.profile(th[0])
             lin = self.linearize(x, th, memory, prof)
             px, q, ax, lo, hi = self.qp_vectors(lin)
-            if self._solver is None:
-                self._solver = osqp.OSQP()
-                self._solver.setup(
-                    sp.csc_matrix((px, self._P.indices, self._P.indptr), shape=self._P.shape),
-                    q,
-                    sp.csc_matrix((ax, self._A.indices, self._A.indptr), shape=self._A.shape),
-                    lo,
-                    hi,
-                    **self.osqp_settings(),
-                )
-            else:
-                self._solver.update(q=q, l=lo, u=hi, Px=px, Ax=ax)
+            self._solver.update(q=q, l=lo, u=hi, Px=px, Ax=ax)
             z0 = np.zeros(self.layout.nz)
             y0 = np.zeros(self.layout.m)
             if memory.valid and memory.dual is not None:
@@ -1029,6 +1041,24 @@ def failure_reason(course: Course, lateral_error: float, course_error: float, be
     return ""
 
 
+class StTruth:
+    """The ST model as a closed-loop truth: RK4 steps with theta = [mu, C_Sf, C_Sr]."""
+
+    def __init__(self, params: VehicleParams) -> None:
+        self.params = params
+        self.x = np.zeros(NX)
+
+    def reset(self, x0: np.ndarray) -> np.ndarray:
+        self.x = np.asarray(x0, dtype=float).copy()
+        return self.x.copy()
+
+    def step(self, u: np.ndarray, mu: float, dt: float) -> np.ndarray:
+        """Advance by ``dt`` [s] with ``u`` held on friction ``mu``; returns the ST state."""
+        theta = np.array([mu, self.params.C_Sf, self.params.C_Sr])
+        self.x = rk4_step(self.x, u, self.params, dt, theta=theta)
+        return self.x.copy()
+
+
 def simulate_closed_loop(
     controller: NmpcController,
     x0,
@@ -1036,15 +1066,17 @@ def simulate_closed_loop(
     *,
     mu_at: Callable[[np.ndarray], float] | None = None,
     theta_hat: Callable[[float, np.ndarray], np.ndarray] | None = None,
+    truth=None,
     dt_sim_s: float = 0.01,
     stop_on_failure: bool = True,
     stop_after_laps: float | None = None,
 ) -> ClosedLoopResult:
-    """Drive the ST truth model (RK4 at ``dt_sim_s``) with the controller at its period.
+    """Drive a truth model with the controller at its period (zero-order hold).
 
-    ``mu_at(xy)`` gives the true friction under the vehicle (default: the vehicle's mu); the
-    truth uses theta = [mu_at, C_Sf, C_Sr]. ``theta_hat(t, x)`` gives the controller's belief
-    (default: the truth, i.e. the true mu is given).
+    ``truth`` has ``reset(x0) -> x`` and ``step(u, mu, dt) -> x`` returning ST states (default
+    :class:`StTruth`: RK4 of the ST model every ``dt_sim_s``). ``mu_at(xy)`` gives the true
+    friction under the vehicle (default: the vehicle's mu). ``theta_hat(t, x)`` gives the
+    controller's belief (default: [true mu, C_Sf, C_Sr], i.e. the true mu is given).
     """
     ctrl = controller
     p = ctrl.params
@@ -1052,7 +1084,8 @@ def simulate_closed_loop(
     period = ctrl.config.dt_s
     every = max(1, int(round(period / dt_sim_s)))
     steps = int(round(duration_s / dt_sim_s))
-    x = np.asarray(x0, dtype=float).copy()
+    plant = truth if truth is not None else StTruth(p)
+    x = plant.reset(np.asarray(x0, dtype=float))
     mu_fn = mu_at if mu_at is not None else (lambda xy: p.mu)
     ts, xs, us, mus, diags = [], [], [], [], []
     s_prev = None
@@ -1087,7 +1120,7 @@ def simulate_closed_loop(
             break
         if stop_after_laps is not None and progress >= stop_after_laps * course.length:
             break
-        x = rk4_step(x, u, p, dt_sim_s, theta=theta_true)
+        x = plant.step(u, mu_true, dt_sim_s)
     s_arr = np.array(s_log)
     return ClosedLoopResult(
         t=np.array(ts),
