@@ -10,6 +10,7 @@ import sys
 COMMANDS = [
     "demo",
     "simulate",
+    "fit",
 ]
 
 

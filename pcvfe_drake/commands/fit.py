@@ -1,0 +1,158 @@
+"""``pcvfe fit``: fit the single-track friction parameters per context of a drive log."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+from pcvfe_drake.drivelog import read_drive_log
+from pcvfe_drake.fit_dataset import (
+    DEFAULT_HORIZON,
+    DEFAULT_STRIDE,
+    DEFAULT_V_MIN_MPS,
+    DEFAULT_X0_SMOOTHING,
+    windows_from_log,
+)
+from pcvfe_drake.fitting import JOINT_PRIOR_REL_SIGMA, FitOptions, fit_contexts, joint_options
+from pcvfe_drake.params import THETA_NAMES, load_vehicle
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "fit",
+        help="fit mu (and optionally C_Sf, C_Sr) per context of a drive log, with uncertainty",
+        description=(
+            "Fit the single-track model's friction parameters to a drive log (CSV or Parquet, "
+            "the drive-log format) per context: rollouts of H steps from the measured states "
+            "with the recorded inputs, windows only from stable segments in one context with "
+            "v >= --min-speed (paper eq. 5a-6). By default only mu is fitted, the stiffnesses "
+            "stay at the vehicle's nominal values; --joint also fits C_Sf, C_Sr with Gaussian "
+            "priors. Prints a table (or one JSON object with --json)."
+        ),
+    )
+    parser.add_argument("log", type=Path, help="drive log (.csv, .csv.gz, .parquet)")
+    parser.add_argument(
+        "--vehicle", default=None, help="vehicle preset or YAML file (default: ford_escort)"
+    )
+    parser.add_argument(
+        "--context-column",
+        choices=("terrain", "context"),
+        default=None,
+        help="column holding the context of each row (default: the whole log is one context)",
+    )
+    parser.add_argument(
+        "--joint",
+        action="store_true",
+        help=f"also fit C_Sf, C_Sr, with Gaussian priors of {JOINT_PRIOR_REL_SIGMA:g} x nominal "
+        "(see --prior-rel)",
+    )
+    parser.add_argument(
+        "--prior-rel",
+        type=float,
+        default=JOINT_PRIOR_REL_SIGMA,
+        help="with --joint: prior std of the stiffnesses relative to nominal; 0 = no priors "
+        "(ill-posed: mu and C_S enter the ST model only as products)",
+    )
+    parser.add_argument("--horizon", type=int, default=DEFAULT_HORIZON, help="window length H")
+    parser.add_argument("--stride", type=int, default=DEFAULT_STRIDE, help="window start stride")
+    parser.add_argument(
+        "--min-speed", type=float, default=DEFAULT_V_MIN_MPS, help="speed filter [m/s] (eq. 6)"
+    )
+    parser.add_argument(
+        "--x0-smoothing",
+        type=int,
+        default=DEFAULT_X0_SMOOTHING,
+        help="half-width [samples] of the initial-state smoothing (0 = raw, eq. 5b)",
+    )
+    parser.add_argument(
+        "--solver",
+        choices=("gauss_newton", "adam"),
+        default="gauss_newton",
+        help="bounded Gauss-Newton (default) or the paper's Adam (lr 0.01, batch 1024)",
+    )
+    parser.add_argument(
+        "--lenient",
+        action="store_true",
+        help="read the log without validation: rows with NaN or time gaps are skipped by the "
+        "window filter (and counted) instead of rejecting the file",
+    )
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.set_defaults(func=run)
+
+
+def _fmt(value: float, digits: int = 4) -> str:
+    return f"{value:.{digits}g}" if math.isfinite(value) else "-"
+
+
+def run(args: argparse.Namespace) -> int:
+    params = load_vehicle(args.vehicle)
+    if args.prior_rel < 0 or not math.isfinite(args.prior_rel):
+        raise ValueError(f"--prior-rel must be >= 0, got {args.prior_rel}")
+    log = read_drive_log(args.log, validate=not args.lenient, max_gap_s=math.inf)
+    split = windows_from_log(
+        log,
+        args.context_column,
+        horizon=args.horizon,
+        stride=args.stride,
+        v_min=args.min_speed,
+        x0_smoothing=args.x0_smoothing,
+    )
+    if args.joint:
+        options = joint_options(params, rel_sigma=args.prior_rel or None)
+    else:
+        options = FitOptions()
+    results = fit_contexts(split, params, options, solver=args.solver)
+
+    if args.json:
+        contexts = {}
+        for label, result in results.items():
+            entry = result.to_dict()
+            entry["samples"] = int(split.samples.get(label, 0))
+            contexts[str(label)] = entry
+        print(
+            json.dumps(
+                {
+                    "log": str(args.log),
+                    "vehicle": params.name,
+                    "nominal_theta": dict(zip(THETA_NAMES, map(float, params.theta), strict=True)),
+                    "context_column": args.context_column,
+                    "samples": int(len(log)),
+                    "dt_s": split.dt,
+                    "horizon": split.horizon,
+                    "stride": args.stride,
+                    "min_speed_mps": args.min_speed,
+                    "solver": args.solver,
+                    "free": list(options.free),
+                    "prior_sigma": dict(options.prior_sigma or {}),
+                    "candidate_windows": split.n_candidates,
+                    "windows_skipped": split.skipped,
+                    "contexts": contexts,
+                }
+            )
+        )
+        return 0
+
+    print(
+        f"{args.log}: {len(log)} samples, dt {split.dt:.4g} s, vehicle {params.name}, "
+        f"H {split.horizon}, stride {args.stride}, v >= {args.min_speed:g} m/s, "
+        f"fitted {', '.join(options.free)} ({args.solver})"
+    )
+    header = f"{'context':>12} {'samples':>8} {'windows':>8} "
+    header += " ".join(f"{n:>9} {'+-std':>9}" for n in THETA_NAMES)
+    header += f" {'loss':>9} {'iters':>5}  status"
+    print(header)
+    for label, result in results.items():
+        row = f"{str(label):>12} {split.samples.get(label, 0):>8d} {result.n_windows:>8d} "
+        row += " ".join(
+            f"{_fmt(result.theta[i], 5):>9} {_fmt(result.std[i], 2):>9}" for i in range(3)
+        )
+        row += f" {_fmt(result.loss, 3):>9} {result.iterations:>5d}  {result.status}"
+        print(row)
+    skipped = ", ".join(f"{k} {v}" for k, v in split.skipped.items())
+    print(f"candidate windows {split.n_candidates}; skipped: {skipped}")
+    for label, result in results.items():
+        for warning in result.warnings:
+            print(f"warning [{label}]: {warning}")
+    return 0

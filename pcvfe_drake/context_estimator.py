@@ -1,0 +1,442 @@
+"""Online per-context friction estimation: sample buffers, bounded refits, an estimate table.
+
+:class:`ContextEstimator` is the core of the ``ContextFitter`` LeafSystem (and usable without
+Drake): samples of (time, state, input) are appended to a buffer per context id at the data rate;
+:meth:`ContextEstimator.refit` refits contexts that gained data, a bounded amount of work per
+call (at most ``max_contexts_per_update`` contexts, each on at most ``max_windows`` of its most
+recent windows for at most ``max_iterations`` Gauss-Newton iterations, warm-started from the
+previous estimate; contexts are served round-robin).
+
+Rules (the "bad input" behaviour):
+
+* samples with non-finite values are not stored (counted in ``rejected_samples``);
+* noise/unknown contexts (id < 0, or non-finite) are not stored and map to the prior theta;
+* a context with fewer than ``min_windows`` usable windows keeps the prior theta and its table
+  entry says so (status ``"too_little_data"``);
+* a refit whose solver diverges (non-finite loss or estimate) keeps the last good estimate and
+  increments the context's ``diverged`` count;
+* :meth:`ContextEstimator.theta_for` always returns finite numbers.
+
+The object is copied by Drake at every state update; the buffers are chunked so that a copy shares
+the full, immutable chunks and copies only the partly filled one.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from pcvfe_drake.fit_dataset import (
+    DEFAULT_HORIZON,
+    DEFAULT_STRIDE,
+    DEFAULT_V_MIN_MPS,
+    DEFAULT_X0_SMOOTHING,
+    build_windows,
+)
+from pcvfe_drake.fitting import (
+    STATUS_DIVERGED,
+    FitOptions,
+    FitResult,
+    fit_gauss_newton,
+    joint_options,
+)
+from pcvfe_drake.params import THETA_NAMES, VehicleParams
+from pcvfe_drake.vehicle import NU, NX
+
+_ROW = 1 + NX + NU  # t, state, input
+
+
+class SampleBuffer:
+    """Append-only buffer of (t, state (7), input (2)) rows keeping the newest ``capacity`` rows.
+
+    Rows are stored in chunks of ``chunk_size``; full chunks are read-only and shared between
+    copies (``copy.deepcopy`` copies only the partly filled chunk).
+    """
+
+    def __init__(self, capacity: int, chunk_size: int = 100) -> None:
+        if capacity < 1 or chunk_size < 1:
+            raise ValueError(
+                f"SampleBuffer: capacity and chunk_size must be >= 1, got {capacity}, {chunk_size}"
+            )
+        self.chunk_size = int(chunk_size)
+        self.max_chunks = max(1, math.ceil(capacity / chunk_size))
+        self._chunks: tuple[np.ndarray, ...] = ()
+        self._tail = np.empty((self.chunk_size, _ROW))
+        self._tail_n = 0
+        self.total = 0
+        """Rows appended since creation (including rows since dropped)."""
+
+    def append(self, t: float, state: np.ndarray, inputs: np.ndarray) -> None:
+        row = self._tail[self._tail_n]
+        row[0] = t
+        row[1 : 1 + NX] = state
+        row[1 + NX :] = inputs
+        self._tail_n += 1
+        self.total += 1
+        if self._tail_n == self.chunk_size:
+            full = self._tail
+            full.flags.writeable = False
+            chunks = (*self._chunks, full)
+            self._chunks = chunks[-self.max_chunks :]
+            self._tail = np.empty((self.chunk_size, _ROW))
+            self._tail_n = 0
+
+    def __len__(self) -> int:
+        return len(self._chunks) * self.chunk_size + self._tail_n
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(t (N,), states (N, 7), inputs (N, 2))`` of the stored rows, oldest first."""
+        rows = np.concatenate([*self._chunks, self._tail[: self._tail_n]], axis=0)
+        return rows[:, 0], rows[:, 1 : 1 + NX], rows[:, 1 + NX :]
+
+    def __deepcopy__(self, memo) -> SampleBuffer:
+        other = copy.copy(self)
+        other._tail = self._tail.copy()
+        return other
+
+
+@dataclass(frozen=True)
+class ContextEstimate:
+    """The estimate of one context (one row of the estimate table).
+
+    Attributes:
+        context_id: the context id (>= 0).
+        theta: [mu, C_Sf, C_Sr] in use for this context (the prior until a fit succeeded).
+        theta_std: standard deviations (NaN where not fitted / not yet fitted).
+        samples: samples received for this context.
+        n_windows: windows used in the last fit (0 if none).
+        last_update_s: simulation time of the last successful fit [s] (NaN if none).
+        status: "prior" (no fit yet), "too_little_data", "fitted" (converged), "fitting"
+            (iteration cap reached, continues at the next update), or "diverged" (the last
+            refit diverged; theta is the last good estimate).
+        fits: successful fits so far.
+        diverged: refits that diverged and were discarded.
+        loss: loss of the last successful fit (NaN if none).
+        message: a human-readable note (e.g. why the prior is used, solver warnings).
+    """
+
+    context_id: int
+    theta: tuple[float, float, float]
+    theta_std: tuple[float, float, float]
+    samples: int = 0
+    n_windows: int = 0
+    last_update_s: float = float("nan")
+    status: str = "prior"
+    fits: int = 0
+    diverged: int = 0
+    loss: float = float("nan")
+    message: str = ""
+
+    @property
+    def mu(self) -> float:
+        return self.theta[0]
+
+    @property
+    def mu_std(self) -> float:
+        return self.theta_std[0]
+
+    @property
+    def fitted(self) -> bool:
+        """A fit has succeeded at least once (theta is an estimate, not the prior)."""
+        return self.fits > 0
+
+    def to_dict(self) -> dict:
+        def num(x):
+            return float(x) if math.isfinite(x) else None
+
+        return {
+            "context_id": self.context_id,
+            "theta": dict(zip(THETA_NAMES, map(num, self.theta), strict=True)),
+            "std": dict(zip(THETA_NAMES, map(num, self.theta_std), strict=True)),
+            "samples": self.samples,
+            "n_windows": self.n_windows,
+            "last_update_s": num(self.last_update_s),
+            "status": self.status,
+            "fits": self.fits,
+            "diverged": self.diverged,
+            "loss": num(self.loss),
+            "message": self.message,
+        }
+
+
+@dataclass(frozen=True)
+class EstimateTable:
+    """Per-context estimates at ``time_s``, with the prior used for noise/unknown contexts."""
+
+    entries: tuple[ContextEstimate, ...] = ()
+    prior_theta: tuple[float, float, float] = (float("nan"),) * 3
+    time_s: float = float("nan")
+    rejected_samples: int = 0
+    noise_samples: int = 0
+
+    def get(self, context_id: int) -> ContextEstimate | None:
+        for entry in self.entries:
+            if entry.context_id == context_id:
+                return entry
+        return None
+
+    def to_dict(self) -> dict:
+        return {
+            "time_s": self.time_s if math.isfinite(self.time_s) else None,
+            "prior_theta": dict(zip(THETA_NAMES, self.prior_theta, strict=True)),
+            "rejected_samples": self.rejected_samples,
+            "noise_samples": self.noise_samples,
+            "entries": [e.to_dict() for e in self.entries],
+        }
+
+
+@dataclass(frozen=True)
+class LiveFitConfig:
+    """Settings of :class:`ContextEstimator`.
+
+    Attributes:
+        horizon_steps, stride_steps, min_speed_mps, x0_smoothing: window building
+            (``pcvfe_drake.fit_dataset.build_windows``).
+        fit_stiffness: fit C_Sf, C_Sr too, with Gaussian priors of ``stiffness_prior_rel``
+            times their nominal values (default: mu only).
+        stiffness_prior_rel: prior standard deviation of the stiffnesses, relative.
+        prior_theta: theta for noise/unknown contexts and contexts with too little data
+            (default: the vehicle's nominal [mu, C_Sf, C_Sr]).
+        min_windows: fewer usable windows than this: keep the prior.
+        buffer_s: seconds of data kept per context (at ``sample_period_s``).
+        sample_period_s: the data rate [s] (sets the buffer capacity).
+        max_windows: most recent windows used per refit.
+        max_iterations: Gauss-Newton iterations per refit.
+        max_contexts_per_update: contexts refitted per call of ``refit`` (round-robin).
+    """
+
+    horizon_steps: int = DEFAULT_HORIZON
+    stride_steps: int = DEFAULT_STRIDE
+    min_speed_mps: float = DEFAULT_V_MIN_MPS
+    x0_smoothing: int = DEFAULT_X0_SMOOTHING
+    fit_stiffness: bool = False
+    stiffness_prior_rel: float = 0.1
+    prior_theta: tuple[float, float, float] | None = None
+    min_windows: int = 20
+    buffer_s: float = 60.0
+    sample_period_s: float = 0.01
+    max_windows: int = 512
+    max_iterations: int = 5
+    max_contexts_per_update: int = 2
+
+    def __post_init__(self) -> None:
+        positive_ints = (
+            "horizon_steps",
+            "stride_steps",
+            "min_windows",
+            "max_windows",
+            "max_iterations",
+            "max_contexts_per_update",
+        )
+        for name in positive_ints:
+            value = getattr(self, name)
+            if not (isinstance(value, int | np.integer) and value >= 1):
+                raise ValueError(f"LiveFitConfig.{name} must be an integer >= 1, got {value!r}")
+        for name in ("buffer_s", "sample_period_s", "stiffness_prior_rel"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"LiveFitConfig.{name} must be > 0, got {value!r}")
+        if not math.isfinite(self.min_speed_mps):
+            raise ValueError(f"LiveFitConfig.min_speed_mps must be finite: {self.min_speed_mps!r}")
+        if self.prior_theta is not None:
+            prior = np.asarray(self.prior_theta, dtype=float)
+            if prior.shape != (3,) or not np.all(np.isfinite(prior)) or np.any(prior <= 0):
+                raise ValueError(
+                    "LiveFitConfig.prior_theta must be 3 positive numbers, "
+                    f"got {self.prior_theta!r}"
+                )
+
+
+@dataclass
+class _ContextSlot:
+    buffer: SampleBuffer
+    estimate: ContextEstimate
+    samples_at_fit: int = 0
+
+    def __deepcopy__(self, memo) -> _ContextSlot:
+        return _ContextSlot(copy.deepcopy(self.buffer, memo), self.estimate, self.samples_at_fit)
+
+
+@dataclass
+class ContextEstimator:
+    """Per-context buffers and estimates (see the module docstring)."""
+
+    params: VehicleParams
+    config: LiveFitConfig = field(default_factory=LiveFitConfig)
+    _slots: dict[int, _ContextSlot] = field(default_factory=dict)
+    _next_rr: int = 0
+    rejected_samples: int = 0
+    noise_samples: int = 0
+    current_context: int = -1
+
+    def __post_init__(self) -> None:
+        prior = self.params.theta if self.config.prior_theta is None else self.config.prior_theta
+        self._prior = tuple(float(v) for v in prior)
+        capacity = max(1, int(round(self.config.buffer_s / self.config.sample_period_s)))
+        self._capacity = capacity
+        if self.config.fit_stiffness:
+            self._options = joint_options(
+                self.params,
+                rel_sigma=self.config.stiffness_prior_rel,
+                max_iterations=self.config.max_iterations,
+                min_windows=self.config.min_windows,
+            )
+        else:
+            self._options = FitOptions(
+                max_iterations=self.config.max_iterations, min_windows=self.config.min_windows
+            )
+
+    def __deepcopy__(self, memo) -> ContextEstimator:
+        other = copy.copy(self)
+        other._slots = {k: copy.deepcopy(v, memo) for k, v in self._slots.items()}
+        return other
+
+    @property
+    def prior_theta(self) -> np.ndarray:
+        return np.array(self._prior)
+
+    @property
+    def context_ids(self) -> list[int]:
+        return sorted(self._slots)
+
+    def add_sample(self, t: float, state, inputs, context_id) -> int:
+        """Store one sample; returns the context id used (-1: noise/unknown or rejected)."""
+        state = np.asarray(state, dtype=float).reshape(-1)
+        inputs = np.asarray(inputs, dtype=float).reshape(-1)
+        if state.shape != (NX,) or inputs.shape != (NU,):
+            raise ValueError(
+                f"add_sample: state must have {NX} and inputs {NU} entries, got "
+                f"{state.shape} and {inputs.shape}"
+            )
+        cid = float(np.asarray(context_id, dtype=float).reshape(-1)[0])
+        ident = int(round(cid)) if math.isfinite(cid) and cid >= 0 else -1
+        self.current_context = ident
+        if not (math.isfinite(t) and np.all(np.isfinite(state)) and np.all(np.isfinite(inputs))):
+            self.rejected_samples += 1
+            return -1
+        if ident < 0:
+            self.noise_samples += 1
+            return -1
+        slot = self._slots.get(ident)
+        if slot is None:
+            slot = _ContextSlot(
+                SampleBuffer(self._capacity),
+                ContextEstimate(ident, self._prior, (float("nan"),) * 3),
+            )
+            self._slots[ident] = slot
+        slot.buffer.append(t, state, inputs)
+        return ident
+
+    def theta_for(self, context_id: int | None = None) -> np.ndarray:
+        """theta in use for ``context_id`` (default: the current one): always finite."""
+        ident = self.current_context if context_id is None else int(context_id)
+        slot = self._slots.get(ident)
+        theta = np.array(self._prior if slot is None else slot.estimate.theta)
+        return theta if np.all(np.isfinite(theta)) else np.array(self._prior)
+
+    def pending(self) -> list[int]:
+        """Contexts that gained samples since their last refit, in round-robin order."""
+        ids = [k for k, s in sorted(self._slots.items()) if s.buffer.total > s.samples_at_fit]
+        later = [k for k in ids if k >= self._next_rr]
+        return later + [k for k in ids if k < self._next_rr]
+
+    def refit(self, t_now: float, fit=fit_gauss_newton) -> list[int]:
+        """Refit up to ``max_contexts_per_update`` pending contexts; returns their ids.
+
+        ``fit`` is the solver (``fit_gauss_newton`` signature); replaceable for testing.
+        """
+        done = []
+        for ident in self.pending()[: self.config.max_contexts_per_update]:
+            self._refit_one(ident, t_now, fit)
+            done.append(ident)
+            self._next_rr = ident + 1
+        return done
+
+    def _refit_one(self, ident: int, t_now: float, fit) -> None:
+        cfg = self.config
+        slot = self._slots[ident]
+        slot.samples_at_fit = slot.buffer.total
+        old = slot.estimate
+        t, states, inputs = slot.buffer.arrays()
+        split = build_windows(
+            t,
+            states,
+            inputs,
+            horizon=cfg.horizon_steps,
+            stride=cfg.stride_steps,
+            v_min=cfg.min_speed_mps,
+            dt=cfg.sample_period_s,
+            x0_smoothing=cfg.x0_smoothing,
+        )
+        data = split.by_context.get(0)
+        n_windows = 0 if data is None else data.n_windows
+        samples = slot.buffer.total
+        if n_windows < cfg.min_windows:
+            skipped = ", ".join(f"{k} {v}" for k, v in split.skipped.items() if v)
+            slot.estimate = replace(
+                old,
+                samples=samples,
+                status=old.status if old.fitted else "too_little_data",
+                message=(
+                    f"too little data: {n_windows} usable windows < {cfg.min_windows}"
+                    + (f" (skipped: {skipped})" if skipped else "")
+                    + ("; keeping the last estimate" if old.fitted else "; using the prior")
+                ),
+            )
+            return
+        if n_windows > cfg.max_windows:
+            data = data.subset(slice(n_windows - cfg.max_windows, None))
+        start = np.array(old.theta) if old.fitted else np.array(self._prior)
+        try:
+            result: FitResult = fit(data, self.params, start, self._options)
+            ok = (
+                result.status != STATUS_DIVERGED
+                and np.all(np.isfinite(result.theta))
+                and math.isfinite(result.loss)
+            )
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
+            result, ok = None, False
+            reason = f"{type(exc).__name__}: {exc}"
+        if not ok:
+            if result is not None:
+                reason = "; ".join(result.warnings) or result.status
+            slot.estimate = replace(
+                old,
+                samples=samples,
+                status="diverged",
+                diverged=old.diverged + 1,
+                message=f"refit at t={t_now:.3g} s diverged ({reason}); keeping the last good "
+                f"{'estimate' if old.fitted else 'prior'}",
+            )
+            return
+        std = np.where(np.isfinite(result.std), result.std, np.nan)
+        slot.estimate = ContextEstimate(
+            context_id=ident,
+            theta=tuple(float(v) for v in result.theta),
+            theta_std=tuple(float(v) for v in std),
+            samples=samples,
+            n_windows=data.n_windows,
+            last_update_s=float(t_now),
+            status="fitted" if result.converged else "fitting",
+            fits=old.fits + 1,
+            diverged=old.diverged,
+            loss=float(result.loss),
+            message="; ".join(result.warnings),
+        )
+
+    def table(self, time_s: float = float("nan")) -> EstimateTable:
+        """The estimate table (sample counts as of now)."""
+        entries = tuple(
+            replace(slot.estimate, samples=slot.buffer.total)
+            for _, slot in sorted(self._slots.items())
+        )
+        return EstimateTable(
+            entries=entries,
+            prior_theta=self._prior,
+            time_s=float(time_s),
+            rejected_samples=self.rejected_samples,
+            noise_samples=self.noise_samples,
+        )

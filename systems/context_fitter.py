@@ -1,0 +1,151 @@
+"""ContextFitter: context-specific friction estimation through the dynamics (paper IV-B)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import BasicVector, Context, EventStatus, LeafSystem, State
+
+from pcvfe_drake.context_estimator import ContextEstimator, EstimateTable, LiveFitConfig
+from pcvfe_drake.params import VehicleParams
+from pcvfe_drake.vehicle import NTHETA, NU, NX
+
+
+class ContextFitter(LeafSystem):
+    """Estimates theta = [mu, C_Sf, C_Sr] per terrain context and outputs the current one.
+
+    .. pydrake_system::
+
+        name: ContextFitter
+        input_ports:
+        - state
+        - actuation
+        - context_id
+        output_ports:
+        - theta_hat
+        - estimate_table
+
+    - ``state``: 7-vector, the ST state [sx, sy, delta, v, psi, psi_dot, beta] (SI units).
+    - ``actuation``: 2-vector [steer_rate rad/s, accel m/s^2] applied to the vehicle.
+    - ``context_id``: 1-vector, the terrain context (float-valued int; -1 = noise/unknown).
+    - ``theta_hat``: 3-vector [mu, C_Sf, C_Sr] of the current context, from state (zero-order
+      hold at the sample rate, no direct feedthrough). Noise/unknown contexts and contexts with
+      too little data get the prior theta (default: the vehicle's nominal values, for the Ford
+      Escort [1.0489, 20.898, 20.898]). Always finite.
+    - ``estimate_table``: abstract :class:`pcvfe_drake.context_estimator.EstimateTable`: per
+      context theta, standard deviations, samples, windows, last update time, status and the
+      number of discarded (diverged) refits.
+
+    Rates: a periodic unrestricted update every ``sample_period_s`` (default 0.01 s = 100 Hz)
+    appends (t, state, actuation) to the buffer of the current context and sets ``theta_hat``;
+    a periodic unrestricted update every ``period_s`` (default 1 s = 1 Hz, first at
+    t = ``period_s``) refits contexts that gained data, bounded per update (see
+    :class:`pcvfe_drake.context_estimator.LiveFitConfig`: ``max_contexts_per_update``,
+    ``max_windows``, ``max_iterations``). When both fire at once the sample is taken first. The
+    :class:`ContextEstimator` (buffers, estimates) lives in the context's abstract state.
+    """
+
+    def __init__(
+        self,
+        params: VehicleParams,
+        *,
+        period_s: float = 1.0,
+        sample_period_s: float = 0.01,
+        config: LiveFitConfig | None = None,
+        **config_overrides,
+    ) -> None:
+        """
+        Args:
+            params: the vehicle (model, bounds, nominal theta / prior).
+            period_s: refit period [s].
+            sample_period_s: data sampling period [s].
+            config: fitting settings (default ``LiveFitConfig()``); ``sample_period_s`` replaces
+                its data rate.
+            config_overrides: individual ``LiveFitConfig`` fields (e.g. ``horizon_steps=10``,
+                ``fit_stiffness=True``); None values are ignored.
+        """
+        super().__init__()
+        for name, value in (("period_s", period_s), ("sample_period_s", sample_period_s)):
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(
+                    f"ContextFitter: {name} must be a positive number of seconds, got {value!r}"
+                )
+        base = LiveFitConfig() if config is None else config
+        fields = {k: v for k, v in config_overrides.items() if v is not None}
+        unknown = sorted(set(fields) - set(LiveFitConfig.__dataclass_fields__))
+        if unknown:
+            raise ValueError(f"ContextFitter: unknown setting(s) {unknown}")
+        self._config = replace(base, sample_period_s=float(sample_period_s), **fields)
+        self._params = params
+        self._period_s = float(period_s)
+        self._sample_period_s = float(sample_period_s)
+        estimator = ContextEstimator(params, self._config)
+
+        self._state_port = self.DeclareVectorInputPort("state", NX)
+        self._actuation_port = self.DeclareVectorInputPort("actuation", NU)
+        self._context_id_port = self.DeclareVectorInputPort("context_id", 1)
+        self._estimator_index = self.DeclareAbstractState(AbstractValue.Make(estimator))
+        self._theta_index = self.DeclareDiscreteState(BasicVector(estimator.prior_theta))
+        self.DeclarePeriodicUnrestrictedUpdateEvent(
+            period_sec=self._sample_period_s, offset_sec=0.0, update=self._on_sample
+        )
+        self.DeclarePeriodicUnrestrictedUpdateEvent(
+            period_sec=self._period_s, offset_sec=self._period_s, update=self._on_refit
+        )
+        self._theta_port = self.DeclareStateOutputPort("theta_hat", self._theta_index)
+        self._table_port = self.DeclareAbstractOutputPort(
+            "estimate_table",
+            lambda: AbstractValue.Make(EstimateTable()),
+            self._calc_table,
+            prerequisites_of_calc={
+                self.abstract_state_ticket(self._estimator_index),
+                self.time_ticket(),
+            },
+        )
+
+    @property
+    def config(self) -> LiveFitConfig:
+        return self._config
+
+    @property
+    def period_s(self) -> float:
+        """Refit period [s]."""
+        return self._period_s
+
+    @property
+    def sample_period_s(self) -> float:
+        """Sampling period [s]."""
+        return self._sample_period_s
+
+    def estimator(self, context: Context) -> ContextEstimator:
+        """The estimator held in ``context`` (read only: change it through events)."""
+        return context.get_abstract_state(self._estimator_index).get_value()
+
+    def _set_theta(self, state: State, estimator: ContextEstimator) -> None:
+        theta = estimator.theta_for()
+        if theta.shape != (NTHETA,) or not np.all(np.isfinite(theta)):
+            theta = estimator.prior_theta
+        state.get_mutable_discrete_state(self._theta_index).SetFromVector(theta)
+
+    def _on_sample(self, context: Context, state: State) -> EventStatus:
+        estimator = state.get_mutable_abstract_state(self._estimator_index).get_mutable_value()
+        estimator.add_sample(
+            context.get_time(),
+            self._state_port.Eval(context),
+            self._actuation_port.Eval(context),
+            self._context_id_port.Eval(context),
+        )
+        self._set_theta(state, estimator)
+        return EventStatus.Succeeded()
+
+    def _on_refit(self, context: Context, state: State) -> EventStatus:
+        estimator = state.get_mutable_abstract_state(self._estimator_index).get_mutable_value()
+        estimator.refit(context.get_time())
+        self._set_theta(state, estimator)
+        return EventStatus.Succeeded()
+
+    def _calc_table(self, context: Context, output: AbstractValue) -> None:
+        output.set_value(self.estimator(context).table(context.get_time()))
