@@ -43,6 +43,10 @@ CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
 MIN_IMAGE_SIDE = 16
 
 
+class BlankImageError(ValueError):
+    """An image with no signal at all (all black): a camera failure rather than a bad call."""
+
+
 def prompts(captions: Sequence[str] = CAPTIONS) -> list[str]:
     """Full caption sentences, "This image contains {caption}"."""
     return [PROMPT_TEMPLATE.format(c) for c in captions]
@@ -84,7 +88,7 @@ def as_image_batch(images, what: str = "images") -> list[np.ndarray]:
             )
         rgb = img[..., :3]
         if not rgb.any():
-            raise ValueError(f"{name}: image is all black (camera failure or no exposure?)")
+            raise BlankImageError(f"{name}: image is all black (camera failure or no exposure?)")
         out.append(rgb)
     return out
 
