@@ -82,6 +82,7 @@ from pcvfe_drake.vehicle import (
 MODELS = ("st", "ks")
 _ACCEPTED = ("solved", "solved inaccurate")
 _MU_RANGE = (0.05, 2.0)
+_PROJ = ("s", "lateral_error", "heading_error", "x", "y", "heading", "curvature")
 
 
 @dataclass(frozen=True)
@@ -205,14 +206,13 @@ class NmpcMemory:
     """What one update hands to the next (the controller's discrete state; never mutated).
 
     ``x_plan`` (N+1, 7) and ``u_plan`` (N, 2): the last successful plan (None before the first);
-    ``s_plan`` (N,): arc lengths of its predicted positions; ``dual``/``slack``: OSQP warm start;
+    ``dual``/``slack``: OSQP warm start;
     ``u_applied`` (2,): the last applied input; ``steps_since_solve``: updates since that plan;
     ``valid``: whether the plan may seed the next RTI; counters for diagnostics.
     """
 
     x_plan: np.ndarray | None = None
     u_plan: np.ndarray | None = None
-    s_plan: np.ndarray | None = None
     dual: np.ndarray | None = None
     slack: np.ndarray | None = None
     u_applied: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(NU))
@@ -445,6 +445,7 @@ class Linearization:
     u_hi: np.ndarray  # (N, 2)
     friction_radius: float
     corridor: float
+    measured: tuple[float, float, float]  # s [m], lateral and course-angle errors of the state
 
 
 # ---------------------------------------------------------------------------- controller
@@ -631,9 +632,10 @@ class NmpcController:
         cfg, p = self.config, self.params
         n = self.N
         x_bar, u_bar, _ = self._bars(x, memory, prof)
-        proj = self.course.project(x_bar[1:, :2])
+        everything = self.course.project(x_bar[:, :2], heading=x_bar[:, PSI] + x_bar[:, BETA])
+        proj = dataclasses.replace(everything, **{f: getattr(everything, f)[1:] for f in _PROJ})
         normal = np.column_stack([-np.sin(proj.heading), np.cos(proj.heading)])
-        e_course = wrap_angle(x_bar[1:, PSI] + x_bar[1:, BETA] - proj.heading)
+        e_course = proj.heading_error
         v_ref = prof.speed_at(proj.s)
         x_lin = x_bar[:n].copy()
         x_lin[:, V] = np.maximum(x_lin[:, V], cfg.v_lin_min_mps)
@@ -660,6 +662,11 @@ class NmpcController:
             v_ref=v_ref,
             yaw_ref=v_ref * proj.curvature,
             s=proj.s,
+            measured=(
+                float(everything.s[0]),
+                float(everything.lateral_error[0]),
+                float(everything.heading_error[0]),
+            ),
             u_prev=np.asarray(memory.u_applied, dtype=float),
             u_lo=u_lo,
             u_hi=u_hi,
@@ -815,12 +822,10 @@ class NmpcController:
         u_plan = lin.u_bar + z[lay.off_u : lay.off_sf].reshape(n, NU)
         u = np.clip(u_plan[0], lin.u_lo[0], lin.u_hi[0])
         slack = z[lay.off_sf :]
-        s_next = np.concatenate([lin.s[1:], lin.s[-1:]])
         new = dataclasses.replace(
             memory,
             x_plan=x_plan,
             u_plan=u_plan,
-            s_plan=s_next,
             dual=np.array(res.y),
             slack=np.concatenate([slack[1:n], slack[n - 1 : n], slack[n + 1 :], slack[-1:]]),
             u_applied=u,
@@ -830,7 +835,7 @@ class NmpcController:
             consecutive_fallbacks=0,
         )
         diag = self._diagnostics(
-            new, x, th, prof, "qp", status + (f"; {note}" if note else ""), t_start, res
+            new, x, th, prof, "qp", status + (f"; {note}" if note else ""), t_start, res, lin
         )
         return u, new, diag
 
@@ -860,15 +865,19 @@ class NmpcController:
             prof = self.profile(th[0])
         except Exception:
             prof = None
-        return u, new, self._diagnostics(new, x, th, prof, mode, reason, t_start, None)
+        return u, new, self._diagnostics(new, x, th, prof, mode, reason, t_start, None, lin)
 
-    def _diagnostics(self, mem, x, th, prof, mode, status, t_start, res) -> NmpcDiagnostics:
+    def _diagnostics(
+        self, mem, x, th, prof, mode, status, t_start, res, lin=None
+    ) -> NmpcDiagnostics:
         s = lat = herr = vref = float("nan")
-        if x.size == NX and np.all(np.isfinite(x[:2])):
+        if lin is not None:
+            s, lat, herr = lin.measured
+        elif x.size == NX and np.all(np.isfinite(x[:2])):
             pr = self.course.project(x[:2], heading=x[PSI] + x[BETA])
             s, lat, herr = float(pr.s), float(pr.lateral_error), float(pr.heading_error)
-            if prof is not None:
-                vref = float(prof.speed_at(s))
+        if prof is not None and np.isfinite(s):
+            vref = float(prof.speed_at(s))
         return NmpcDiagnostics(
             mode=mode,
             status=status,

@@ -10,7 +10,7 @@ from pcvfe_drake.nmpc import NmpcConfig, NmpcDiagnostics, NmpcMemory, start_stat
 
 @pytest.fixture(scope="module")
 def nmpc():
-    return Nmpc("slalom", config=NmpcConfig(horizon=20))
+    return Nmpc("slalom", config=NmpcConfig(horizon=20, time_limit_s=10.0))
 
 
 def test_ports_and_no_direct_feedthrough(nmpc):
@@ -49,7 +49,11 @@ def test_output_held_between_updates_and_diagnostics(nmpc):
 
 
 def test_fixed_theta_ignores_the_unconnected_input():
-    sys_ = Nmpc("slalom", config=NmpcConfig(horizon=20), fixed_theta=[0.3, 20.898, 20.898])
+    sys_ = Nmpc(
+        "slalom",
+        config=NmpcConfig(horizon=20, time_limit_s=10.0),
+        fixed_theta=[0.3, 20.898, 20.898],
+    )
     ctx = sys_.CreateDefaultContext()
     sys_.GetInputPort("state").FixValue(
         ctx, start_state(sys_.controller.course, sys_.params, 5.0, 0.0)
