@@ -11,6 +11,8 @@ COMMANDS = [
     "demo",
     "simulate",
     "fit",
+    "features",
+    "export_clip",
 ]
 
 

@@ -254,3 +254,31 @@ def test_descriptor_separates_all_textures_in_camera_frames():
     pred = np.argmin(((z_test[:, None] - centroids[None]) ** 2).sum(axis=2), axis=1)
     accuracy = np.mean(pred == y_test)
     assert accuracy >= 0.95, accuracy
+
+
+def test_cli_features_prints_z_for_both_backends(tiny, tmp_path, capsys):
+    from pcvfe_drake.cli import main
+
+    path = tmp_path / "frame.png"
+    image = smooth_images()[3]
+    Image.fromarray(image).save(path)
+    assert main(["features", str(path), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    np.testing.assert_allclose(out["images"][0]["z"], DescriptorExtractor().extract_one(image))
+    assert main(["features", str(path), "--clip", str(tiny[0]), "--top", "2"]) == 0
+    text = capsys.readouterr().out
+    best = CAPTIONS[int(np.argmax(reference_z([image], tiny[1])[0, :33]))]
+    assert "backend: clip (36 numbers" in text and best in text
+    assert main(["features", str(tmp_path / "missing.png")]) == 2
+    assert "missing.png does not exist" in capsys.readouterr().err
+
+
+def test_cli_export_clip_explains_missing_torch(tmp_path, capsys):
+    import importlib.util
+
+    from pcvfe_drake.cli import main
+
+    if importlib.util.find_spec("open_clip") and importlib.util.find_spec("torch"):
+        pytest.skip("torch and open_clip are installed here")
+    assert main(["export-clip", "--out", str(tmp_path / "clip")]) == 2
+    assert "needs torch and open_clip" in capsys.readouterr().err
