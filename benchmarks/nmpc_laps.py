@@ -3,8 +3,10 @@
 Runs the Ford Escort on the ``slalom`` course on each uniform terrain (mu 0.3, 0.45, 0.6, 0.8)
 and on the default four-terrain map (``pcvfe_drake.terrain.default_terrain_map``), the KMPC
 baseline on the four-terrain map, and the RoboRacer on ``slalom_small``; the truth is the ST model
-(RK4 at 10 ms), or with ``--mb`` also CommonRoad's multi-body model on the four-terrain map.
-The controller is told the true mu under the car at each update.
+(RK4 at 10 ms). With ``--mb`` also CommonRoad's multi-body model (saturating Pacejka tires) on the
+four-terrain map: at the course's 5 m/s, with the speed cap raised to 12 m/s, and (informative,
+not a pass criterion) at 12 m/s believing mu = 1 everywhere. Otherwise the controller is told the
+true mu under the car at each update.
 
 Pass criteria per run: at least one full lap, lateral tracking RMS <= 0.3 m (scaled by 1/5 on
 the small course), and no failure: the car never leaves the course (|lateral error| > the
@@ -49,9 +51,11 @@ class MbTruthPlant:
         return self._st_state(self.x)
 
 
-def run(label, course, params, config, mu_at, laps, truth=None, rms_limit=RMS_LIMIT_M):
+def run(
+    label, course, params, config, mu_at, laps, truth=None, rms_limit=RMS_LIMIT_M, theta_hat=None
+):
     ctrl = NmpcController(course, params, config)
-    prof = ctrl.profile(float(mu_at(np.zeros(2))))
+    prof = ctrl.profile(float(mu_at(np.array(course.sample(0.0)[:2]))))
     x0 = start_state(course, params, float(prof.speed_at(0.0)))
     t0 = time.perf_counter()
     res = simulate_closed_loop(
@@ -60,6 +64,7 @@ def run(label, course, params, config, mu_at, laps, truth=None, rms_limit=RMS_LI
         duration_s=1.6 * laps * prof.lap_time + 5.0,
         mu_at=mu_at,
         truth=truth,
+        theta_hat=theta_hat,
         stop_after_laps=laps,
     )
     wall = time.perf_counter() - t0
@@ -128,12 +133,30 @@ def main(argv=None) -> int:
         results.append(
             run("NMPC four-terrain, MB truth", slalom, ford, cfg, mixed, laps, MbTruthPlant())
         )
+        fast = NmpcConfig(max_speed_mps=12.0)
+        results.append(
+            run("NMPC 12 m/s cap, MB truth", slalom, ford, fast, mixed, laps, MbTruthPlant())
+        )
+        # Informative: the same car believing mu = 1.0 everywhere (expected to slide off on the
+        # low-friction quadrants, where the saturating MB tires cannot deliver the grip).
+        over = run(
+            "12 m/s, believes mu=1, MB",
+            slalom,
+            ford,
+            fast,
+            mixed,
+            laps,
+            MbTruthPlant(),
+            theta_hat=lambda t, x: np.array([1.0, ford.C_Sf, ford.C_Sr]),
+        )
+        over["informative_only"] = True
+        results.append(over)
     summary = {
         "benchmark": "nmpc_laps",
         "quick": args.quick,
         "laps_per_run": laps,
         "rms_limit_m": RMS_LIMIT_M,
-        "all_passed": all(r["passed"] for r in results),
+        "all_passed": all(r["passed"] for r in results if not r.get("informative_only")),
         "runs": results,
     }
     print(json.dumps(summary))
