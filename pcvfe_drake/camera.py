@@ -11,8 +11,9 @@ Optional effects (all off by default; randomness only from the ``rng`` passed to
 - motion blur along the image's forward axis, ``v_mps * exposure_s`` metres long (grows with
   speed; the side-slip direction is ignored), length jittered by +-10 % per frame;
 - exposure changes: a per-frame gain ``exp(N(0, exposure_jitter))``;
-- sensor noise: additive Gaussian noise with standard deviation ``noise_std`` (0-255 scale),
-  drawn as a random window of a fixed, precomputed noise field (fast, and still seeded).
+- sensor noise: additive Gaussian noise with standard deviation ``noise_std`` (0-255 scale,
+  rounded to integers), drawn as a random window of a fixed, precomputed noise field (fast,
+  and still seeded).
 """
 
 from __future__ import annotations
@@ -143,10 +144,12 @@ class DownwardCamera:
 
     # ------------------------------------------------------------------------- effects
     def _noise(self, rng: np.random.Generator) -> np.ndarray:
+        """A random (H, W, 3) int16 window of the fixed noise field (std ``noise_std``)."""
         h, w, _ = self.shape
         if self._noise_field is None:
             field_rng = np.random.default_rng(_NOISE_FIELD_SEED)
-            self._noise_field = field_rng.standard_normal((2 * h, 2 * w, 3), dtype=np.float32)
+            field = field_rng.standard_normal((2 * h, 2 * w, 3)) * self.config.noise_std
+            self._noise_field = np.round(field).astype(np.int16)
         dy, dx = rng.integers(0, h), rng.integers(0, w)
         return self._noise_field[dy : dy + h, dx : dx + w]
 
@@ -159,12 +162,9 @@ class DownwardCamera:
         length = int(round(blur_px))
         if length >= 2:
             image = cv2.blur(image, (1, length), borderType=cv2.BORDER_REFLECT)
-        gain = float(np.exp(rng.normal(0.0, cfg.exposure_jitter))) if cfg.exposure_jitter else 1.0
-        if cfg.noise_std > 0 or gain != 1.0:
-            out = image.astype(np.float32)
-            if gain != 1.0:
-                out *= gain
-            if cfg.noise_std > 0:
-                out += self._noise(rng) * np.float32(cfg.noise_std)
-            image = np.clip(out + 0.5, 0, 255).astype(np.uint8)
+        if cfg.exposure_jitter > 0:
+            gain = float(np.exp(rng.normal(0.0, cfg.exposure_jitter)))
+            image = cv2.convertScaleAbs(image, alpha=gain)  # saturates at 255
+        if cfg.noise_std > 0:
+            image = cv2.add(image, np.ascontiguousarray(self._noise(rng)), dtype=cv2.CV_8U)
         return image

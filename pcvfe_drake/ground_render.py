@@ -89,8 +89,8 @@ class GroundRenderer:
         reps = int(np.ceil((w + hi[0] - lo[0]) / w)), int(np.ceil((h + hi[1] - lo[1]) / h))
         flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
         if max(reps) <= 4:
-            # A pre-tiled canvas holds the whole view: no per-pixel wrapping (faster).
-            canvas = self._tiled(name, image, level, max(reps))
+            # A pre-tiled canvas (2x2 or 4x4 tiles) holds the whole view: no per-pixel wrapping.
+            canvas = self._tiled(name, image, level, 2 if max(reps) <= 2 else 4)
             return cv2.warpAffine(canvas, a, (ww, hh), flags=flags, borderMode=cv2.BORDER_REPLICATE)
         return cv2.warpAffine(image, a, (ww, hh), flags=flags, borderMode=cv2.BORDER_WRAP)
 
