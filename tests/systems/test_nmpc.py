@@ -63,3 +63,33 @@ def test_fixed_theta_ignores_the_unconnected_input():
     assert diag.mode == "qp" and diag.mu_hat == pytest.approx(0.3)
     with pytest.raises(ValueError, match="fixed_theta"):
         Nmpc("slalom", fixed_theta=[np.nan, 1.0, 1.0])
+
+
+def test_closed_loop_with_the_vehicle_plant_tracks():
+    from pcvfe_drake.systems.vehicle_plant import VehiclePlant
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import ConstantVectorSource
+
+    ctrl = Nmpc("slalom", config=NmpcConfig(time_limit_s=10.0))
+    course, params = ctrl.controller.course, ctrl.params
+    x0 = start_state(course, params, 5.0, 100.0)
+    x0[1] += 0.5  # start half a metre off the path
+    builder = DiagramBuilder()
+    plant = builder.AddNamedSystem("plant", VehiclePlant(params, x0=x0))
+    nmpc = builder.AddNamedSystem("nmpc", ctrl)
+    theta = builder.AddNamedSystem("theta", ConstantVectorSource(params.theta))
+    builder.Connect(plant.GetOutputPort("state"), nmpc.GetInputPort("state"))
+    builder.Connect(theta.get_output_port(), nmpc.GetInputPort("theta_hat"))
+    builder.Connect(nmpc.GetOutputPort("actuation"), plant.GetInputPort("actuation"))
+    diagram = builder.Build()
+    sim = Simulator(diagram)
+    sim.AdvanceTo(3.0)
+    ctx = diagram.GetSubsystemContext(plant, sim.get_context())
+    x = plant.GetOutputPort("state").Eval(ctx)
+    p = course.project(x[:2])
+    assert abs(float(p.lateral_error)) < 0.1
+    assert x[3] == pytest.approx(5.0, abs=0.3)
+    diag = nmpc.GetOutputPort("diagnostics").Eval(
+        diagram.GetSubsystemContext(nmpc, sim.get_context())
+    )
+    assert diag.updates == 60 and diag.fallback_count == 0
