@@ -229,3 +229,16 @@ def test_config_validation(params):
     cfg = NmpcConfig().resolved(params)
     assert cfg.lateral_scale_m == pytest.approx(0.08 * params.L)
     assert cfg.horizon * cfg.dt_s >= 2.0
+
+
+def test_starts_from_standstill_within_the_friction_limit(course, params):
+    # Linearisation at v = 0 is clamped; the friction polygon caps the launch acceleration.
+    ctrl = NmpcController(course, params, RELAXED)
+    x0 = start_state(course, params, 0.0, 100.0)
+    res = simulate_closed_loop(ctrl, x0, 2.0, mu_at=lambda xy: 0.45)
+    assert res.failure == "" and res.metrics(course)["fallbacks"] == 0
+    assert res.x[-1, V] > 3.0
+    assert np.max(np.abs(res.lateral_error)) < 0.05
+    limit = RELAXED.friction_margin * 0.45 * params.g
+    assert np.max(res.u[:, 1]) <= limit * 1.02
+    assert np.max(res.u[:, 1]) > 0.8 * limit  # the constraint, not the cost, limits the launch
