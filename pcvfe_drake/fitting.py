@@ -452,13 +452,15 @@ def fit_gauss_newton(
         return float(np.sum(precision * (th - prior_mean) ** 2))
 
     def objective(th):
-        R = window_residuals(th, data, params, weights)
-        value = float(np.sum(R * R)) + prior_ss(th)
-        return value if math.isfinite(value) else float("inf")
+        # Trial points are evaluated with sensitivities: most steps are accepted, and then the
+        # next iteration needs them (one rollout per iteration instead of two).
+        R_t, J_t = window_residuals(th, data, params, weights, jacobian=True)
+        with np.errstate(over="ignore", invalid="ignore"):
+            value = float(np.sum(R_t * R_t)) + prior_ss(th)
+        return (value if math.isfinite(value) else float("inf")), R_t, J_t
 
-    R, J = window_residuals(theta, data, params, weights, jacobian=True)
-    cost = float(np.sum(R * R)) + prior_ss(theta)
-    loss_initial = float(np.sum(R * R)) / count
+    cost, R, J = objective(theta)
+    loss_initial = (cost - prior_ss(theta)) / count
     if not math.isfinite(cost) or not np.all(np.isfinite(J)):
         result = _no_fit_result(theta, data, options, "gauss_newton", STATUS_DIVERGED)
         result.warnings.append("the rollout loss is not finite at the starting theta")
@@ -494,7 +496,7 @@ def fit_gauss_newton(
                 continue
             trial = theta.copy()
             trial[free] = np.clip(theta[free] + step * scale, lower[free], upper[free])
-            trial_cost = objective(trial)
+            trial_cost, trial_R, trial_J = objective(trial)
             if trial_cost < cost:
                 accepted = True
                 break
@@ -504,9 +506,8 @@ def fit_gauss_newton(
             break
         rel_change = np.max(np.abs(trial[free] - theta[free]) / scale)
         decrease = (cost - trial_cost) / max(cost, 1e-300)
-        theta, cost = trial, trial_cost
+        theta, cost, R, J = trial, trial_cost, trial_R, trial_J
         lam = max(lam / 10.0, 1e-9)
-        R, J = window_residuals(theta, data, params, weights, jacobian=True)
         if decrease <= options.ftol or rel_change <= options.xtol:
             status = STATUS_CONVERGED
             break

@@ -1,0 +1,108 @@
+"""ContextFitter LeafSystem: ports, prior handling, and a short run on a recorded drive."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pcvfe_drake.systems.context_fitter import ContextFitter
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import LogVectorOutput, TrajectorySource
+from pydrake.trajectories import PiecewisePolynomial
+
+from pcvfe_drake.context_estimator import EstimateTable
+from pcvfe_drake.params import ford_escort
+from pcvfe_drake.synthetic_drive import s_curve_drive
+
+
+@pytest.fixture(scope="module")
+def params():
+    return ford_escort()
+
+
+def test_ports_and_prior_with_fixed_inputs(params):
+    fitter = ContextFitter(params)
+    assert [fitter.get_input_port(i).get_name() for i in range(3)] == [
+        "state",
+        "actuation",
+        "context_id",
+    ]
+    assert fitter.GetOutputPort("theta_hat").size() == 3
+    context = fitter.CreateDefaultContext()
+    np.testing.assert_array_equal(fitter.GetOutputPort("theta_hat").Eval(context), params.theta)
+    assert not fitter.HasAnyDirectFeedthrough()
+
+    state = np.array([0.0, 0.0, 0.02, 8.0, 0.0, 0.1, 0.01])
+    fitter.GetInputPort("state").FixValue(context, state)
+    fitter.GetInputPort("actuation").FixValue(context, [0.0, 0.0])
+    fitter.GetInputPort("context_id").FixValue(context, [3.0])
+    simulator = Simulator(fitter, context)
+    simulator.AdvanceTo(0.5)
+    table = fitter.GetOutputPort("estimate_table").Eval(context)
+    assert isinstance(table, EstimateTable)
+    entry = table.get(3)
+    assert entry.samples == 50  # t = 0, 0.01, ..., 0.49 (the update at 0.5 is still due)
+    assert entry.status == "prior" and not entry.fitted
+    np.testing.assert_array_equal(fitter.GetOutputPort("theta_hat").Eval(context), params.theta)
+
+    # Non-finite state: not stored, and the output stays finite.
+    fitter.GetInputPort("state").FixValue(context, np.full(7, np.nan))
+    simulator.AdvanceTo(1.2)  # includes the first refit at t = 1 s
+    table = fitter.GetOutputPort("estimate_table").Eval(context)
+    assert table.rejected_samples == 70
+    assert table.get(3).samples == 50
+    assert table.get(3).status == "too_little_data"
+    assert np.all(np.isfinite(fitter.GetOutputPort("theta_hat").Eval(context)))
+
+
+def test_bad_settings_are_rejected(params):
+    with pytest.raises(ValueError, match="period_s"):
+        ContextFitter(params, period_s=0.0)
+    with pytest.raises(ValueError, match="unknown setting"):
+        ContextFitter(params, horizon=3)
+    with pytest.raises(ValueError, match="horizon_steps"):
+        ContextFitter(params, horizon_steps=0)
+
+
+def test_recorded_drive_converges_and_switches_context(params):
+    """A recorded drive: mu 0.45 on context 2 for 3 s, noise, 3 s of mu 0.8 on context 5."""
+    t, S, U = s_curve_drive(params, [0.45, 0.8], duration_s=3.0, phase_rad=[0.0, 1.5])
+    n = t.size
+    times = np.concatenate([t, t + 3.01 + 0.5])
+    states = np.concatenate([S[0], S[1]])
+    inputs = np.concatenate([U[0], U[1]])
+    ctx = np.concatenate([np.full(n, 2.0), np.full(n, 5.0)])
+    ctx[-50:] = -1.0  # the last half second is "noise"
+    # Zero-order holds: the first drive's last sample is held until the second drive starts
+    # (3.0 s .. 3.51 s); it is labelled noise, so the held (stale) state is not fitted.
+    ctx[n - 1] = -1.0
+    builder = DiagramBuilder()
+    sources = [
+        builder.AddSystem(TrajectorySource(PiecewisePolynomial.ZeroOrderHold(times, y.T)))
+        for y in (states, inputs, ctx[None, :].T)
+    ]
+    fitter = builder.AddNamedSystem("fitter", ContextFitter(params, period_s=1.0))
+    for source, name in zip(sources, ("state", "actuation", "context_id"), strict=True):
+        builder.Connect(source.get_output_port(), fitter.GetInputPort(name))
+    log = LogVectorOutput(fitter.GetOutputPort("theta_hat"), builder, publish_period=0.05)
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    root = simulator.get_mutable_context()
+
+    simulator.AdvanceTo(2.95)  # fitted at t = 1 s and 2 s; still on context 2
+    fc = fitter.GetMyContextFromRoot(root)
+    theta = fitter.GetOutputPort("theta_hat").Eval(fc)
+    assert abs(theta[0] - 0.45) < 0.01
+    assert theta[1] == params.C_Sf and theta[2] == params.C_Sr
+
+    simulator.AdvanceTo(times[-1])
+    table = fitter.GetOutputPort("estimate_table").Eval(fc)
+    assert [e.context_id for e in table.entries] == [2, 5]
+    e2, e5 = table.get(2), table.get(5)
+    assert abs(e2.mu - 0.45) < 0.01 and e2.fits >= 1 and e2.mu_std < 0.01
+    assert abs(e5.mu - 0.8) < 0.01 and e5.last_update_s > 3.5
+    assert table.noise_samples >= 50
+    # Context -1 at the end: the prior.
+    np.testing.assert_array_equal(fitter.GetOutputPort("theta_hat").Eval(fc), params.theta)
+    data = log.FindLog(root).data()
+    assert np.all(np.isfinite(data))
