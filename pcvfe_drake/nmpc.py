@@ -608,9 +608,10 @@ class NmpcController:
         u = np.empty((n, NU))
         u[:, 0] = np.clip(np.diff(ref[:, DELTA]) / cfg.dt_s, p.delta_dot_min, p.delta_dot_max)
         u[:, 1] = np.clip(np.diff(ref[:, V]) / cfg.dt_s, -p.a_max, p.a_max)
-        return ref, u, s[1:]
+        return ref, u
 
     def _bars(self, x: np.ndarray, memory: NmpcMemory, prof: SpeedProfile):
+        """Linearisation trajectory: the shifted previous plan, else the cold guess."""
         n = self.N
         if memory.valid and memory.x_plan is not None:
             xp, up = memory.x_plan, memory.u_plan
@@ -623,15 +624,14 @@ class NmpcController:
                 x_bar[:, PSI] += x[PSI] - xp[1, PSI] - wrap_angle(x[PSI] - xp[1, PSI])
                 x_bar[0, PSI] = x[PSI]
                 u_bar = np.concatenate([up[1:], up[-1:]], axis=0)
-                return x_bar, u_bar, True
-        x_bar, u_bar, _ = self._cold_guess(x, prof)
-        return x_bar, u_bar, False
+                return x_bar, u_bar
+        return self._cold_guess(x, prof)
 
     def linearize(self, x, theta, memory: NmpcMemory, prof: SpeedProfile) -> Linearization:
         """Linearisation trajectory, reference and discretised Jacobians of one update."""
         cfg, p = self.config, self.params
         n = self.N
-        x_bar, u_bar, _ = self._bars(x, memory, prof)
+        x_bar, u_bar = self._bars(x, memory, prof)
         everything = self.course.project(x_bar[:, :2], heading=x_bar[:, PSI] + x_bar[:, BETA])
         proj = dataclasses.replace(everything, **{f: getattr(everything, f)[1:] for f in _PROJ})
         normal = np.column_stack([-np.sin(proj.heading), np.cos(proj.heading)])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -54,7 +55,7 @@ class Nmpc(LeafSystem):
 
     def __init__(
         self,
-        course: Course | str | None = None,
+        course: Course | str | Path | None = None,
         params: VehicleParams | None = None,
         config: NmpcConfig | None = None,
         fixed_theta=None,
