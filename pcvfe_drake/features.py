@@ -232,10 +232,12 @@ class DescriptorExtractor(FeatureExtractor):
 
 # --------------------------------------------------------------------------------- CLIP
 @lru_cache(maxsize=64)
-def _pil_bicubic_weights(in_size: int, out_size: int) -> np.ndarray:
-    """(out_size, in_size) fixed-point weights of Pillow's bicubic resampling (a = -0.5,
-    antialiased when shrinking), as integers scaled by 2**22, so that a float64 matrix product
-    followed by Pillow's rounding reproduces ``PIL.Image.resize(..., BICUBIC)`` exactly."""
+def _pil_bicubic_weights(in_size: int, out_size: int):
+    """(out_size, in_size) sparse fixed-point weights of Pillow's bicubic resampling (a = -0.5,
+    antialiased when shrinking), as integers scaled by 2**22, so that a float64 sparse matrix
+    product followed by Pillow's rounding reproduces ``PIL.Image.resize(..., BICUBIC)``
+    exactly (every partial sum is an integer below 2**53)."""
+    from scipy.sparse import csr_matrix
 
     def cubic(x: np.ndarray) -> np.ndarray:
         a = -0.5
@@ -249,7 +251,7 @@ def _pil_bicubic_weights(in_size: int, out_size: int) -> np.ndarray:
     scale = in_size / out_size
     filterscale = max(scale, 1.0)
     support = 2.0 * filterscale
-    w = np.zeros((out_size, in_size))
+    rows, cols, vals = [], [], []
     for xx in range(out_size):
         center = (xx + 0.5) * scale
         xmin = max(int(center - support + 0.5), 0)
@@ -259,9 +261,14 @@ def _pil_bicubic_weights(in_size: int, out_size: int) -> np.ndarray:
         total = k.sum()
         if total != 0.0:
             k = k / total
-        w[xx, xmin:xmax] = np.where(k < 0, np.trunc(-0.5 + k * (1 << 22)),
-                                    np.trunc(0.5 + k * (1 << 22)))  # fmt: skip
-    return w
+        fixed = np.where(k < 0, np.trunc(-0.5 + k * (1 << 22)), np.trunc(0.5 + k * (1 << 22)))
+        rows.append(np.full(x.size, xx))
+        cols.append(x)
+        vals.append(fixed)
+    return csr_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+        shape=(out_size, in_size),
+    )
 
 
 def _pil_round(acc: np.ndarray) -> np.ndarray:
@@ -270,16 +277,27 @@ def _pil_round(acc: np.ndarray) -> np.ndarray:
 
 def resize_bicubic_pil(rgb: np.ndarray, width: int, height: int) -> np.ndarray:
     """Resize RGB uint8 exactly like ``PIL.Image.resize((width, height), Image.BICUBIC)``
-    (horizontal pass, rounding to 8 bits, then vertical pass), with matrix products."""
-    h, w, _ = rgb.shape
+    (horizontal pass, rounding to 8 bits, then vertical pass), with sparse matrix products."""
+    h, w, c = rgb.shape
     img = rgb.astype(np.float64)
     if w != width:
         wh = _pil_bicubic_weights(w, width)
-        img = _pil_round(np.einsum("ox,yxc->yoc", wh, img, optimize=True))
+        cols = wh @ img.transpose(1, 0, 2).reshape(w, h * c)  # (width, h * c)
+        img = _pil_round(cols).reshape(width, h, c).transpose(1, 0, 2)
+        w = width
     if h != height:
         wv = _pil_bicubic_weights(h, height)
-        img = _pil_round(np.einsum("oy,yxc->oxc", wv, img, optimize=True))
+        img = _pil_round(wv @ np.ascontiguousarray(img).reshape(h, w * c)).reshape(height, w, c)
     return img.astype(np.uint8)
+
+
+@lru_cache(maxsize=8)
+def _normalise_lut(mean: tuple[float, ...], std: tuple[float, ...]) -> np.ndarray:
+    """(3, 256) float32: (v / 255 - mean[c]) / std[c] for every 8-bit value v."""
+    v = np.arange(256, dtype=np.float32) * np.float32(1 / 255)
+    m = np.asarray(mean, np.float32)[:, None]
+    s = np.asarray(std, np.float32)[:, None]
+    return (v[None, :] - m) / s
 
 
 def clip_preprocess(
@@ -290,10 +308,10 @@ def clip_preprocess(
 ) -> np.ndarray:
     """CLIP's preprocessing, exactly: resize the short side to ``size`` (bicubic, as PIL),
     centre crop ``size`` x ``size`` (torchvision's rounding), RGB / 255, normalise by mean and
-    std. Returns float32 (N, 3, size, size)."""
+    std (through a per-channel look-up table of the 256 values). Returns float32
+    (N, 3, size, size)."""
     out = np.empty((len(images), 3, size, size), np.float32)
-    mean = np.asarray(mean, np.float32).reshape(1, 1, 3)
-    inv_std = 1.0 / np.asarray(std, np.float32).reshape(1, 1, 3)
+    lut = _normalise_lut(tuple(float(v) for v in mean), tuple(float(v) for v in std))
     for i, img in enumerate(images):
         h, w = img.shape[:2]
         if (h, w) != (size, size):
@@ -305,8 +323,8 @@ def clip_preprocess(
             top = int(round((new_h - size) / 2.0))
             left = int(round((new_w - size) / 2.0))
             img = img[top : top + size, left : left + size]
-        x = (img.astype(np.float32) * np.float32(1 / 255) - mean) * inv_std
-        out[i] = x.transpose(2, 0, 1)
+        for c in range(3):
+            np.take(lut[c], img[:, :, c], out=out[i, c])
     return out
 
 
