@@ -54,6 +54,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -1021,7 +1022,8 @@ class ClosedLoopResult:
     diagnostics: list
 
     def metrics(self, course: Course) -> dict:
-        """Laps, lateral RMS/max [m], course-angle RMS [rad], speed, fallbacks, update times."""
+        """Laps, lateral RMS/max [m], course-angle RMS [rad], speed, fallbacks (count and
+        reasons), update times [ms]."""
         times = np.array([d.update_time_s for d in self.diagnostics])
         dist = float(self.progress[-1] - self.progress[0]) if self.progress.size else 0.0
         return {
@@ -1034,6 +1036,9 @@ class ClosedLoopResult:
             "mean_speed_mps": float(np.mean(self.x[:, V])),
             "max_abs_beta_rad": float(np.max(np.abs(self.x[:, BETA]))),
             "fallbacks": int(self.diagnostics[-1].fallback_count) if self.diagnostics else 0,
+            "fallback_reasons": dict(
+                Counter(d.status for d in self.diagnostics if d.mode != "qp").most_common()
+            ),
             "update_ms_median": float(np.median(times) * 1e3) if times.size else float("nan"),
             "update_ms_p95": float(np.percentile(times, 95) * 1e3) if times.size else float("nan"),
             "failure": self.failure,
