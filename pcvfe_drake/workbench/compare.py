@@ -1,0 +1,112 @@
+"""Compare a fitted model with measurements on held-out data.
+
+* fit % per state in MATLAB's NRMSE form ``100 (1 - |y - yhat| / |y - mean(y)|)`` (2-norms over
+  samples), for k-step-ahead predictions and for free-run simulation;
+* k-step prediction RMS error per state for several horizons;
+* the headline *multi-step error*: RMS of the whitened errors (error / noise scale) of rollouts
+  over ``horizon`` steps on held-out windows, over the states in ``FIT_STATES``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pcvfe_drake.vehicle import NX, STATE_NAMES
+from pcvfe_drake.workbench.data import MIN_SPEED_MPS, DriveData, block_ids, heldout_blocks
+from pcvfe_drake.workbench.estimate import FIT_STATES
+from pcvfe_drake.workbench.model import WorkbenchModel
+
+HORIZONS_S = (0.0, 0.5, 1.0, 2.0)
+"""k-step horizons [s] reported (0 means one sample step)."""
+
+
+def fit_percent(y: np.ndarray, yhat: np.ndarray) -> float:
+    """MATLAB's fit %: 100 (1 - ||y - yhat|| / ||y - mean(y)||)."""
+    y = np.asarray(y, dtype=float)
+    denom = np.linalg.norm(y - y.mean())
+    if denom <= 0:
+        return float("nan")
+    return float(100.0 * (1.0 - np.linalg.norm(y - yhat) / denom))
+
+
+def horizon_steps(data: DriveData, horizons_s=HORIZONS_S) -> list[int]:
+    return sorted({max(1, int(round(h / data.dt))) for h in horizons_s})
+
+
+def multistep_error(err: np.ndarray, data: DriveData) -> float:
+    """RMS of whitened errors over FIT_STATES of an error array (N, H, 7)."""
+    idx = list(FIT_STATES)
+    return float(np.sqrt(np.mean((err[:, :, idx] / data.sigma[idx]) ** 2)))
+
+
+def free_run(model: WorkbenchModel, theta: np.ndarray, data: DriveData, n_blocks: int = 6):
+    """Free-run simulation over each held-out block that is one context at v >= 1 m/s.
+
+    Returns a list of (sample indices (L,), simulated ST states (L, 7)).
+    """
+    blocks = block_ids(data.n, n_blocks)
+    out = []
+    for b in heldout_blocks(n_blocks):
+        idx = np.flatnonzero(blocks == b)
+        if idx.size < 3:
+            continue
+        ok = (data.x[idx, 3] >= MIN_SPEED_MPS) & (data.context[idx] == data.context[idx[0]])
+        # the longest run of usable samples from the block start
+        stop = int(np.argmin(ok)) if not ok.all() else idx.size
+        if stop < 3:
+            continue
+        idx = idx[:stop]
+        Z = model.simulate(theta, data, idx[:1], idx.size - 1)
+        out.append((idx, Z[0, :, :NX]))
+    return out
+
+
+def evaluate(
+    model: WorkbenchModel,
+    theta: np.ndarray,
+    data: DriveData,
+    starts: np.ndarray,
+    horizon: int,
+    n_blocks: int = 6,
+) -> dict:
+    """Held-out comparison of one fitted model; JSON-ready numbers plus arrays for plots.
+
+    Args:
+        starts: held-out window starts (all windows of ``horizon`` steps).
+    """
+    err = model.errors(theta, data, starts, horizon)
+    out: dict = {"multistep_error": multistep_error(err, data), "n_windows": int(starts.size)}
+    kstep = {}
+    fitp = {}
+    for k in horizon_steps(data):
+        if k > horizon:
+            continue
+        e = err[:, k - 1, :]
+        y = data.x[starts + k]
+        label = f"{k * data.dt:.3g}s"
+        kstep[label] = {n: float(np.sqrt(np.mean(e[:, i] ** 2))) for i, n in enumerate(STATE_NAMES)}
+        fitp[label] = {
+            n: fit_percent(y[:, i], y[:, i] + e[:, i]) for i, n in enumerate(STATE_NAMES)
+        }
+    out["kstep_rmse"] = kstep
+    out["fit_percent_kstep"] = fitp
+    runs = free_run(model, theta, data, n_blocks)
+    if runs:
+        idx = np.concatenate([r[0] for r in runs])
+        sim = np.concatenate([r[1] for r in runs])
+        y = data.x[idx]
+        out["fit_percent_free_run"] = {
+            n: fit_percent(y[:, i], sim[:, i]) for i, n in enumerate(STATE_NAMES)
+        }
+        out["free_run_rmse"] = {
+            n: float(np.sqrt(np.mean((sim[:, i] - y[:, i]) ** 2)))
+            for i, n in enumerate(STATE_NAMES)
+        }
+    out["_err"] = err
+    out["_free_run"] = runs
+    return out
+
+
+def public(result: dict) -> dict:
+    """The JSON-ready part of an ``evaluate`` result (drops arrays)."""
+    return {k: v for k, v in result.items() if not k.startswith("_")}

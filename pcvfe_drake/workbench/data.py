@@ -1,0 +1,225 @@
+"""A drive log prepared for the workbench: arrays, contexts, noise scales, splits and windows."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pcvfe_drake.drivelog import REQUIRED_COLUMNS, read_drive_log, validate_drive_log
+from pcvfe_drake.vehicle import STATE_NAMES
+
+MIN_DURATION_S = 20.0
+"""Shortest log the workbench accepts [s]: it needs training and held-out blocks of windows."""
+MIN_SPEED_MPS = 1.0
+"""Windows are used only where the measured speed stays at or above this [m/s] (the ST model is
+stiff and its friction is unobservable near standstill; the paper filters the same way)."""
+MAX_DT_JITTER = 0.05
+"""Largest relative deviation of a time step from the median step."""
+LOG_SUFFIXES = (".csv", ".csv.gz", ".parquet", ".pq")
+
+
+def find_log(path: str | Path) -> Path:
+    """``path`` itself if it is a file; in a run folder the one drive log it holds."""
+    p = Path(path)
+    if p.is_file():
+        return p
+    if p.is_dir():
+        found = sorted(
+            q for q in p.rglob("*") if q.is_file() and q.name.lower().endswith(LOG_SUFFIXES)
+        )
+        preferred = [q for q in found if q.stem.split(".")[0] in ("log", "drive_log", "drivelog")]
+        if len(preferred) == 1:
+            return preferred[0]
+        if len(found) == 1:
+            return found[0]
+        if not found:
+            raise FileNotFoundError(f"run folder {p}: no drive log (*.csv, *.parquet) inside")
+        names = ", ".join(str(q.relative_to(p)) for q in found[:8])
+        raise ValueError(f"run folder {p}: several drive logs ({names}); name one of them")
+    raise FileNotFoundError(f"drive log {p}: no such file or folder")
+
+
+def robust_noise_sigma(y: np.ndarray) -> float:
+    """Measurement-noise standard deviation of a smooth signal from its 4th differences.
+
+    For white noise of std s the 4th difference has std ``s sqrt(70)``; the median absolute
+    deviation makes the estimate robust to the few samples where the signal itself bends.
+    """
+    d4 = np.diff(y, 4)
+    if d4.size < 5:
+        return float(np.std(y)) or 1.0
+    return float(1.4826 * np.median(np.abs(d4 - np.median(d4))) / np.sqrt(70.0))
+
+
+@dataclass
+class DriveData:
+    """Arrays of one drive log.
+
+    Attributes:
+        t: sample times [s] (n,).
+        dt: the (uniform) sample step [s].
+        x: measured ST states (n, 7), psi unwrapped.
+        u: commanded inputs (n, 2) [steer_rate rad/s, accel m/s^2].
+        context: context index per sample (n,) into ``context_names``.
+        context_names: labels of the contexts.
+        sigma: noise scale per state (7,) used to whiten errors.
+        source: a name for messages.
+        x0: states used to *start* rollouts (n, 7): the measurements, with the steering angle
+            denoised (see :func:`initial_state_estimates`).
+    """
+
+    t: np.ndarray
+    dt: float
+    x: np.ndarray
+    u: np.ndarray
+    context: np.ndarray
+    context_names: list[str]
+    sigma: np.ndarray
+    source: str = "<log>"
+    x0: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.x0 is None:
+            self.x0 = initial_state_estimates(self.x, self.u, self.dt)
+
+    @property
+    def n(self) -> int:
+        return self.t.size
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1] - self.t[0])
+
+
+INIT_HALF_WINDOW_S = 0.25
+"""Half width [s] of the window over which the initial steering angle is averaged."""
+
+
+def initial_state_estimates(x: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
+    """Measured states with the steering angle denoised for use as rollout initial states.
+
+    The steering angle is the integral of the commanded steering rate, so
+    ``delta(j) - sum(steer_rate dt, s..j)`` estimates ``delta(s)`` for every j near s; their
+    mean over +-``INIT_HALF_WINDOW_S`` removes most of the measurement noise. This matters:
+    an initial angle error is amplified into a persistent yaw-rate error (v delta / L) over a
+    whole window. The other states start from their measurements.
+    """
+    x0 = x.copy()
+    m = max(1, int(round(INIT_HALF_WINDOW_S / dt)))
+    n = x.shape[0]
+    cum = np.concatenate([[0.0], np.cumsum(u[:-1, 0] * dt)])
+    offset = x[:, 2] - cum  # delta(j) - C(j); estimate of delta(s) is mean(offset) + C(s)
+    csum = np.concatenate([[0.0], np.cumsum(offset)])
+    lo = np.clip(np.arange(n) - m, 0, n)
+    hi = np.clip(np.arange(n) + m + 1, 0, n)
+    x0[:, 2] = (csum[hi] - csum[lo]) / (hi - lo) + cum
+    return x0
+
+
+def choose_context_column(df: pd.DataFrame, column: str | None) -> str | None:
+    if column is not None:
+        if column not in df.columns:
+            raise ValueError(
+                f"context column {column!r} is not in the log (columns: {', '.join(df.columns)})"
+            )
+        return column
+    for name in ("context", "terrain"):
+        if name in df.columns:
+            return name
+    return None
+
+
+def prepare(
+    df: pd.DataFrame,
+    source: str = "<DataFrame>",
+    context_column: str | None = None,
+    min_duration_s: float = MIN_DURATION_S,
+) -> DriveData:
+    """Validate a drive-log table and convert it to :class:`DriveData`.
+
+    Raises:
+        ValueError: (a ``DriveLogError`` for format problems) with the input and value named.
+    """
+    validate_drive_log(df, source=source)
+    t = df["t"].to_numpy(dtype=float)
+    if t.size < 10 or t[-1] - t[0] < min_duration_s:
+        raise ValueError(
+            f"drive log {source}: too short ({t[-1] - t[0]:.3g} s, {t.size} rows); the workbench "
+            f"needs at least {min_duration_s:g} s for training and held-out blocks"
+        )
+    steps = np.diff(t)
+    dt = float(np.median(steps))
+    jitter = np.abs(steps - dt) / dt
+    if np.any(jitter > MAX_DT_JITTER):
+        i = int(np.argmax(jitter))
+        raise ValueError(
+            f"drive log {source}: column 't' is not uniformly sampled (step {steps[i]:.4g} s at "
+            f"row {i + 1} vs median {dt:.4g} s); resample the log to a fixed rate"
+        )
+    x = df[list(STATE_NAMES)].to_numpy(dtype=float).copy()
+    x[:, 4] = np.unwrap(x[:, 4])
+    u = df[list(REQUIRED_COLUMNS[-2:])].to_numpy(dtype=float).copy()
+    col = choose_context_column(df, context_column)
+    if col is None:
+        context = np.zeros(t.size, dtype=int)
+        names = ["all"]
+    else:
+        labels = df[col].map(lambda s: "" if pd.isna(s) else str(s)).to_numpy()
+        names = sorted(set(labels), key=str)
+        lookup = {name: i for i, name in enumerate(names)}
+        context = np.array([lookup[s] for s in labels], dtype=int)
+        names = [s if s != "" else "unknown" for s in names]
+    sigma = np.array([robust_noise_sigma(x[:, i]) for i in range(x.shape[1])])
+    spread = np.maximum(np.ptp(x, axis=0), 1e-6)
+    sigma = np.maximum(sigma, 1e-4 * spread)
+    return DriveData(t, dt, x, u, context, names, sigma, source)
+
+
+def load(
+    path: str | Path, context_column: str | None = None, min_duration_s: float = MIN_DURATION_S
+) -> DriveData:
+    """Read and prepare a drive log file or run folder."""
+    p = find_log(path)
+    df = read_drive_log(p)
+    return prepare(df, str(p), context_column, min_duration_s)
+
+
+def block_ids(n: int, n_blocks: int) -> np.ndarray:
+    """Consecutive time-block index (0..n_blocks-1) of each sample."""
+    return np.minimum((np.arange(n) * n_blocks) // n, n_blocks - 1)
+
+
+def heldout_blocks(n_blocks: int) -> np.ndarray:
+    """Held-out blocks: every third block starting with the second (1, 4, 7, ...)."""
+    return np.arange(1, n_blocks, 3)
+
+
+def window_starts(
+    data: DriveData, horizon: int, stride: int, split: str, n_blocks: int = 6
+) -> np.ndarray:
+    """Start samples of windows of ``horizon`` steps lying inside one time block of the split
+    (``"train"``, ``"heldout"`` or ``"all"``), one context, with speed >= ``MIN_SPEED_MPS``."""
+    blocks = block_ids(data.n, n_blocks)
+    held = np.isin(blocks, heldout_blocks(n_blocks))
+    if split == "train":
+        use = ~held
+    elif split == "heldout":
+        use = held
+    elif split == "all":
+        use = np.ones(data.n, bool)
+    else:
+        raise ValueError(f"split must be 'train', 'heldout' or 'all', got {split!r}")
+    starts = np.arange(0, data.n - horizon, max(1, stride))
+    if starts.size == 0:
+        return starts
+    idx = starts[:, None] + np.arange(horizon + 1)[None, :]
+    ok = (
+        use[idx].all(axis=1)
+        & (blocks[idx] == blocks[idx[:, :1]]).all(axis=1)
+        & (data.context[idx] == data.context[idx[:, :1]]).all(axis=1)
+        & (data.x[idx, 3] >= MIN_SPEED_MPS).all(axis=1)
+    )
+    return starts[ok]

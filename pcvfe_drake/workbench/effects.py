@@ -1,0 +1,444 @@
+"""The effect library: named, physically parameterised additions to the single-track model.
+
+An effect changes one or more stages of the model's right-hand side (see
+:mod:`pcvfe_drake.workbench.model` for the order of the stages):
+
+==================  =====================================================================
+hook                what it changes
+==================  =====================================================================
+``inputs``          the input sequence of a window before the rollout (dead time)
+``accel``           the applied longitudinal acceleration command (power limit)
+``wheel_angle``     the road-wheel angle the tires see (lag, offset)
+``tire``            the lateral tire force law (saturation)
+``longitudinal``    extra longitudinal acceleration [m/s^2] (drag, rolling, grade)
+``state_rates``     time derivatives of the effect's own states (lag)
+``initial_states``  the effect's states at the start of a window, from the measured history
+==================  =====================================================================
+
+Every parameter has a unit, bounds, a starting value, a typical scale (for finite differences
+and step sizes) and a *null* value at which the effect does nothing (for the signature test and
+reports). A user adds an effect by subclassing :class:`Effect` and calling
+:func:`register_effect`; see ``docs/workbench.md``.
+
+Parameter values arrive as a dict ``{param_name: (N,) array}``: one value per batch row, so a
+rollout can evaluate many parameter vectors at once (finite-difference sensitivities).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, ClassVar
+
+import numpy as np
+from scipy.signal import lfilter
+
+if TYPE_CHECKING:
+    from pcvfe_drake.workbench.data import DriveData
+
+RHO_AIR_KGPM3 = 1.225
+"""Air density used by the drag effect [kg/m^3] (sea level, 15 degC)."""
+
+
+@dataclass(frozen=True)
+class EffectParam:
+    """One physical parameter of an effect.
+
+    Attributes:
+        name: short name, unique within the effect (the model calls it ``effect.name``).
+        unit: SI unit as text.
+        lower, upper: bounds used by the estimator.
+        initial: starting value of the fit.
+        scale: typical magnitude (finite-difference step and step-size scaling).
+        null: the value at which the effect has no influence.
+        description: one line for reports.
+    """
+
+    name: str
+    unit: str
+    lower: float
+    upper: float
+    initial: float
+    scale: float
+    null: float
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        if not (self.lower <= self.initial <= self.upper):
+            raise ValueError(
+                f"EffectParam {self.name}: initial {self.initial} outside [{self.lower}, "
+                f"{self.upper}]"
+            )
+        if self.scale <= 0:
+            raise ValueError(f"EffectParam {self.name}: scale must be > 0, got {self.scale}")
+
+
+@dataclass
+class StepContext:
+    """What an effect sees inside one evaluation of the right-hand side (N batch rows).
+
+    Attributes:
+        x: ST states (N, 7) in CommonRoad order.
+        states: this effect's own states (N, n_states) (empty when it has none).
+        steer: constrained steering rate [rad/s] (N,).
+        accel: constrained acceleration command [m/s^2] (N,) (after ``accel`` hooks).
+        vehicle: the nominal :class:`~pcvfe_drake.params.VehicleParams`.
+    """
+
+    x: np.ndarray
+    states: np.ndarray
+    steer: np.ndarray
+    accel: np.ndarray
+    vehicle: object
+
+
+class Effect:
+    """Base class of an effect; subclasses override the hooks they need.
+
+    Class attributes to set: ``name``, ``description``, ``params`` (tuple of
+    :class:`EffectParam`), ``state_names`` (own states, default none), ``order`` (position in
+    the wheel-angle chain; lower runs first), and the residual signature: ``signature_state``
+    (the ST state whose residual the effect explains), ``signature_label`` (a regressor name
+    for messages) and :meth:`signature_regressors`.
+    """
+
+    name: ClassVar[str] = ""
+    description: ClassVar[str] = ""
+    params: ClassVar[tuple[EffectParam, ...]] = ()
+    state_names: ClassVar[tuple[str, ...]] = ()
+    order: ClassVar[int] = 10
+    signature_state: ClassVar[str] = "v"
+    signature_label: ClassVar[str] = ""
+    #: Starting points tried before the local fit (one row per start); None = ``initial`` only.
+    starts: ClassVar[tuple[tuple[float, ...], ...] | None] = None
+
+    @property
+    def n_states(self) -> int:
+        return len(self.state_names)
+
+    # --- hooks (defaults: no change) -------------------------------------------------------
+    def inputs(self, U: np.ndarray, data: DriveData, starts: np.ndarray, p: dict) -> np.ndarray:
+        """Input sequence (N, H, 2) of windows starting at sample ``starts`` (N,)."""
+        return U
+
+    def accel(self, accel: np.ndarray, ctx: StepContext, p: dict) -> np.ndarray:
+        """Applied acceleration command [m/s^2] (N,)."""
+        return accel
+
+    def wheel_angle(self, delta: np.ndarray, ctx: StepContext, p: dict) -> np.ndarray:
+        """Road-wheel angle [rad] (N,) seen by the front tire."""
+        return delta
+
+    def tire(self, alpha, fz, c_alpha, p: dict):
+        """Lateral tire force [N] for slip ``alpha`` [rad], load ``fz`` [N], stiffness
+        ``c_alpha`` [N/rad]; return None to keep the linear law."""
+        return None
+
+    def longitudinal(self, ctx: StepContext, p: dict):
+        """Extra longitudinal acceleration [m/s^2] (N,), or None."""
+        return None
+
+    #: True when the effect advances its states itself with :meth:`states_at` (exactly, e.g.
+    #: a stiff linear lag) instead of by the model's RK4 from :meth:`state_rates`.
+    exact_states: ClassVar[bool] = False
+
+    def states_at(self, s0, x_start, x_stage, offset: float, p: dict) -> np.ndarray:
+        """For ``exact_states`` effects: own states ``offset`` seconds into an integration step
+        that starts with states ``s0`` and ST state ``x_start``; ``x_stage`` is the ST state
+        at that time (N, 7)."""
+        raise NotImplementedError
+
+    def max_step(self, p: dict) -> float | None:
+        """Largest integration step [s] the effect tolerates (e.g. a fast time constant)."""
+        return None
+
+    def state_rates(self, ctx: StepContext, delta_cmd: np.ndarray, p: dict) -> np.ndarray:
+        """Time derivative (N, n_states) of the effect's states."""
+        return np.zeros((ctx.x.shape[0], 0))
+
+    def initial_states(self, data: DriveData, starts: np.ndarray, p: dict) -> np.ndarray:
+        """The effect's states (N, n_states) at the window starts, from the measured history."""
+        return np.zeros((len(starts), 0))
+
+    def signature_regressors(self, data: DriveData) -> np.ndarray:
+        """Regressors (n_samples, m) whose correlation with the residual of
+        ``signature_state`` is the effect's signature."""
+        return np.ones((data.n, 1))
+
+    def describe(self) -> dict:
+        return {
+            "name": self.name,
+            "description": self.description,
+            "states": list(self.state_names),
+            "signature": f"{self.signature_state} residual vs {self.signature_label}",
+            "params": [
+                {
+                    "name": q.name,
+                    "unit": q.unit,
+                    "lower": q.lower,
+                    "upper": q.upper,
+                    "initial": q.initial,
+                    "null": q.null,
+                    "description": q.description,
+                }
+                for q in self.params
+            ],
+        }
+
+
+def _smooth_sign(v, width: float = 0.2):
+    return np.tanh(np.asarray(v) / width)
+
+
+class Drag(Effect):
+    """Aerodynamic drag: ``a = -0.5 rho CdA v|v| / m``."""
+
+    name = "drag"
+    description = "aerodynamic drag, a = -0.5 rho CdA v|v| / m"
+    params = (
+        EffectParam("CdA", "m^2", 0.0, 5.0, 0.5, 0.5, 0.0, "drag area (drag coefficient x area)"),
+    )
+    signature_state = "v"
+    signature_label = "v^2"
+
+    def longitudinal(self, ctx, p):
+        v = ctx.x[:, 3]
+        return -0.5 * RHO_AIR_KGPM3 * p["CdA"] * v * np.abs(v) / ctx.vehicle.m
+
+    def signature_regressors(self, data):
+        return (data.x[:, 3] * np.abs(data.x[:, 3]))[:, None]
+
+
+class RollingResistance(Effect):
+    """Rolling resistance: ``a = -c_rr g sign(v)`` (smooth sign)."""
+
+    name = "rolling_resistance"
+    description = "rolling resistance, a = -c_rr g sign(v)"
+    params = (EffectParam("c_rr", "-", 0.0, 0.1, 0.01, 0.01, 0.0, "rolling resistance coeff."),)
+    signature_state = "v"
+    signature_label = "a constant (sign(v))"
+
+    def longitudinal(self, ctx, p):
+        return -p["c_rr"] * ctx.vehicle.g * _smooth_sign(ctx.x[:, 3])
+
+    def signature_regressors(self, data):
+        return _smooth_sign(data.x[:, 3])[:, None]
+
+
+class SteeringLag(Effect):
+    """First-order lag of the road-wheel angle behind the measured (commanded) angle.
+
+    Adds the state ``delta_wheel`` with ``tau d(delta_wheel)/dt = delta - delta_wheel``. The
+    lag is integrated exactly (the measured angle ramps linearly over each step because the
+    steering rate is held), so any ``tau >= 0`` works at any sample rate and ``tau = 0`` is
+    exactly the baseline.
+    """
+
+    name = "steering_lag"
+    description = "first-order lag of the wheel angle, tau ddelta_w/dt = delta - delta_w"
+    params = (EffectParam("tau", "s", 0.0, 1.0, 0.1, 0.05, 0.0, "steering time constant"),)
+    state_names = ("delta_wheel",)
+    exact_states = True
+    order = 0
+    signature_state = "psi_dot"
+    signature_label = "steering rate x speed"
+    starts = ((0.05,), (0.2,), (0.5,))
+
+    def wheel_angle(self, delta, ctx, p):
+        return ctx.states[:, 0]
+
+    def states_at(self, s0, x_start, x_stage, offset, p):
+        if offset <= 0.0:
+            return s0
+        tau = np.asarray(p["tau"], dtype=float)
+        slope = (x_stage[:, 2] - x_start[:, 2]) / offset
+        e0 = s0[:, 0] - x_start[:, 2]
+        safe = np.maximum(tau, 1e-12)
+        e = np.where(tau > 1e-9, -safe * slope + (e0 + safe * slope) * np.exp(-offset / safe), 0.0)
+        return (x_stage[:, 2] + e)[:, None]
+
+    def initial_states(self, data, starts, p):
+        # The lag run over the (denoised) measured angle from the start of the log, exactly
+        # for an angle that ramps linearly between samples: with e = delta_w - delta and
+        # s_k the ramp slope, e[k+1] = a e[k] - tau (1 - a) s_k, a = exp(-dt / tau).
+        tau = np.asarray(p["tau"], dtype=float)
+        out = np.empty(len(starts))
+        delta = data.x0[:, 2]
+        slope = np.diff(delta) / data.dt
+        for value in np.unique(tau):
+            rows = tau == value
+            if value <= 1e-9:
+                out[rows] = delta[starts[rows]]
+                continue
+            a = np.exp(-data.dt / value)
+            e = np.empty(data.n)
+            e[0] = -value * (slope[0] if slope.size else 0.0)
+            zi = [a * e[0]]
+            e[1:] = lfilter([1.0], [1.0, -a], -value * (1.0 - a) * slope, zi=zi)[0]
+            out[rows] = delta[starts[rows]] + e[starts[rows]]
+        return out[:, None]
+
+    def signature_regressors(self, data):
+        return data.u[:, 0:1] * data.x[:, 3:4]
+
+
+class InputDelay(Effect):
+    """Dead time on the acceleration command: the car applies ``accel(t - T)``.
+
+    Uses the measured command history, averaged over each zero-order-hold step.
+    """
+
+    name = "input_delay"
+    description = "dead time T on the acceleration command, a(t) = accel(t - T)"
+    params = (EffectParam("T", "s", 0.0, 1.0, 0.1, 0.05, 0.0, "dead time"),)
+    signature_state = "v"
+    signature_label = "change of the acceleration command"
+    starts = ((0.05,), (0.15,), (0.3,), (0.5,))
+
+    def inputs(self, U, data, starts, p):
+        steps = np.clip(np.asarray(p["T"], dtype=float), 0.0, None) / data.dt
+        n = np.floor(steps).astype(int)
+        frac = steps - n
+        horizon = U.shape[1]
+        k = starts[:, None] + np.arange(horizon)[None, :] - n[:, None]
+        a = data.u[:, 1]
+        a_now = a[np.clip(k, 0, data.n - 1)]
+        a_prev = a[np.clip(k - 1, 0, data.n - 1)]
+        out = U.copy()
+        out[:, :, 1] = (1.0 - frac[:, None]) * a_now + frac[:, None] * a_prev
+        return out
+
+    def signature_regressors(self, data):
+        a = data.u[:, 1]
+        return np.concatenate([[0.0], np.diff(a)])[:, None] / data.dt
+
+
+class TireSaturation(Effect):
+    """Brush (Fiala) tire with a friction peak: the lateral force saturates at ``mu_peak Fz``.
+
+    With ``z = C_alpha alpha / (3 mu_peak Fz)`` the force is ``3 mu_peak Fz (z - z|z| + z^3/3)``
+    for ``|z| < 1`` and ``mu_peak Fz sign(alpha)`` beyond; for small slip it equals the
+    baseline's linear force ``C_alpha alpha`` (``C_alpha = mu C_S Fz``).
+    """
+
+    name = "tire_saturation"
+    description = "brush (Fiala) tire: lateral force saturates at mu_peak Fz"
+    params = (EffectParam("mu_peak", "-", 0.1, 3.0, 1.0, 0.2, 3.0, "peak friction coefficient"),)
+    signature_state = "psi_dot"
+    signature_label = "lateral acceleration cubed"
+    starts = ((0.6,), (1.0,), (1.6,))
+
+    def tire(self, alpha, fz, c_alpha, p):
+        f_max = p["mu_peak"] * np.maximum(fz, 1.0)
+        z = c_alpha * alpha / (3.0 * f_max)
+        za = np.minimum(np.abs(z), 1.0)
+        zs = np.sign(z) * za
+        return 3.0 * f_max * (zs - zs * za + zs**3 / 3.0)
+
+    def signature_regressors(self, data):
+        ay = data.x[:, 3] * data.x[:, 5]
+        return (ay**3)[:, None]
+
+
+class Grade(Effect):
+    """A planar road slope: ``a = -g (gx cos psi + gy sin psi)`` with the grade vector
+    (gx, gy) = the rise per metre along world x and y."""
+
+    name = "grade"
+    description = "planar road grade, a = -g (gx cos psi + gy sin psi)"
+    params = (
+        EffectParam("gx", "-", -0.2, 0.2, 0.0, 0.01, 0.0, "rise per metre along world x"),
+        EffectParam("gy", "-", -0.2, 0.2, 0.0, 0.01, 0.0, "rise per metre along world y"),
+    )
+    signature_state = "v"
+    signature_label = "cos/sin of heading"
+
+    def longitudinal(self, ctx, p):
+        psi = ctx.x[:, 4]
+        return -ctx.vehicle.g * (p["gx"] * np.cos(psi) + p["gy"] * np.sin(psi))
+
+    def signature_regressors(self, data):
+        return np.stack([np.cos(data.x[:, 4]), np.sin(data.x[:, 4])], axis=1)
+
+
+class MotorPowerLimit(Effect):
+    """Drive power limit: the positive acceleration is at most ``P_max / (m v)``."""
+
+    name = "motor_power_limit"
+    description = "drive power limit, accel <= P_max / (m v)"
+    params = (EffectParam("P_max", "kW", 5.0, 1000.0, 60.0, 10.0, 1000.0, "maximum drive power"),)
+    signature_state = "v"
+    signature_label = "positive accel x speed"
+    starts = ((30.0,), (60.0,), (150.0,))
+
+    def accel(self, accel, ctx, p):
+        v = np.maximum(ctx.x[:, 3], 0.5)
+        limit = 1000.0 * p["P_max"] / (ctx.vehicle.m * v)
+        # smooth minimum (width 0.05 m/s^2) keeps the fit differentiable
+        width = 0.05
+        d = accel - limit
+        return np.where(accel > 0, accel - width * np.logaddexp(0.0, d / width), accel)
+
+    def signature_regressors(self, data):
+        return (np.maximum(data.u[:, 1], 0.0) * data.x[:, 3])[:, None]
+
+
+class SteeringOffset(Effect):
+    """A constant offset between the measured steering angle and the road-wheel angle."""
+
+    name = "steering_offset"
+    description = "constant steering-angle offset, delta_w = delta + d0"
+    params = (EffectParam("d0", "rad", -0.1, 0.1, 0.0, 0.005, 0.0, "steering offset"),)
+    order = 5
+    signature_state = "psi_dot"
+    signature_label = "a constant"
+
+    def wheel_angle(self, delta, ctx, p):
+        return delta + p["d0"]
+
+
+_REGISTRY: dict[str, type[Effect]] = {}
+
+
+def register_effect(cls: type[Effect]) -> type[Effect]:
+    """Add an effect class to the library (usable as a decorator); returns the class."""
+    if not (isinstance(cls, type) and issubclass(cls, Effect)):
+        raise TypeError(f"register_effect: {cls!r} is not an Effect subclass")
+    if not cls.name or not cls.name.isidentifier():
+        raise ValueError(f"register_effect: effect name {cls.name!r} must be an identifier")
+    names = [q.name for q in cls.params]
+    if len(set(names)) != len(names):
+        raise ValueError(f"register_effect: {cls.name}: duplicated parameter names {names}")
+    _REGISTRY[cls.name] = cls
+    return cls
+
+
+for _cls in (
+    Drag,
+    RollingResistance,
+    SteeringLag,
+    InputDelay,
+    TireSaturation,
+    Grade,
+    MotorPowerLimit,
+    SteeringOffset,
+):
+    register_effect(_cls)
+
+
+def known_effects() -> list[str]:
+    """Names of the registered effects, in registration order."""
+    return list(_REGISTRY)
+
+
+def get_effect(name: str | Effect) -> Effect:
+    """An effect instance by name (or the instance itself)."""
+    if isinstance(name, Effect):
+        return name
+    if isinstance(name, type) and issubclass(name, Effect):
+        return name()
+    try:
+        return _REGISTRY[str(name)]()
+    except KeyError:
+        raise ValueError(
+            f"unknown effect {name!r}; known effects: {', '.join(known_effects())}"
+        ) from None

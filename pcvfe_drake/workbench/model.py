@@ -1,0 +1,299 @@
+"""The workbench model: the ST model in force form plus composable effects, vectorised.
+
+Right-hand side, evaluated for N batch rows at once (``z`` = the 7 ST states in CommonRoad order
+followed by the effects' own states)::
+
+    1. CommonRoad's input constraints (``pcvfe_drake.vehicle.constrain_inputs``)
+    2. accel hooks            (e.g. motor_power_limit)            -> applied command a
+    3. wheel_angle hooks      (steering_lag, then steering_offset) -> road-wheel angle delta_w
+    4. axle loads             Fz_f = m (g lr - a h) / L,  Fz_r = m (g lf + a h) / L
+    5. slip angles            alpha_f = delta_w - beta - lf r / v,  alpha_r = -beta + lr r / v
+    6. tire forces            F_y = mu C_S Fz alpha (linear), or a tire hook (tire_saturation)
+    7. yaw and slip           r' = (lf F_yf - lr F_yr) / I_z,  beta' = (F_yf + F_yr) / (m v) - r
+                              (r = psi_dot)
+    8. longitudinal hooks     v' = a + sum(extra accelerations)   (drag, rolling_resistance, grade)
+    9. state_rates hooks      the effects' own states (steering_lag)
+
+With no effects this is exactly CommonRoad's dynamic ST model (``pcvfe_drake.vehicle``'s model
+for v >= 0.5 m/s); the workbench only uses windows with v >= 1 m/s. Input hooks (input_delay)
+rewrite a window's input sequence before the rollout.
+
+Parameters: the *base* parameters (default ``mu``; any of ``mu, C_Sf, C_Sr``), one value per
+context, then each effect's parameters, named ``effect.param``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pcvfe_drake.params import THETA_NAMES, VehicleParams, load_vehicle
+from pcvfe_drake.vehicle import BETA, DELTA, NX, PSI, PSI_DOT, V, constrain_inputs, wrap_angle
+from pcvfe_drake.workbench.data import DriveData
+from pcvfe_drake.workbench.effects import Effect, StepContext, get_effect
+
+V_FLOOR_MPS = 0.1
+"""Speed below which the force-form model is evaluated at this speed (matches vehicle.py)."""
+
+MAX_SUBSTEPS = 8
+"""Most RK4 steps per sample step (taken when an effect asks for a shorter step)."""
+
+BASE_BOUNDS = {"mu": (0.05, 3.0), "C_Sf": (1.0, 200.0), "C_Sr": (1.0, 200.0)}
+
+
+@dataclass(frozen=True)
+class ParamInfo:
+    """One entry of the model's parameter vector."""
+
+    name: str
+    unit: str
+    lower: float
+    upper: float
+    initial: float
+    scale: float
+    null: float
+    effect: str | None  # None for base parameters
+    context: int | None  # context index for base parameters
+
+
+class WorkbenchModel:
+    """Baseline ST model plus effects; immutable (``with_effects`` returns a new model).
+
+    Args:
+        vehicle: nominal parameters (a preset name, a file, or VehicleParams; None = Ford).
+        effects: effect names or instances.
+        base_params: which of ``mu, C_Sf, C_Sr`` are fitted per context.
+        contexts: context labels (one base-parameter set each).
+    """
+
+    def __init__(
+        self,
+        vehicle: VehicleParams | str | None = None,
+        effects=(),
+        base_params: tuple[str, ...] = ("mu",),
+        contexts: tuple[str, ...] | list[str] = ("all",),
+    ) -> None:
+        self.vehicle = vehicle if isinstance(vehicle, VehicleParams) else load_vehicle(vehicle)
+        for b in base_params:
+            if b not in THETA_NAMES:
+                raise ValueError(f"base parameter {b!r} is not one of {THETA_NAMES}")
+        self.base_params = tuple(base_params)
+        self.contexts = list(contexts) or ["all"]
+        eff = [get_effect(e) for e in effects]
+        names = [e.name for e in eff]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"effect(s) {dup} given more than once")
+        self.effects: list[Effect] = sorted(eff, key=lambda e: e.order)
+        self.params: list[ParamInfo] = []
+        nominal = dict(zip(THETA_NAMES, self.vehicle.theta, strict=True))
+        for b in self.base_params:
+            lo, hi = BASE_BOUNDS[b]
+            unit = "-" if b == "mu" else "1/rad"
+            for c, label in enumerate(self.contexts):
+                name = b if len(self.contexts) == 1 else f"{b}[{label}]"
+                v0 = float(np.clip(nominal[b], lo, hi))
+                self.params.append(ParamInfo(name, unit, lo, hi, v0, 0.1 * v0, v0, None, c))
+        self._state_slices: list[slice] = []
+        start = NX
+        for e in self.effects:
+            for q in e.params:
+                self.params.append(
+                    ParamInfo(
+                        f"{e.name}.{q.name}",
+                        q.unit,
+                        q.lower,
+                        q.upper,
+                        q.initial,
+                        q.scale,
+                        q.null,
+                        e.name,
+                        None,
+                    )
+                )
+            self._state_slices.append(slice(start, start + e.n_states))
+            start += e.n_states
+        self.nz = start
+
+    # ------------------------------------------------------------------ composition
+    def with_effects(self, *effects) -> WorkbenchModel:
+        """A new model with these effects added (names or :class:`Effect` instances)."""
+        return WorkbenchModel(
+            self.vehicle, [*self.effects, *effects], self.base_params, self.contexts
+        )
+
+    @property
+    def effect_names(self) -> list[str]:
+        return [e.name for e in self.effects]
+
+    @property
+    def param_names(self) -> list[str]:
+        return [p.name for p in self.params]
+
+    @property
+    def n_params(self) -> int:
+        return len(self.params)
+
+    @property
+    def state_names(self) -> list[str]:
+        names = ["sx", "sy", "delta", "v", "psi", "psi_dot", "beta"]
+        for e in self.effects:
+            names += [f"{e.name}.{s}" for s in e.state_names]
+        return names
+
+    def initial_theta(self) -> np.ndarray:
+        return np.array([p.initial for p in self.params])
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.array([p.lower for p in self.params]), np.array([p.upper for p in self.params])
+
+    def scales(self) -> np.ndarray:
+        return np.array([p.scale for p in self.params])
+
+    def effect_param_indices(self, effect_name: str) -> list[int]:
+        return [i for i, p in enumerate(self.params) if p.effect == effect_name]
+
+    def transfer(self, theta_from: np.ndarray, other: WorkbenchModel) -> np.ndarray:
+        """This model's initial vector with values copied by name from ``other``'s vector."""
+        values = dict(zip(other.param_names, theta_from, strict=True))
+        return np.array([values.get(p.name, p.initial) for p in self.params])
+
+    # ------------------------------------------------------------------ evaluation
+    def _unpack(self, theta_rows: np.ndarray, ctx_rows: np.ndarray):
+        """Per-row base parameters (dict of (N,)) and per-effect parameter dicts."""
+        n = theta_rows.shape[0]
+        base = dict(zip(THETA_NAMES, (np.full(n, v) for v in self.vehicle.theta), strict=True))
+        eff: dict[str, dict[str, np.ndarray]] = {e.name: {} for e in self.effects}
+        for j, p in enumerate(self.params):
+            if p.effect is None:
+                sel = ctx_rows == p.context
+                base[p.name.split("[")[0]][sel] = theta_rows[sel, j]
+            else:
+                eff[p.effect][p.name.split(".", 1)[1]] = theta_rows[:, j]
+        return base, eff
+
+    def rhs(self, z: np.ndarray, u: np.ndarray, base: dict, eff: dict) -> np.ndarray:
+        """Time derivative of the augmented state ``z`` (N, nz) under inputs ``u`` (N, 2)."""
+        vp = self.vehicle
+        x = z[:, :NX]
+        u_c, _, _, _ = constrain_inputs(x, u, vp)
+        steer, acc = u_c[:, 0], u_c[:, 1]
+        ctx = StepContext(x, z[:, NX:NX], steer, acc, vp)
+        for e, sl in zip(self.effects, self._state_slices, strict=True):
+            ctx.states = z[:, sl]
+            acc = e.accel(acc, ctx, eff[e.name])
+            ctx.accel = acc
+        delta_w = x[:, DELTA]
+        for e, sl in zip(self.effects, self._state_slices, strict=True):
+            ctx.states = z[:, sl]
+            delta_w = e.wheel_angle(delta_w, ctx, eff[e.name])
+        v = x[:, V]
+        vd = np.maximum(v, V_FLOOR_MPS)
+        r = x[:, PSI_DOT]
+        beta = x[:, BETA]
+        wheelbase = vp.lf + vp.lr
+        fzf = vp.m * (vp.g * vp.lr - acc * vp.h) / wheelbase
+        fzr = vp.m * (vp.g * vp.lf + acc * vp.h) / wheelbase
+        alpha_f = delta_w - beta - vp.lf * r / vd
+        alpha_r = -beta + vp.lr * r / vd
+        caf = base["mu"] * base["C_Sf"] * fzf
+        car = base["mu"] * base["C_Sr"] * fzr
+        fyf = caf * alpha_f
+        fyr = car * alpha_r
+        for e in self.effects:
+            out_f = e.tire(alpha_f, fzf, caf, eff[e.name])
+            if out_f is not None:
+                fyf = out_f
+                fyr = e.tire(alpha_r, fzr, car, eff[e.name])
+        a_long = acc.copy()
+        for e, sl in zip(self.effects, self._state_slices, strict=True):
+            ctx.states = z[:, sl]
+            extra = e.longitudinal(ctx, eff[e.name])
+            if extra is not None:
+                a_long = a_long + extra
+        zdot = np.empty_like(z)
+        zdot[:, 0] = v * np.cos(x[:, PSI] + beta)
+        zdot[:, 1] = v * np.sin(x[:, PSI] + beta)
+        zdot[:, DELTA] = steer
+        zdot[:, V] = a_long
+        zdot[:, PSI] = r
+        zdot[:, PSI_DOT] = (vp.lf * fyf - vp.lr * fyr) / vp.I_z
+        zdot[:, BETA] = (fyf + fyr) / (vp.m * vd) - r
+        for e, sl in zip(self.effects, self._state_slices, strict=True):
+            if e.n_states and not e.exact_states:
+                ctx.states = z[:, sl]
+                zdot[:, sl] = e.state_rates(ctx, x[:, DELTA], eff[e.name])
+            elif e.n_states:
+                zdot[:, sl] = 0.0
+        return zdot
+
+    def simulate(
+        self,
+        theta_rows: np.ndarray,
+        data: DriveData,
+        starts: np.ndarray,
+        horizon: int,
+        ctx_rows: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Roll out windows of ``horizon`` steps from the measured states at ``starts``.
+
+        Args:
+            theta_rows: parameter vector(s), (P,) or one per window (N, P).
+            data: the log (inputs and measured initial states come from it).
+            starts: window start samples (N,).
+            horizon: steps per window.
+            ctx_rows: context index per window (default: the context at the start).
+        Returns:
+            Z (N, horizon + 1, nz): RK4 with the inputs held over each sample step.
+        """
+        starts = np.asarray(starts, dtype=int)
+        n = starts.size
+        theta_rows = np.broadcast_to(np.atleast_2d(theta_rows), (n, self.n_params))
+        if ctx_rows is None:
+            ctx_rows = data.context[starts]
+        base, eff = self._unpack(theta_rows, ctx_rows)
+        idx = starts[:, None] + np.arange(horizon)[None, :]
+        U = data.u[idx]
+        parts = [data.x0[starts]]
+        for e in self.effects:
+            U = e.inputs(U, data, starts, eff[e.name])
+            if e.n_states:
+                parts.append(e.initial_states(data, starts, eff[e.name]))
+        Z = np.empty((n, horizon + 1, self.nz))
+        Z[:, 0] = np.concatenate(parts, axis=1)
+        limits = [e.max_step(eff[e.name]) for e in self.effects]
+        limits = [m for m in limits if m is not None and m > 0]
+        substeps = 1
+        if limits:
+            substeps = int(min(MAX_SUBSTEPS, max(1, np.ceil(data.dt / min(limits)))))
+        h = data.dt / substeps
+        pairs = zip(self.effects, self._state_slices, strict=True)
+        exact = [(e, sl) for e, sl in pairs if e.exact_states]
+
+        def stage(z0, z, offset):
+            for e, sl in exact:
+                z[:, sl] = e.states_at(z0[:, sl], z0[:, :NX], z[:, :NX], offset, eff[e.name])
+            return z
+
+        for k in range(horizon):
+            z = Z[:, k]
+            uk = U[:, k]
+            for _ in range(substeps):
+                k1 = self.rhs(z, uk, base, eff)
+                k2 = self.rhs(stage(z, z + 0.5 * h * k1, 0.5 * h), uk, base, eff)
+                k3 = self.rhs(stage(z, z + 0.5 * h * k2, 0.5 * h), uk, base, eff)
+                k4 = self.rhs(stage(z, z + h * k3, h), uk, base, eff)
+                z = stage(z, z + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4), h)
+            Z[:, k + 1] = z
+        return Z
+
+    def errors(
+        self, theta_rows: np.ndarray, data: DriveData, starts: np.ndarray, horizon: int
+    ) -> np.ndarray:
+        """Prediction minus measurement (N, horizon, 7) for steps 1..horizon (heading wrapped)."""
+        Z = self.simulate(theta_rows, data, starts, horizon)
+        idx = np.asarray(starts)[:, None] + np.arange(1, horizon + 1)[None, :]
+        err = Z[:, 1:, :NX] - data.x[idx]
+        err[:, :, PSI] = wrap_angle(err[:, :, PSI])
+        return err

@@ -1,0 +1,298 @@
+"""Learn which physical effect is missing: fit every candidate, score it on held-out data.
+
+For each candidate effect the model *baseline + effect* is fitted on the training windows
+(starting from the baseline's fit and the effect's listed starting points) and compared with
+the baseline on held-out windows (time blocks the fit never saw).
+
+Significance (stated in every report as ``method``):
+
+1. a likelihood-ratio test on the training fit: ``LR = n_eff ln(J_base / J_effect)`` is
+   compared with a chi-square distribution with as many degrees of freedom as the effect has
+   parameters. ``J`` are the sums of squared whitened multi-step errors; ``n_eff`` counts one
+   observation per training window and fitted state, because errors along one rollout are
+   strongly correlated (counting every sample would overstate the evidence). The p-value
+   threshold is ``alpha`` divided by the number of candidates (Bonferroni);
+2. and the effect must lower the held-out multi-step error by at least ``min_drop`` (5 %).
+
+An effect is *significant* when both hold. Candidates are ranked by their held-out error drop.
+After the best effect, each other significant candidate is fitted on top of it and tested the
+same way against the best model: any that still passes is reported as remaining structure.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.stats import chi2
+
+from pcvfe_drake.params import VehicleParams
+from pcvfe_drake.vehicle import STATE_NAMES
+from pcvfe_drake.workbench.compare import evaluate, public
+from pcvfe_drake.workbench.data import DriveData, window_starts
+from pcvfe_drake.workbench.effects import get_effect, known_effects
+from pcvfe_drake.workbench.estimate import FitResult, fit
+from pcvfe_drake.workbench.model import WorkbenchModel
+
+METHOD = (
+    "likelihood-ratio test (chi-square, dof = number of effect parameters, one observation per "
+    "training window and fitted state, Bonferroni over candidates) at alpha={alpha:g}, AND a "
+    "held-out multi-step error drop of at least {min_drop:.0%}"
+)
+
+
+@dataclass(frozen=True)
+class DiagnoseConfig:
+    """Settings of a diagnosis (times in seconds)."""
+
+    fit_horizon_s: float = 1.0
+    fit_burn_in_s: float = 0.25
+    eval_horizon_s: float = 2.0
+    eval_stride_s: float = 0.1
+    signature_horizon_s: float = 0.5
+    n_blocks: int = 6
+    alpha: float = 0.01
+    min_drop: float = 0.05
+    base_params: tuple[str, ...] = ("mu",)
+    max_iter: int = 20
+
+
+@dataclass
+class Candidate:
+    name: str
+    fit: FitResult
+    evaluation: dict
+    lr: float
+    dof: int
+    p_value: float
+    drop: float
+    significant: bool
+    signature: dict = field(default_factory=dict)
+
+    def summary(self) -> dict:
+        return {
+            "name": self.name,
+            "significant": bool(self.significant),
+            "p_value": float(self.p_value),
+            "confidence": float(1.0 - self.p_value),
+            "lr_statistic": float(self.lr),
+            "dof": int(self.dof),
+            "heldout_error": float(self.evaluation["multistep_error"]),
+            "heldout_error_drop": float(self.drop),
+            "params": self.fit.params_dict(only_effects=True),
+            "signature": self.signature,
+        }
+
+
+def _steps(seconds: float, data: DriveData) -> int:
+    return max(1, int(round(seconds / data.dt)))
+
+
+class Workbench:
+    """Fits and compares models on one drive log (the engine behind ``pcvfe diagnose``)."""
+
+    def __init__(
+        self,
+        data: DriveData,
+        vehicle: VehicleParams | str | None = None,
+        config: DiagnoseConfig | None = None,
+    ) -> None:
+        self.data = data
+        self.config = config or DiagnoseConfig()
+        cfg = self.config
+        self.base_model = WorkbenchModel(
+            vehicle, base_params=cfg.base_params, contexts=data.context_names
+        )
+        self.h_fit = _steps(cfg.fit_horizon_s, data)
+        self.h_eval = _steps(cfg.eval_horizon_s, data)
+        self.train_starts = window_starts(data, self.h_fit, self.h_fit, "train", cfg.n_blocks)
+        self.eval_starts = window_starts(
+            data, self.h_eval, _steps(cfg.eval_stride_s, data), "heldout", cfg.n_blocks
+        )
+        if self.train_starts.size < 5 or self.eval_starts.size < 5:
+            raise ValueError(
+                f"drive log {data.source}: too few usable windows ({self.train_starts.size} "
+                f"training, {self.eval_starts.size} held-out); the workbench needs stretches "
+                f"of >= {cfg.eval_horizon_s:g} s at v >= 1 m/s in every time block"
+            )
+        self._base: FitResult | None = None
+        self._base_eval: dict | None = None
+
+    # ------------------------------------------------------------------ fitting
+    def fit_model(self, model: WorkbenchModel, warm: FitResult | None = None) -> FitResult:
+        """Fit ``model`` on the training windows, warm-started from a nested fit."""
+        theta0 = model.initial_theta() if warm is None else model.transfer(warm.theta, warm.model)
+        candidates = []
+        for e in model.effects:
+            if e.starts and (warm is None or e.name not in warm.model.effect_names):
+                idx = model.effect_param_indices(e.name)
+                for start in e.starts:
+                    c = theta0.copy()
+                    c[idx] = start
+                    candidates.append(c)
+        return fit(
+            model,
+            self.data,
+            self.train_starts,
+            self.h_fit,
+            theta0=theta0,
+            candidates=candidates,
+            max_iter=self.config.max_iter,
+            burn_in=min(_steps(self.config.fit_burn_in_s, self.data), self.h_fit - 1),
+        )
+
+    @property
+    def baseline(self) -> FitResult:
+        if self._base is None:
+            self._base = self.fit_model(self.base_model)
+        return self._base
+
+    @property
+    def baseline_eval(self) -> dict:
+        if self._base_eval is None:
+            self._base_eval = self.evaluate(self.baseline)
+        return self._base_eval
+
+    def evaluate(self, result: FitResult) -> dict:
+        return evaluate(
+            result.model,
+            result.theta,
+            self.data,
+            self.eval_starts,
+            self.h_eval,
+            self.config.n_blocks,
+        )
+
+    def compare_nested(
+        self, ref: FitResult, ref_eval: dict, alt: FitResult, n_candidates: int
+    ) -> tuple[float, int, float, float, bool, dict]:
+        dof = alt.model.n_params - ref.model.n_params
+        lr = max(0.0, ref.n_eff * float(np.log(ref.cost / alt.cost)))
+        p = float(chi2.sf(lr, dof)) if dof > 0 else 1.0
+        ev = self.evaluate(alt)
+        e0 = ref_eval["multistep_error"]
+        drop = (e0 - ev["multistep_error"]) / e0 if e0 > 0 else 0.0
+        sig = p < self.config.alpha / max(n_candidates, 1) and drop >= self.config.min_drop
+        return lr, dof, p, drop, sig, ev
+
+    # ------------------------------------------------------------------ signatures
+    def signatures(self, names: list[str]) -> dict[str, dict]:
+        """How strongly the baseline's short-horizon residual of each effect's signature state
+        is explained by the effect's regressors (uncentred multiple correlation R)."""
+        data = self.data
+        k = _steps(self.config.signature_horizon_s, data)
+        starts = window_starts(data, k, 1, "all", self.config.n_blocks)
+        if starts.size < 10:
+            return {}
+        err = self.base_model.errors(self.baseline.theta, data, starts, k)
+        out = {}
+        for name in names:
+            e = get_effect(name)
+            s = STATE_NAMES.index(e.signature_state)
+            resid = err[:, -1, s]
+            reg = e.signature_regressors(data)
+            idx = starts[:, None] + np.arange(k)[None, :]
+            X = reg[idx].mean(axis=1)
+            beta, *_ = np.linalg.lstsq(X, resid, rcond=None)
+            fitted = X @ beta
+            denom = float(resid @ resid)
+            r2 = float(fitted @ fitted) / denom if denom > 0 else 0.0
+            r = float(np.sqrt(min(max(r2, 0.0), 1.0)))
+            out[name] = {
+                "state": e.signature_state,
+                "regressor": e.signature_label,
+                "R": r,
+                "text": f"{e.signature_state} residual correlates with {e.signature_label} "
+                f"(R = {r:.2f}): {name}",
+            }
+        return out
+
+    # ------------------------------------------------------------------ ranking
+    def rank(self, candidates: list[str] | None = None) -> dict:
+        """Fit and score each candidate; returns the JSON-ready ranking section."""
+        names = known_effects() if candidates is None else [get_effect(c).name for c in candidates]
+        base, base_eval = self.baseline, self.baseline_eval
+        sigs = self.signatures(names)
+        results: list[Candidate] = []
+        for name in names:
+            alt = self.fit_model(self.base_model.with_effects(name), warm=base)
+            lr, dof, p, drop, sig, ev = self.compare_nested(base, base_eval, alt, len(names))
+            results.append(Candidate(name, alt, ev, lr, dof, p, drop, sig, sigs.get(name, {})))
+        results.sort(key=lambda c: c.drop, reverse=True)
+        self.candidates = results
+        significant = [c for c in results if c.significant]
+        remaining = []
+        if significant:
+            best = significant[0]
+            for c in significant[1:]:
+                both = self.fit_model(best.fit.model.with_effects(c.name), warm=best.fit)
+                lr, dof, p, drop, sig, _ = self.compare_nested(
+                    best.fit, best.evaluation, both, len(names)
+                )
+                remaining.append(
+                    {
+                        "name": c.name,
+                        "on_top_of": best.name,
+                        "significant": bool(sig),
+                        "p_value": p,
+                        "heldout_error_drop": drop,
+                    }
+                )
+            still = [r["name"] for r in remaining if r["significant"]]
+            if still:
+                verdict = (
+                    f"missing effect: {best.name} (p = {best.p_value:.2g}, held-out error "
+                    f"-{best.drop:.0%}); significant structure remains after it: "
+                    f"{', '.join(still)}"
+                )
+            else:
+                verdict = (
+                    f"missing effect: {best.name} (p = {best.p_value:.2g}, held-out error "
+                    f"-{best.drop:.0%}); no significant structure remains among the candidates"
+                )
+        else:
+            verdict = "no candidate effect is significant: the baseline explains the data"
+        return {
+            "method": METHOD.format(alpha=self.config.alpha, min_drop=self.config.min_drop),
+            "ranked_effects": [c.summary() for c in results],
+            "best": significant[0].name if significant else None,
+            "remaining": remaining,
+            "remaining_significant": [r["name"] for r in remaining if r["significant"]],
+            "verdict": verdict,
+        }
+
+    def add(self, effects: list[str]) -> dict:
+        """Refit with ``effects`` added; before/after numbers (JSON-ready)."""
+        names = [get_effect(e).name for e in effects]
+        model = self.base_model.with_effects(*names)
+        res = self.fit_model(model, warm=self.baseline)
+        ev = self.evaluate(res)
+        e0 = self.baseline_eval["multistep_error"]
+        drop = (e0 - ev["multistep_error"]) / e0 if e0 > 0 else 0.0
+        dof = model.n_params - self.base_model.n_params
+        lr = max(0.0, self.baseline.n_eff * float(np.log(self.baseline.cost / res.cost)))
+        self.added_fit, self.added_eval = res, ev
+        return {
+            "effects": names,
+            "params": res.params_dict(),
+            "heldout": public(ev),
+            "heldout_error": ev["multistep_error"],
+            "error_drop": drop,
+            "lr_statistic": lr,
+            "p_value": float(chi2.sf(lr, dof)) if dof > 0 else 1.0,
+        }
+
+    def baseline_summary(self) -> dict:
+        ev = self.baseline_eval
+        label = next(iter(ev["fit_percent_kstep"]))
+        for key in ev["fit_percent_kstep"]:
+            if abs(float(key[:-1]) - self.config.fit_horizon_s) < 1e-9:
+                label = key
+        return {
+            "params": self.baseline.params_dict(),
+            "fit_percent": ev["fit_percent_kstep"][label],
+            "fit_percent_horizon": label,
+            "heldout_error": ev["multistep_error"],
+            "heldout": public(ev),
+            "train_cost": self.baseline.cost,
+        }
