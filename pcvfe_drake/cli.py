@@ -13,6 +13,7 @@ COMMANDS = [
     "fit",
     "features",
     "export_clip",
+    "terrain_map",
 ]
 
 

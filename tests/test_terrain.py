@@ -202,3 +202,16 @@ def test_default_terrains_are_the_public_simulator_values():
         "sand": 0.45,
         "concrete": 0.6,
     }
+
+
+def test_cli_terrain_map_writes_the_figure(tmp_path, capsys):
+    import cv2
+
+    from pcvfe_drake.cli import main
+
+    out = tmp_path / "map.png"
+    assert main(["terrain-map", "--out", str(out), "--px-per-m", "1", "--flat"]) == 0
+    img = cv2.imread(str(out))
+    assert img.shape == (120, 180, 3)
+    text = capsys.readouterr().out
+    assert "patchy_grass   mu 0.30" in text and "brick          mu 0.80" in text
