@@ -114,6 +114,7 @@ def MakeSimulation(
             params,
             period_s=rates.fitter_period_s,
             sample_period_s=rates.fitter_sample_period_s,
+            **settings_kwargs(scenario.fitter),
         ),
     )
     nmpc = builder.AddNamedSystem("nmpc", Nmpc(course, params, nmpc_config(scenario)))

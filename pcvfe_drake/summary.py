@@ -150,10 +150,12 @@ def mu_estimates(
             est = float(entry["mu"])
             std = _finite_or_none(entry.get("mu_std", math.nan))
             samples = int(entry.get("samples", 0))
+            status = entry.get("status")
         else:
             est = float(mu_hat[rows[-1]])
             std = None
             samples = 0
+            status = None
         in_context_time = np.cumsum(w[rows])
         settled = rows[(in_context_time > settle_time_s) & (terrain[rows] == majority)]
         err_after = None
@@ -165,6 +167,7 @@ def mu_estimates(
                 "mu_hat": est,
                 "std": std,
                 "samples": samples,
+                "fit_status": status,
                 "time_in_context_s": float(np.sum(w[rows])),
                 "majority_terrain": majority,
                 "majority_share": (names.count(majority) / len(rows)) if majority else 0.0,

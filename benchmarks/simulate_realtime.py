@@ -1,0 +1,108 @@
+"""Real-time factor of the full PC-VFE closed loop (target >= 3 on 2 cores).
+
+Runs the default scenario (``paper_sim``: Ford Escort, slalom, four terrains, ST truth,
+descriptor features) for a fixed simulated duration without Meshcat and without writing files,
+and reports the real-time factor (simulated / wall time of ``AdvanceTo``). The baseline measured
+in the same run is the plant alone (same ST truth plant and terrain map, constant actuation, same
+integrator settings): the ratio says how much of the budget the estimator and controller take.
+With ``--meshcat`` it also times the loop with the Meshcat view recording.
+
+Usage: python benchmarks/simulate_realtime.py [--quick] [--duration S] [--meshcat]
+Last stdout line: one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+
+import numpy as np
+from pcvfe_drake.diagrams.run_simulation import run_simulation
+from pcvfe_drake.diagrams.scenario_io import load_scenario
+from pcvfe_drake.diagrams.station import initial_state
+from pcvfe_drake.systems.vehicle_plant import VehiclePlant
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource
+
+from pcvfe_drake.course import load_course
+from pcvfe_drake.params import load_vehicle
+from pcvfe_drake.scenario import build_terrain_map
+
+
+def plant_only_rtf(scenario, duration_s: float) -> float:
+    """Real-time factor of the truth plant alone with a constant, gentle actuation."""
+    params = load_vehicle(scenario.vehicle)
+    course = load_course(scenario.course)
+    x0 = initial_state(course, params, scenario.initial_speed_mps)
+    builder = DiagramBuilder()
+    plant = builder.AddSystem(
+        VehiclePlant(params, build_terrain_map(scenario), scenario.truth_model, x0=x0)
+    )
+    u = builder.AddSystem(ConstantVectorSource(np.array([0.0, 0.0])))
+    builder.Connect(u.get_output_port(), plant.GetInputPort("actuation"))
+    simulator = Simulator(builder.Build())
+    simulator.get_mutable_integrator().set_maximum_step_size(scenario.rates.plant_max_step_s)
+    simulator.Initialize()
+    t0 = time.perf_counter()
+    simulator.AdvanceTo(duration_s)
+    return duration_s / (time.perf_counter() - t0)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="20 s of simulated time")
+    parser.add_argument("--duration", type=float, default=None, help="simulated time [s]")
+    parser.add_argument("--scenario", default="paper_sim")
+    parser.add_argument("--meshcat", action="store_true", help="also time with Meshcat")
+    args = parser.parse_args()
+    duration = args.duration or (20.0 if args.quick else 60.0)
+    scenario = load_scenario(args.scenario).with_run_length(duration_s=duration)
+
+    print(f"plant alone, {duration:.0f} s ...", flush=True)
+    plant_rtf = plant_only_rtf(scenario, duration)
+    print(f"  real-time factor {plant_rtf:.1f}x", flush=True)
+
+    print(f"full loop ({scenario.name}), {duration:.0f} s ...", flush=True)
+    result = run_simulation(scenario, None, progress=False, write_outputs=False)
+    s = result.summary
+    print(
+        f"  real-time factor {s['realtime_factor']:.2f}x (wall {s['wall_time_s']:.1f} s), "
+        f"contexts {s['contexts_discovered']}, ARI {s['ari']}",
+        flush=True,
+    )
+    out = {
+        "benchmark": "simulate_realtime",
+        "scenario": scenario.name,
+        "sim_time_s": s["sim_time_s"],
+        "wall_time_s": s["wall_time_s"],
+        "realtime_factor": s["realtime_factor"],
+        "target_realtime_factor": 3.0,
+        "meets_target": bool(s["realtime_factor"] >= 3.0),
+        "plant_only_realtime_factor": plant_rtf,
+        "loop_cost_vs_plant_only": plant_rtf / s["realtime_factor"],
+        "contexts_discovered": s["contexts_discovered"],
+        "cpu_count": os.cpu_count(),
+        "machine": platform.machine(),
+    }
+    if args.meshcat:
+        from pydrake.geometry import Meshcat, MeshcatParams
+
+        params = MeshcatParams()
+        params.host = "localhost"
+        meshcat = Meshcat(params)
+        print("full loop with Meshcat recording ...", flush=True)
+        with_view = run_simulation(
+            scenario, None, meshcat=meshcat, progress=False, write_outputs=False
+        )
+        out["realtime_factor_with_meshcat"] = with_view.summary["realtime_factor"]
+        print(f"  real-time factor {out['realtime_factor_with_meshcat']:.2f}x", flush=True)
+    print(json.dumps(out))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
