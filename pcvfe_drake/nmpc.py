@@ -83,6 +83,7 @@ from pcvfe_drake.vehicle import (
 MODELS = ("st", "ks")
 _ACCEPTED = ("solved", "solved inaccurate")
 _MU_RANGE = (0.05, 2.0)
+_NO_TIME_LIMIT = 1e10  # OSQP's own default: no wall-clock limit
 _PROJ = ("s", "lateral_error", "heading_error", "x", "y", "heading", "curvature")
 
 
@@ -114,7 +115,11 @@ class NmpcConfig:
         slack_linear, slack_quadratic: penalties on the slacks (per unit, per unit^2).
         v_lin_min_mps: the linearisation speed is clamped to at least this [m/s].
         ks_relax_s: relaxation time of psi_dot and beta to their kinematic values (KMPC) [s].
-        max_iter, eps_abs, eps_rel, time_limit_s: OSQP settings (time limit per solve [s]).
+        max_iter, eps_abs, eps_rel: OSQP settings; ``max_iter`` is the deterministic budget of
+            one update (an unsolved QP after it triggers the fallback).
+        time_limit_s: optional wall-clock limit of one OSQP solve [s] (e.g. 0.04 on hardware at
+            20 Hz). None (default) keeps simulations deterministic: a wall-clock limit makes
+            the result depend on the machine's load.
         fallback_shift_steps: how many steps of a stale plan the fallback may use.
         brake_fraction: braking deceleration of the fallback, fraction of mu_hat g.
         cold_start_distance_m: a plan whose first state is farther than this from the measured
@@ -142,10 +147,10 @@ class NmpcConfig:
     slack_quadratic: float = 1000.0
     v_lin_min_mps: float = 1.0
     ks_relax_s: float = 0.1
-    max_iter: int = 4000
+    max_iter: int = 1000
     eps_abs: float = 1e-3
     eps_rel: float = 1e-3
-    time_limit_s: float = 0.04
+    time_limit_s: float | None = None
     fallback_shift_steps: int = 20
     brake_fraction: float = 0.5
     cold_start_distance_m: float = 2.0
@@ -181,7 +186,6 @@ class NmpcConfig:
             "corridor_fraction",
             "v_lin_min_mps",
             "ks_relax_s",
-            "time_limit_s",
             "brake_fraction",
             "cold_start_distance_m",
         ):
@@ -192,6 +196,7 @@ class NmpcConfig:
             "steer_rate_scale_radps",
             "steer_rate_change_scale_radps",
             "yaw_rate_scale_radps",
+            "time_limit_s",
         ):
             value = getattr(self, name)
             need(value is None or value > 0, name, "> 0 or None")
@@ -757,12 +762,13 @@ class NmpcController:
             np.full(lay.m, 1.0),
             **self.osqp_settings(),
         )
-        solver.update_settings(max_iter=1, time_limit=1e10)
+        solver.update_settings(max_iter=1, time_limit=_NO_TIME_LIMIT)
         solver.solve(raise_error=False)
-        solver.update_settings(
-            max_iter=int(self.config.max_iter), time_limit=self.config.time_limit_s
-        )
+        solver.update_settings(max_iter=int(self.config.max_iter), time_limit=self._time_limit())
         return solver
+
+    def _time_limit(self) -> float:
+        return _NO_TIME_LIMIT if self.config.time_limit_s is None else self.config.time_limit_s
 
     def osqp_settings(self) -> dict:
         cfg = self.config
@@ -773,7 +779,7 @@ class NmpcController:
             max_iter=int(cfg.max_iter),
             eps_abs=cfg.eps_abs,
             eps_rel=cfg.eps_rel,
-            time_limit=cfg.time_limit_s,
+            time_limit=self._time_limit(),
             adaptive_rho=True,
             adaptive_rho_interval=25,
             check_termination=5,

@@ -10,7 +10,7 @@ from pcvfe_drake.nmpc import NmpcConfig, NmpcDiagnostics, NmpcMemory, start_stat
 
 @pytest.fixture(scope="module")
 def nmpc():
-    return Nmpc("slalom", config=NmpcConfig(horizon=20, time_limit_s=10.0))
+    return Nmpc("slalom", config=NmpcConfig(horizon=20))
 
 
 def test_ports_and_no_direct_feedthrough(nmpc):
@@ -51,7 +51,7 @@ def test_output_held_between_updates_and_diagnostics(nmpc):
 def test_fixed_theta_ignores_the_unconnected_input():
     sys_ = Nmpc(
         "slalom",
-        config=NmpcConfig(horizon=20, time_limit_s=10.0),
+        config=NmpcConfig(horizon=20),
         fixed_theta=[0.3, 20.898, 20.898],
     )
     ctx = sys_.CreateDefaultContext()
@@ -70,7 +70,7 @@ def test_closed_loop_with_the_vehicle_plant_tracks():
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import ConstantVectorSource
 
-    ctrl = Nmpc("slalom", config=NmpcConfig(time_limit_s=10.0))
+    ctrl = Nmpc("slalom", config=NmpcConfig())
     course, params = ctrl.controller.course, ctrl.params
     x0 = start_state(course, params, 5.0, 100.0)
     x0[1] += 0.5  # start half a metre off the path
