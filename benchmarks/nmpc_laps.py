@@ -52,7 +52,16 @@ class MbTruthPlant:
 
 
 def run(
-    label, course, params, config, mu_at, laps, truth=None, rms_limit=RMS_LIMIT_M, theta_hat=None
+    label,
+    course,
+    params,
+    config,
+    mu_at,
+    laps,
+    truth=None,
+    rms_limit=RMS_LIMIT_M,
+    theta_hat=None,
+    terrain=None,
 ):
     ctrl = NmpcController(course, params, config)
     prof = ctrl.profile(float(mu_at(np.array(course.sample(0.0)[:2]))))
@@ -79,6 +88,10 @@ def run(
         lap_time_s=m["duration_s"] / max(m["laps"], 1e-9),
         rms_limit_m=rms_limit,
     )
+    if terrain is not None:  # seconds driven on each terrain (the fitter needs ~20 s each)
+        names = np.asarray(terrain.name_at(res.x[:-1, :2]))
+        dt = np.diff(res.t)
+        m["terrain_time_s"] = {str(n): float(dt[names == n].sum()) for n in np.unique(names)}
     m["passed"] = bool(
         m["laps"] >= laps - 1e-6 and m["lateral_rms_m"] <= rms_limit and not m["failure"]
     )
@@ -115,8 +128,8 @@ def main(argv=None) -> int:
     def mixed(xy):
         return float(terrain.mu_at(np.asarray(xy, dtype=float)))
 
-    results.append(run("NMPC four-terrain map", slalom, ford, cfg, mixed, laps))
-    results.append(run("KMPC four-terrain map", slalom, ford, kmpc, mixed, laps))
+    results.append(run("NMPC four-terrain map", slalom, ford, cfg, mixed, laps, terrain=terrain))
+    results.append(run("KMPC four-terrain map", slalom, ford, kmpc, mixed, laps, terrain=terrain))
     rr = roboracer()
     results.append(
         run(
