@@ -12,7 +12,9 @@ Significance (stated in every report as ``method``):
    observation per training window and fitted state, because errors along one rollout are
    strongly correlated (counting every sample would overstate the evidence). The p-value
    threshold is ``alpha`` divided by the number of candidates (Bonferroni);
-2. and the effect must lower the held-out multi-step error by at least ``min_drop`` (5 %).
+2. and the effect must lower the held-out model error (the multi-step error in excess of the
+   measurement-noise floor, see :mod:`pcvfe_drake.workbench.compare`) by at least
+   ``min_drop`` (5 %).
 
 An effect is *significant* when both hold. Candidates are ranked by their held-out error drop.
 After the best effect, each other significant candidate is fitted on top of it and tested the
@@ -37,7 +39,8 @@ from pcvfe_drake.workbench.model import WorkbenchModel
 METHOD = (
     "likelihood-ratio test (chi-square, dof = number of effect parameters, one observation per "
     "training window and fitted state, Bonferroni over candidates) at alpha={alpha:g}, AND a "
-    "held-out multi-step error drop of at least {min_drop:.0%}"
+    "drop of the held-out model error (multi-step error above the noise floor) of at least "
+    "{min_drop:.0%}"
 )
 
 
@@ -48,13 +51,13 @@ class DiagnoseConfig:
     fit_horizon_s: float = 1.0
     fit_burn_in_s: float = 0.25
     eval_horizon_s: float = 2.0
-    eval_stride_s: float = 0.1
+    eval_stride_s: float = 0.25
     signature_horizon_s: float = 0.5
     n_blocks: int = 6
     alpha: float = 0.01
     min_drop: float = 0.05
     base_params: tuple[str, ...] = ("mu",)
-    max_iter: int = 20
+    max_iter: int = 15
 
 
 @dataclass
@@ -68,6 +71,7 @@ class Candidate:
     drop: float
     significant: bool
     signature: dict = field(default_factory=dict)
+    base_multistep: float = 1.0
 
     def summary(self) -> dict:
         return {
@@ -77,11 +81,21 @@ class Candidate:
             "confidence": float(1.0 - self.p_value),
             "lr_statistic": float(self.lr),
             "dof": int(self.dof),
-            "heldout_error": float(self.evaluation["multistep_error"]),
+            "heldout_error": float(self.evaluation["model_error"]),
             "heldout_error_drop": float(self.drop),
+            "heldout_multistep_error": float(self.evaluation["multistep_error"]),
+            "heldout_multistep_error_drop": float(
+                1.0 - self.evaluation["multistep_error"] / self.base_multistep
+            ),
             "params": self.fit.params_dict(only_effects=True),
             "signature": self.signature,
         }
+
+
+def error_drop(before: dict, after: dict) -> float:
+    """Fraction of the held-out model error (noise-corrected multi-step error) removed."""
+    e0 = before["model_error"]
+    return float((e0 - after["model_error"]) / e0) if e0 > 0 else 0.0
 
 
 def _steps(seconds: float, data: DriveData) -> int:
@@ -170,8 +184,7 @@ class Workbench:
         lr = max(0.0, ref.n_eff * float(np.log(ref.cost / alt.cost)))
         p = float(chi2.sf(lr, dof)) if dof > 0 else 1.0
         ev = self.evaluate(alt)
-        e0 = ref_eval["multistep_error"]
-        drop = (e0 - ev["multistep_error"]) / e0 if e0 > 0 else 0.0
+        drop = error_drop(ref_eval, ev)
         sig = p < self.config.alpha / max(n_candidates, 1) and drop >= self.config.min_drop
         return lr, dof, p, drop, sig, ev
 
@@ -217,7 +230,20 @@ class Workbench:
         for name in names:
             alt = self.fit_model(self.base_model.with_effects(name), warm=base)
             lr, dof, p, drop, sig, ev = self.compare_nested(base, base_eval, alt, len(names))
-            results.append(Candidate(name, alt, ev, lr, dof, p, drop, sig, sigs.get(name, {})))
+            results.append(
+                Candidate(
+                    name,
+                    alt,
+                    ev,
+                    lr,
+                    dof,
+                    p,
+                    drop,
+                    sig,
+                    sigs.get(name, {}),
+                    base_eval["multistep_error"],
+                )
+            )
         results.sort(key=lambda c: c.drop, reverse=True)
         self.candidates = results
         significant = [c for c in results if c.significant]
@@ -267,8 +293,7 @@ class Workbench:
         model = self.base_model.with_effects(*names)
         res = self.fit_model(model, warm=self.baseline)
         ev = self.evaluate(res)
-        e0 = self.baseline_eval["multistep_error"]
-        drop = (e0 - ev["multistep_error"]) / e0 if e0 > 0 else 0.0
+        drop = error_drop(self.baseline_eval, ev)
         dof = model.n_params - self.base_model.n_params
         lr = max(0.0, self.baseline.n_eff * float(np.log(self.baseline.cost / res.cost)))
         self.added_fit, self.added_eval = res, ev
@@ -276,7 +301,8 @@ class Workbench:
             "effects": names,
             "params": res.params_dict(),
             "heldout": public(ev),
-            "heldout_error": ev["multistep_error"],
+            "heldout_error": ev["model_error"],
+            "heldout_multistep_error": ev["multistep_error"],
             "error_drop": drop,
             "lr_statistic": lr,
             "p_value": float(chi2.sf(lr, dof)) if dof > 0 else 1.0,
@@ -292,7 +318,9 @@ class Workbench:
             "params": self.baseline.params_dict(),
             "fit_percent": ev["fit_percent_kstep"][label],
             "fit_percent_horizon": label,
-            "heldout_error": ev["multistep_error"],
+            "heldout_error": ev["model_error"],
+            "heldout_multistep_error": ev["multistep_error"],
+            "noise_floor": ev["noise_floor"],
             "heldout": public(ev),
             "train_cost": self.baseline.cost,
         }

@@ -1,0 +1,89 @@
+"""``pcvfe diagnose``: compare the model with a drive log, rank missing effects, add them."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from pcvfe_drake.params import load_vehicle
+from pcvfe_drake.workbench.data import load
+from pcvfe_drake.workbench.effects import get_effect, known_effects
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "diagnose",
+        help="compare the model with a drive log, rank missing physical effects, add them",
+        description=(
+            "Fit the single-track model on the training blocks of a drive log, compare it on "
+            "held-out blocks (fit %%, k-step and free-run errors, residual analysis), fit every "
+            "candidate effect of the library and rank them by held-out error drop with a "
+            "likelihood-ratio significance test; --add refits with the named effects. "
+            f"Effects: {', '.join(known_effects())}."
+        ),
+    )
+    p.add_argument("log", help="drive log (.csv/.parquet) or a run folder containing one")
+    p.add_argument(
+        "--add",
+        action="append",
+        default=[],
+        metavar="EFFECT",
+        help="add this effect and report before/after (repeatable)",
+    )
+    p.add_argument(
+        "--candidates",
+        default=None,
+        help="comma-separated effects to rank (default: the whole library)",
+    )
+    p.add_argument("--vehicle", default=None, help="vehicle preset or YAML file (default: Ford)")
+    p.add_argument(
+        "--context-column",
+        default=None,
+        help="column with context labels (default: context, terrain)",
+    )
+    p.add_argument("--out", default=None, help="folder for report.json, report.html and PNGs")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from pcvfe_drake.workbench.report import diagnose, to_jsonable, write_report
+
+    add = [get_effect(e).name for e in args.add]  # unknown names fail before any work
+    candidates = None
+    if args.candidates:
+        candidates = [get_effect(c.strip()).name for c in args.candidates.split(",") if c.strip()]
+    vehicle = load_vehicle(args.vehicle)
+    data = load(args.log, context_column=args.context_column)
+    report, wb = diagnose(data, vehicle, add=add, candidates=candidates)
+    if args.out:
+        write_report(report, wb, args.out)
+    if args.json:
+        print(json.dumps(to_jsonable(report)))
+    else:
+        base = report["baseline"]
+        print(f"log {report['log']}: {report['duration_s']:.1f} s, contexts {report['contexts']}")
+        print(
+            f"baseline held-out model error {base['heldout_error']:.3g} "
+            f"(multi-step {base['heldout_multistep_error']:.3g}, noise floor "
+            f"{base['noise_floor']:.3g}); fit % at {base['fit_percent_horizon']}: "
+            + ", ".join(f"{k} {v:.1f}" for k, v in base["fit_percent"].items())
+        )
+        for r in report["ranked_effects"]:
+            mark = "*" if r["significant"] else " "
+            params = ", ".join(f"{k}={v['value']:.4g}" for k, v in r["params"].items())
+            print(
+                f" {mark} {r['name']:20s} model error {r['heldout_error_drop']:+7.1%}  "
+                f"multi-step {r['heldout_multistep_error_drop']:+7.1%}  "
+                f"p={r['p_value']:.2g}  {params}"
+            )
+        print(report["verdict"])
+        if "added" in report:
+            print(
+                f"added {', '.join(report['added']['effects'])}: held-out error drop "
+                f"{report['error_drop']:.1%}"
+            )
+        if args.out:
+            print(f"report written to {args.out}", file=sys.stderr)
+    return 0

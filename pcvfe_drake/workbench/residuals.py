@@ -1,0 +1,137 @@
+"""See where the model fails: residual whiteness, input cross-correlation and breakdowns.
+
+* One-step-ahead prediction residuals per state on the held-out windows: autocorrelation for
+  lags 1..25 and cross-correlation with each input for lags 0..25 (input leading), with the
+  99 % band ``+-2.576 / sqrt(N)`` of a white sequence (as MATLAB's ``resid``).
+* Multi-step (held-out window) whitened RMS error broken down by time block, by place on the
+  map (a 3 x 3 grid over the driven area), by context, and by operating regime: speed,
+  lateral acceleration ``|v psi_dot|``, longitudinal command, steering rate, and
+  accelerating / coasting / braking.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pcvfe_drake.vehicle import INPUT_NAMES, STATE_NAMES
+from pcvfe_drake.workbench.data import DriveData, window_starts
+from pcvfe_drake.workbench.estimate import FIT_STATES
+from pcvfe_drake.workbench.model import WorkbenchModel
+
+MAX_LAG = 25
+BAND_Z99 = 2.576
+
+
+def _corr(a: np.ndarray, b: np.ndarray, lags: range) -> np.ndarray:
+    a = a - a.mean()
+    b = b - b.mean()
+    denom = np.sqrt((a @ a) * (b @ b))
+    out = []
+    for lag in lags:
+        if denom <= 0:
+            out.append(0.0)
+        else:
+            out.append(float(a[lag:] @ b[: b.size - lag] / denom) if lag < a.size else 0.0)
+    return np.array(out)
+
+
+def whiteness(model: WorkbenchModel, theta: np.ndarray, data: DriveData, n_blocks: int = 6):
+    """One-step residual auto- and input cross-correlations on held-out data (JSON-ready)."""
+    starts = window_starts(data, 1, 1, "heldout", n_blocks)
+    err = model.errors(theta, data, starts, 1)[:, 0, :]
+    n = starts.size
+    band = BAND_Z99 / np.sqrt(max(n, 1))
+    out = {"n": int(n), "band_99": float(band), "states": {}}
+    for i in FIT_STATES:
+        name = STATE_NAMES[i]
+        acf = _corr(err[:, i], err[:, i], range(1, MAX_LAG + 1))
+        ccf = {
+            u: _corr(err[:, i], data.u[starts, j], range(0, MAX_LAG + 1)).tolist()
+            for j, u in enumerate(INPUT_NAMES)
+        }
+        outside = float(np.mean(np.abs(acf) > band))
+        out["states"][name] = {
+            "autocorr": acf.tolist(),
+            "cross_corr": ccf,
+            "fraction_outside_band": outside,
+            "white": bool(outside <= 0.05),
+        }
+    return out
+
+
+def _bins(values: np.ndarray, edges: np.ndarray, labels: list[str], score: np.ndarray):
+    idx = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, len(labels) - 1)
+    rows = []
+    for b, label in enumerate(labels):
+        sel = idx == b
+        if sel.any():
+            rows.append(
+                {"bin": label, "n": int(sel.sum()), "rms": float(np.sqrt(np.mean(score[sel])))}
+            )
+    return rows
+
+
+def _quantile_bins(values: np.ndarray, unit: str, score: np.ndarray, k: int = 4):
+    edges = np.unique(np.quantile(values, np.linspace(0, 1, k + 1)))
+    if edges.size < 2:
+        return [{"bin": "all", "n": int(values.size), "rms": float(np.sqrt(np.mean(score)))}]
+    labels = [f"{edges[i]:.3g}-{edges[i + 1]:.3g} {unit}" for i in range(edges.size - 1)]
+    return _bins(values, edges[:-1], labels, score)
+
+
+def breakdowns(err: np.ndarray, starts: np.ndarray, data: DriveData, n_time_bins: int = 6):
+    """Whitened multi-step RMS error per window, grouped (JSON-ready).
+
+    Args:
+        err: errors (N, H, 7) of held-out windows starting at ``starts``.
+    """
+    idx = list(FIT_STATES)
+    score = np.mean((err[:, :, idx] / data.sigma[idx]) ** 2, axis=(1, 2))
+    mid = starts + err.shape[1] // 2
+    x = data.x[mid]
+    u = data.u[mid]
+    t = data.t[mid]
+    out = {}
+    t_edges = np.linspace(data.t[0], data.t[-1], n_time_bins + 1)
+    out["time"] = _bins(
+        t,
+        t_edges[:-1],
+        [f"{t_edges[i]:.0f}-{t_edges[i + 1]:.0f} s" for i in range(n_time_bins)],
+        score,
+    )
+    gx = np.linspace(data.x[:, 0].min(), data.x[:, 0].max(), 4)
+    gy = np.linspace(data.x[:, 1].min(), data.x[:, 1].max(), 4)
+    cx = np.clip(np.searchsorted(gx, x[:, 0], side="right") - 1, 0, 2)
+    cy = np.clip(np.searchsorted(gy, x[:, 1], side="right") - 1, 0, 2)
+    cell = cx * 3 + cy
+    out["place"] = [
+        {
+            "bin": f"x {gx[c // 3]:.0f}..{gx[c // 3 + 1]:.0f} m, "
+            f"y {gy[c % 3]:.0f}..{gy[c % 3 + 1]:.0f} m",
+            "n": int((cell == c).sum()),
+            "rms": float(np.sqrt(np.mean(score[cell == c]))),
+        }
+        for c in range(9)
+        if (cell == c).any()
+    ]
+    ctx = data.context[starts]
+    out["context"] = [
+        {"bin": name, "n": int((ctx == c).sum()), "rms": float(np.sqrt(np.mean(score[ctx == c])))}
+        for c, name in enumerate(data.context_names)
+        if (ctx == c).any()
+    ]
+    out["speed"] = _quantile_bins(x[:, 3], "m/s", score)
+    out["lateral_accel"] = _quantile_bins(np.abs(x[:, 3] * x[:, 5]), "m/s^2", score)
+    out["accel_command"] = _quantile_bins(u[:, 1], "m/s^2", score)
+    out["steering_rate"] = _quantile_bins(np.abs(u[:, 0]), "rad/s", score)
+    mode = np.where(u[:, 1] > 0.1, 0, np.where(u[:, 1] < -0.1, 2, 1))
+    out["drive_mode"] = [
+        {
+            "bin": label,
+            "n": int((mode == m).sum()),
+            "rms": float(np.sqrt(np.mean(score[mode == m]))),
+        }
+        for m, label in enumerate(("accelerating", "coasting", "braking"))
+        if (mode == m).any()
+    ]
+    return out
