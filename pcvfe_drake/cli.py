@@ -14,6 +14,7 @@ COMMANDS = [
     "features",
     "export_clip",
     "terrain_map",
+    "diagnose",
 ]
 
 
