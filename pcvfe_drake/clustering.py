@@ -36,7 +36,10 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
 from sklearn.cluster import HDBSCAN
+from threadpoolctl import threadpool_limits
 
 NOISE = -1
 """Context id of frames that belong to no context (noise or unseen terrain)."""
@@ -55,9 +58,10 @@ class ClusteringParams:
         min_samples_duration_s: seconds of frames in a frame's neighbourhood for it to count as
             dense (HDBSCAN ``min_samples``); default 1 s = 10 frames.
         noise_memory_s: seconds of unclustered frames kept (newest first) so that a new terrain
-            accumulates until it forms a context; default 100 s.
+            accumulates until it forms a context; default 60 s (capped at a third of
+            ``max_stored``).
         max_stored: budget of stored vectors (all contexts' reservoirs plus the noise window);
-            bounds memory and the re-clustering time (~0.3 s at 3000 vectors of 36 numbers).
+            bounds memory and the re-clustering time (HDBSCAN cost grows like its square).
         min_reservoir_durations: each context keeps at least this many times
             ``min_cluster_size`` frames, even when many contexts share ``max_stored``.
         gate_neighbours: k of the outlier gate: a frame joins the context of its nearest stored
@@ -74,15 +78,15 @@ class ClusteringParams:
 
     frame_rate_hz: float = 10.0
     min_cluster_duration_s: float = 5.0
-    min_samples_duration_s: float = 1.0
-    noise_memory_s: float = 100.0
-    max_stored: int = 3000
+    min_samples_duration_s: float = 5.0
+    noise_memory_s: float = 60.0
+    max_stored: int = 2000
     min_reservoir_durations: float = 2.0
     gate_neighbours: int = 3
     gate_quantile: float = 0.99
-    gate_scale: float = 1.1
+    gate_scale: float = 1.25
     persistence_epsilon: float | None = None
-    persistence_scale: float = 1.0
+    persistence_scale: float = 1.5
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -103,7 +107,8 @@ class ClusteringParams:
                 )
         if not (isinstance(self.gate_neighbours, int) and self.gate_neighbours >= 1):
             raise ValueError(
-                f"ClusteringParams.gate_neighbours must be an int >= 1, got {self.gate_neighbours!r}"
+                "ClusteringParams.gate_neighbours must be an int >= 1, got "
+                f"{self.gate_neighbours!r}"
             )
         if not 0.0 < self.gate_quantile <= 1.0:
             raise ValueError(
@@ -139,8 +144,9 @@ class ClusteringParams:
 
     @property
     def noise_capacity(self) -> int:
-        """Frames of the noise window."""
-        return max(self.min_cluster_size, round(self.noise_memory_s * self.frame_rate_hz))
+        """Frames of the noise window (``noise_memory_s``, at most a third of ``max_stored``)."""
+        window = min(round(self.noise_memory_s * self.frame_rate_hz), self.max_stored // 3)
+        return max(self.min_cluster_size, window)
 
     @property
     def min_reservoir(self) -> int:
@@ -290,6 +296,44 @@ def _kth_member_distances(members: np.ndarray, k: int) -> np.ndarray:
     return np.sqrt(np.maximum(out, 0.0))
 
 
+def _gate_radius(kth: np.ndarray, params: ClusteringParams, scale_sq: float) -> float:
+    """Gate of a context from its members' k-th-neighbour distances (with a rounding floor)."""
+    gate = params.gate_scale * float(np.quantile(kth, params.gate_quantile)) if kth.size else 0.0
+    return max(gate, 1e-6 * (1.0 + math.sqrt(scale_sq)))
+
+
+def detach_small_groups(
+    x: np.ndarray, labels: np.ndarray, weights: np.ndarray, params: ClusteringParams
+) -> np.ndarray:
+    """Labels with the members of each cluster that are not connected to its body set to noise.
+
+    HDBSCAN counts a group of fewer than ``min_cluster_size`` points that splits off a selected
+    cluster as members of that cluster: the first frames of a new terrain next to a known one
+    join the known context, and the outlier gate would then pass the new terrain's frames. Within
+    each cluster, members are linked when closer than the cluster's gate; linked groups that
+    stand for fewer than ``min_cluster_size`` frames (sum of weights) become noise.
+    """
+    out = labels.copy()
+    for k in np.unique(labels[labels >= 0]):
+        idx = np.flatnonzero(labels == k)
+        members = x[idx]
+        sq = (members * members).sum(1)
+        d2 = np.maximum(sq[:, None] - 2.0 * members @ members.T + sq[None, :], 0.0)
+        kk = min(params.gate_neighbours, idx.size - 1)
+        if kk < 1:
+            continue
+        np.fill_diagonal(d2, np.inf)
+        kth = np.sqrt(np.partition(d2, kk - 1, axis=1)[:, kk - 1])
+        gate = _gate_radius(kth, params, float(sq.max()))
+        n_comp, comp = connected_components(csr_matrix(d2 <= gate * gate), directed=False)
+        if n_comp == 1:
+            continue
+        mass = np.bincount(comp, weights=weights[idx], minlength=n_comp)
+        small = mass[comp] < params.min_cluster_size
+        out[idx[small]] = NOISE
+    return out
+
+
 class _GateIndex:
     """Members of each context and their outlier gates; labels vectors by gated k-NN.
 
@@ -311,7 +355,7 @@ class _GateIndex:
         for cid in np.unique(self.ids):
             s, e = np.searchsorted(self.ids, [cid, cid + 1])
             kth = _kth_member_distances(self.x[s:e], self.k)
-            gate = params.gate_scale * float(np.quantile(kth, params.gate_quantile))
+            gate = _gate_radius(kth, params, float(self.sq[s:e].max()))
             self.bounds[int(cid)] = (int(s), int(e))
             self.gate_sq[int(cid)] = gate * gate
 
@@ -531,11 +575,17 @@ class ContextClusterer:
             The new cluster table.
         """
         start = time.perf_counter()
+        # Small matrices: one BLAS thread is faster, and avoids contention with other processes.
+        with threadpool_limits(limits=1, user_api="blas"):
+            self._recluster()
+        self._finish_recluster(t_s, start)
+        return self.table()
+
+    def _recluster(self) -> None:
         p = self.params
         slots = np.flatnonzero(self._used)
         if slots.size == 0:
-            self._finish_recluster(t_s, start)
-            return self.table()
+            return
         x = self._x[slots]
         t = self._t[slots]
         w = self._w[slots].copy()
@@ -548,6 +598,7 @@ class ContextClusterer:
         raw = hdbscan_labels(x, p.min_cluster_size, p.min_samples)
         if raw.max(initial=NOISE) < 0 and slots.size >= p.min_cluster_size:
             raw = self._one_terrain_labels(x)
+        raw = detach_small_groups(x, raw, w, p)
 
         ids = np.full(slots.size, NOISE, dtype=int)
         ks = [k for k in np.unique(raw) if k >= 0]
@@ -596,18 +647,27 @@ class ContextClusterer:
 
         self._restratify(slots, ids, w)
         self._rebuild_index()
-        self._finish_recluster(t_s, start)
-        return self.table()
 
     def _one_terrain_labels(self, x: np.ndarray) -> np.ndarray:
-        """One cluster: HDBSCAN's densest core on one terrain, widened by the outlier gate."""
+        """One cluster (one terrain so far): HDBSCAN's densest core, grown by the outlier gate.
+
+        With ``allow_single_cluster=True`` HDBSCAN keeps only the densest ``min_cluster_size``
+        points of a lone cluster. The core is grown like a flood fill: every point that passes
+        the gate of the current members joins, the gate is recomputed from the members, until
+        nothing changes (at most 10 rounds). Points of lower density (outliers, the first frames
+        of a next terrain) stay noise.
+        """
         p = self.params
-        core = _single_cluster_core(x, p.min_cluster_size, p.min_samples)
-        if core.max(initial=NOISE) != 0:
-            return core
-        labels = _GateIndex(x[core == 0], core[core == 0], p).labels(x)
-        if (labels == 0).sum() < p.min_cluster_size:
-            return np.full(x.shape[0], NOISE, dtype=int)
+        labels = _single_cluster_core(x, p.min_cluster_size, p.min_samples)
+        if labels.max(initial=NOISE) != 0:
+            return labels
+        for _ in range(10):
+            members = labels == 0
+            grown = _GateIndex(x[members], labels[members], p).labels(x)
+            grown[members] = 0
+            if np.array_equal(grown, labels):
+                break
+            labels = grown
         return labels
 
     def _epsilon(self, rec: ClusterRecord) -> float:

@@ -1,0 +1,168 @@
+"""Re-clustering cost of the bounded context clusterer vs full HDBSCAN, N = 1k .. 100k frames.
+
+One pass over a synthetic drive (four terrains, a fifth appearing late, transitions, outliers,
+slow light drift; 36 numbers per frame at 10 Hz). Every frame goes through
+``ContextClusterer.assign`` (timed); the store is re-clustered every 10 s of driving up to
+``--dense-until`` frames and every 100 s after that (to keep the benchmark short; the store's
+size does not depend on it). At each checkpoint N the benchmark times a re-clustering of the
+store (median of repeats, on copies), its memory (bytes held by the store, peak allocation during
+the re-clustering, by tracemalloc), and, where N <= --full-max, full scikit-learn HDBSCAN on all N
+frames with the same parameters (time, peak allocation) and the adjusted Rand index between the
+two labelings of all N frames (bounded: ``predict`` with the re-clustered store; full: HDBSCAN
+labels). Timed claims are ratios against full HDBSCAN in the same run.
+
+Usage: python benchmarks/clustering_scale.py [--quick]
+Last stdout line: one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import os
+import platform
+import statistics
+import time
+import tracemalloc
+
+import numpy as np
+from sklearn.metrics import adjusted_rand_score
+
+from pcvfe_drake.clustering import ClusteringParams, ContextClusterer, full_hdbscan_labels
+from pcvfe_drake.feature_streams import synthetic_feature_stream
+from pcvfe_drake.metrics import adjusted_rand
+
+
+def _peak_bytes(fn) -> tuple[object, int]:
+    """Result of ``fn()`` and the peak of memory allocated while it ran [bytes]."""
+    tracemalloc.start()
+    tracemalloc.reset_peak()
+    result = fn()
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    return result, int(peak)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="N up to 10k, full up to 5k")
+    parser.add_argument("--full-max", type=int, default=None, help="largest N for full HDBSCAN")
+    parser.add_argument("--dense-until", type=int, default=20_000)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+
+    checkpoints = (
+        [1_000, 2_000, 5_000, 10_000]
+        if args.quick
+        else [1_000, 2_000, 5_000, 10_000, 20_000, 50_000, 100_000]
+    )
+    full_max = args.full_max if args.full_max is not None else (5_000 if args.quick else 20_000)
+    params = ClusteringParams()
+    rate = params.frame_rate_hz
+    lap_s = 25.0 + 22.0 + 30.0 + 24.0 + 25.0
+    n_laps = int(np.ceil(max(checkpoints) / (lap_s * rate))) + 1
+    stream = synthetic_feature_stream(
+        n_laps=n_laps, late_terrain_from_lap=3, drift=0.3, seed=args.seed
+    )
+    print(
+        f"stream: {stream.z.shape[0]} frames x {stream.z.shape[1]} numbers, {n_laps} laps; "
+        f"checkpoints {checkpoints}; full HDBSCAN up to {full_max}",
+        flush=True,
+    )
+
+    clusterer = ContextClusterer(params)
+    assign_s: list[float] = []
+    online_ids = np.empty(max(checkpoints), dtype=int)
+    next_recluster = 10.0
+    rows: list[dict] = []
+    for i in range(max(checkpoints)):
+        t = float(stream.t_s[i])
+        a = time.perf_counter()
+        online_ids[i] = clusterer.assign(stream.z[i], t)
+        assign_s.append(time.perf_counter() - a)
+        if t >= next_recluster:
+            clusterer.recluster(t)
+            next_recluster += 10.0 if i < args.dense_until else 100.0
+        n = i + 1
+        if n not in checkpoints:
+            continue
+        z = stream.z[:n]
+        times = []
+        for _ in range(max(1, args.repeats)):
+            probe = copy.deepcopy(clusterer)
+            start = time.perf_counter()
+            probe.recluster(t)
+            times.append(time.perf_counter() - start)
+        # Memory in a separate run: tracemalloc slows allocation-heavy code down.
+        spare = copy.deepcopy(clusterer)
+        _, peak = _peak_bytes(lambda c=spare, t=t: c.recluster(t))
+        ours = probe.predict(z)
+        row = {
+            "n": n,
+            "stored": probe.n_stored,
+            "stored_bytes": probe.stored_bytes,
+            "recluster_s": statistics.median(times),
+            "recluster_peak_bytes": peak,
+            "n_contexts": len(probe.table().active_ids),
+            "ari_bounded_vs_truth": adjusted_rand(stream.label[:n], ours),
+            "noise_fraction_bounded": float(np.mean(ours < 0)),
+        }
+        if n <= full_max:
+            start = time.perf_counter()
+            full = full_hdbscan_labels(z, params)
+            full_s = time.perf_counter() - start
+            _, full_peak = _peak_bytes(lambda z=z: full_hdbscan_labels(z, params))
+            row.update(
+                {
+                    "full_s": full_s,
+                    "full_peak_bytes": full_peak,
+                    "full_data_bytes": int(z.nbytes),
+                    "speedup_vs_full": full_s / row["recluster_s"],
+                    "ari_bounded_vs_full": float(adjusted_rand_score(full, ours)),
+                    "ari_full_vs_truth": adjusted_rand(stream.label[:n], full),
+                    "noise_fraction_full": float(np.mean(full < 0)),
+                    "n_clusters_full": int(full.max() + 1),
+                }
+            )
+        rows.append(row)
+        print(
+            "  ".join(
+                f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()
+            ),
+            flush=True,
+        )
+
+    a_ms = np.array(assign_s) * 1e3
+    with_full = [r for r in rows if "ari_bounded_vs_full" in r]
+    result = {
+        "benchmark": "clustering_scale",
+        "quick": args.quick,
+        "feature_dim": int(stream.z.shape[1]),
+        "params": {
+            "min_cluster_size": params.min_cluster_size,
+            "min_samples": params.min_samples,
+            "max_stored": params.max_stored,
+            "noise_capacity": params.noise_capacity,
+        },
+        "cpu_count": os.cpu_count(),
+        "load_avg_1min": os.getloadavg()[0],
+        "python": platform.python_version(),
+        "rows": rows,
+        "assign_ms_mean": float(a_ms.mean()),
+        "assign_ms_median": float(np.median(a_ms)),
+        "assign_ms_p99": float(np.percentile(a_ms, 99)),
+        "recluster_s_max": max(r["recluster_s"] for r in rows),
+        "recluster_s_at_max_n": rows[-1]["recluster_s"],
+        "ari_bounded_vs_full_min": min((r["ari_bounded_vs_full"] for r in with_full), default=None),
+        "speedup_vs_full_at_largest_full_n": with_full[-1]["speedup_vs_full"]
+        if with_full
+        else None,
+    }
+    print(json.dumps(result))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
