@@ -37,7 +37,7 @@ def plant_only_rtf(scenario, duration_s: float) -> float:
     """Real-time factor of the truth plant alone with a constant, gentle actuation."""
     params = load_vehicle(scenario.vehicle)
     course = load_course(scenario.course)
-    x0 = initial_state(course, params, scenario.initial_speed_mps)
+    x0 = initial_state(course, params, scenario.initial_speed_mps, scenario.start_s_m)
     builder = DiagramBuilder()
     plant = builder.AddSystem(
         VehiclePlant(params, build_terrain_map(scenario), scenario.truth_model, x0=x0)

@@ -22,6 +22,7 @@ from pydrake.systems.analysis import GetIntegrationSchemes, ResetIntegratorFromF
 
 from pcvfe_drake.course import Course
 from pcvfe_drake.figures import write_figures
+from pcvfe_drake.runlog import feature_columns
 from pcvfe_drake.scenario import Scenario, excluded_terrains
 from pcvfe_drake.summary import summarize_run
 
@@ -177,6 +178,9 @@ def run_simulation(
     if len(log) == 0:
         raise ValueError(f"scenario {scenario.name!r}: nothing was logged ({error or 'stopped'})")
     terrain_map = parts.terrain_map
+    clustering = diagram.GetSubsystemByName("clustering")
+    clusterer = clustering.clusterer(clustering.GetMyContextFromRoot(context))
+    log["final_context"] = clusterer.predict(log[feature_columns(run_log.feature_dim)].to_numpy())
     table = _estimate_table(diagram, context)
     summary = summarize_run(
         log,

@@ -41,9 +41,13 @@ SIM_ONLY_OUTPUTS = ("true_mu", "true_terrain")
 """Outputs of the simulated station only (ground truth a real car does not have)."""
 
 
-def initial_state(course: Course, params: VehicleParams, speed_mps: float) -> np.ndarray:
-    """ST state on the course start (s = 0) at ``speed_mps`` in steady kinematic cornering."""
-    return course.state_on_path(np.array([0.0]), speed_mps, params.L, params.lr)[0]
+def initial_state(
+    course: Course, params: VehicleParams, speed_mps: float, start_s_m: float = 0.0
+) -> np.ndarray:
+    """ST state on the course at arc length ``start_s_m`` (wrapped) at ``speed_mps``, in steady
+    kinematic cornering."""
+    s0 = np.array([course.wrap_s(start_s_m)], dtype=float)
+    return course.state_on_path(s0, speed_mps, params.L, params.lr)[0]
 
 
 def camera_config(scenario: Scenario) -> CameraConfig:
@@ -68,8 +72,8 @@ def MakeVehicleStation(
         hardware: True asks for the real-car station, which this version does not have.
         terrain_map, course: already built ones to share (default: built from the scenario).
 
-    Subsystems: ``plant`` (VehiclePlant, its default state on the course start at the
-    scenario's initial speed) and ``camera`` (TextureCamera).
+    Subsystems: ``plant`` (VehiclePlant, its default state on the course at the scenario's
+    start_s_m and initial speed) and ``camera`` (TextureCamera).
     """
     if hardware:
         raise NotImplementedError(
@@ -81,7 +85,7 @@ def MakeVehicleStation(
     params = load_vehicle(scenario.vehicle)
     terrain_map = terrain_map if terrain_map is not None else build_terrain_map(scenario)
     course = course if course is not None else load_course(scenario.course)
-    x0 = initial_state(course, params, scenario.initial_speed_mps)
+    x0 = initial_state(course, params, scenario.initial_speed_mps, scenario.start_s_m)
 
     builder = DiagramBuilder()
     plant = builder.AddNamedSystem(

@@ -68,17 +68,18 @@ def _majority_names(summary: Mapping[str, Any] | None) -> dict[int, str]:
 
 
 def _example_frames(
-    log: pd.DataFrame, log_dir: Path | None, per_context: int
+    log: pd.DataFrame, log_dir: Path | None, per_context: int, column: str
 ) -> dict[int, list[np.ndarray]]:
-    """Up to ``per_context`` logged camera frames per context id, spread over its rows."""
+    """Up to ``per_context`` logged camera frames per context id (in ``column``), spread over
+    its rows."""
     if "image" not in log.columns or log_dir is None:
         return {}
     import cv2
 
     frames: dict[int, list[np.ndarray]] = {}
     has_image = log["image"].fillna("").astype(str).str.len() > 0
-    for k in sorted(int(c) for c in log["context"].unique()):
-        rows = log.index[has_image & (log["context"] == k)]
+    for k in sorted(int(c) for c in log[column].unique()):
+        rows = log.index[has_image & (log[column] == k)]
         if len(rows) == 0:
             continue
         pick = rows[np.linspace(0, len(rows) - 1, min(per_context, len(rows))).round().astype(int)]
@@ -94,6 +95,37 @@ def _example_frames(
     return frames
 
 
+def _draw_map(ax, log, column, title, map_image, map_bounds_m, reference_xy, names) -> None:
+    if map_image is not None and map_bounds_m is not None:
+        x0, x1, y0, y1 = map_bounds_m
+        ax.imshow(map_image, extent=(x0, x1, y0, y1), origin="upper", alpha=0.55)
+    xs = [log["sx"].to_numpy(float)]
+    ys = [log["sy"].to_numpy(float)]
+    if reference_xy is not None:
+        ref = np.asarray(reference_xy)
+        ax.plot(
+            np.append(ref[:, 0], ref[0, 0]),
+            np.append(ref[:, 1], ref[0, 1]),
+            color="white",
+            lw=1.0,
+            ls="--",
+        )
+        xs.append(ref[:, 0])
+        ys.append(ref[:, 1])
+    ids = log[column].to_numpy(int)
+    ax.scatter(log["sx"], log["sy"], c=[context_rgb(k) for k in ids], s=6, lw=0)
+    xs, ys = np.concatenate(xs), np.concatenate(ys)
+    pad = 8.0
+    ax.set_xlim(np.nanmin(xs) - pad, np.nanmax(xs) + pad)
+    ax.set_ylim(np.nanmin(ys) - pad, np.nanmax(ys) + pad)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(title, fontsize=10)
+    present = sorted(set(ids.tolist()))
+    ax.legend(handles=_context_legend(present, names), loc="upper right", fontsize=7)
+
+
 def figure_contexts_map(
     log: pd.DataFrame,
     path: str | Path,
@@ -105,54 +137,35 @@ def figure_contexts_map(
     log_dir: str | Path | None = None,
     frames_per_context: int = 3,
 ) -> Path:
-    """Paper Fig. 4: discovered contexts on the map, with example frames per context."""
+    """Paper Fig. 4: discovered contexts on the map (dots: position and context; black: noise),
+    with example frames per context. With a ``final_context`` column the left map shows every
+    frame labelled by the final clustering (the paper's figure) and a second map the ids as
+    reported online during the run; frames are grouped by the left map's labels."""
     path = Path(path)
-    frames = _example_frames(log, Path(log_dir) if log_dir else None, frames_per_context)
+    has_final = "final_context" in log.columns
+    column = "final_context" if has_final else "context"
+    frames = _example_frames(log, Path(log_dir) if log_dir else None, frames_per_context, column)
     names = _majority_names(summary)
-    ids = sorted(int(c) for c in log["context"].unique())
+    n_maps = 2 if has_final else 1
     n_rows = max(1, len(frames))
-    fig = plt.figure(figsize=(13, max(6.0, 1.6 * n_rows)), constrained_layout=True)
-    grid = fig.add_gridspec(
-        n_rows, 1 + frames_per_context, width_ratios=[5] + [1] * frames_per_context
+    fig = plt.figure(
+        figsize=(6.5 * n_maps + 1.3 * frames_per_context, max(5.5, 1.5 * n_rows)),
+        constrained_layout=True,
     )
-    ax = fig.add_subplot(grid[:, 0])
-    if map_image is not None and map_bounds_m is not None:
-        x0, x1, y0, y1 = map_bounds_m
-        ax.imshow(map_image, extent=(x0, x1, y0, y1), origin="upper", alpha=0.55)
-    if reference_xy is not None:
-        ref = np.asarray(reference_xy)
-        ax.plot(
-            np.append(ref[:, 0], ref[0, 0]),
-            np.append(ref[:, 1], ref[0, 1]),
-            color="white",
-            lw=1.0,
-            ls="--",
-            label="reference",
-        )
-    colors = np.array([context_rgb(k) for k in log["context"].to_numpy(int)])
-    ax.scatter(log["sx"], log["sy"], c=colors, s=6, lw=0)
-    if reference_xy is not None or len(log):
-        xs = np.concatenate(
-            [log["sx"].to_numpy(float), np.asarray(reference_xy)[:, 0]]
-            if reference_xy is not None
-            else log["sx"].to_numpy(float)
-        )
-        ys = np.concatenate(
-            [log["sy"].to_numpy(float), np.asarray(reference_xy)[:, 1]]
-            if reference_xy is not None
-            else log["sy"].to_numpy(float)
-        )
-        pad = 8.0
-        ax.set_xlim(np.nanmin(xs) - pad, np.nanmax(xs) + pad)
-        ax.set_ylim(np.nanmin(ys) - pad, np.nanmax(ys) + pad)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_title("Discovered terrain contexts (dots: position and context; black: noise)")
-    ax.legend(handles=_context_legend(ids, names), loc="upper right", fontsize=8)
+    grid = fig.add_gridspec(
+        n_rows, n_maps + frames_per_context, width_ratios=[5] * n_maps + [1] * frames_per_context
+    )
+    maps = [
+        (column, "Discovered contexts, final clustering" if has_final else "Discovered contexts")
+    ]
+    if has_final:
+        maps.append(("context", "Context ids as reported online during the run"))
+    for i, (col, title) in enumerate(maps):
+        ax = fig.add_subplot(grid[:, i])
+        _draw_map(ax, log, col, title, map_image, map_bounds_m, reference_xy, names)
     for row, (k, images) in enumerate(sorted(frames.items())):
         for col in range(frames_per_context):
-            sub = fig.add_subplot(grid[row, 1 + col])
+            sub = fig.add_subplot(grid[row, n_maps + col])
             sub.set_xticks([])
             sub.set_yticks([])
             if col < len(images):
@@ -165,7 +178,7 @@ def figure_contexts_map(
                 if names.get(k):
                     label += f"\n{names[k]}"
                 sub.set_ylabel(label, fontsize=8)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
 

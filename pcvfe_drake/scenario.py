@@ -162,6 +162,9 @@ class Scenario:
     """Safety cap on simulated time when running by laps [s]."""
     initial_speed_mps: float = 3.0
     """Speed at the start of the course [m/s]."""
+    start_s_m: float = 0.0
+    """Where the car starts: arc length along the course from the course's own start [m]
+    (negative: before it, counted back around the loop)."""
     rates: Rates = field(default_factory=Rates)
     camera: CameraSettings = field(default_factory=CameraSettings)
     features: FeatureSettings = field(default_factory=FeatureSettings)
@@ -239,6 +242,7 @@ def scenario_problems(scenario: Scenario) -> list[str]:
         s.max_duration_s,
         "must be > 0",
     )
+    need(_is_number(s.start_s_m), "start_s_m", s.start_s_m, "must be a finite number")
     need(
         _is_number(s.initial_speed_mps) and s.initial_speed_mps >= 0,
         "initial_speed_mps",

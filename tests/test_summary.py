@@ -210,3 +210,19 @@ def test_figures_are_written(tmp_path, course):
         assert path is not None, name
         img = cv2.imread(path)
         assert img is not None and img.shape[0] > 200 and img.shape[1] > 400
+
+
+def test_final_clustering_scores(course):
+    log = planted_log(course)
+    ids = {"a": 0, "b": 1, "c": 2, "strip": -1}
+    log["final_context"] = [ids[n] for n in log["terrain"]]
+    s = summarize_run(
+        log,
+        scenario="synthetic",
+        wall_time_s=1.0,
+        terrain_mu=TERRAIN_MU,
+        excluded_terrains=["strip"],
+        course=course,
+    )
+    assert s["final_clustering"] == {"ari": 1.0, "noise_fraction": 0.0, "contexts": 3}
+    assert s["ari"] < 1.0  # the online ids had noise at every entry

@@ -1,0 +1,112 @@
+"""Whole-diagram tests: one short closed-loop run of the shortened default scenario."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import pytest
+from pydrake.geometry import Meshcat, MeshcatParams
+
+from pcvfe_drake.diagrams import run_simulation as run_module
+from pcvfe_drake.diagrams.run_simulation import RunFolder, run_simulation
+from pcvfe_drake.diagrams.scenario_io import load_scenario
+from pcvfe_drake.diagrams.simulation import MakeSimulation
+from pcvfe_drake.diagrams.station import (
+    SIM_ONLY_OUTPUTS,
+    STATION_INPUTS,
+    STATION_OUTPUTS,
+    MakeVehicleStation,
+)
+from pcvfe_drake.drivelog import read_drive_log
+from pcvfe_drake.scenario import ClusteringSettings
+
+
+def short_scenario(duration_s: float):
+    """The default scenario, shortened: contexts form after 2 s of frames, re-clustering every
+    5 s, so the start terrain (sand, ~10 s) and the next one (concrete) both get contexts and
+    fits within 20 s of driving."""
+    s = load_scenario("paper_sim").with_run_length(duration_s=duration_s)
+    return dataclasses.replace(
+        s,
+        rates=dataclasses.replace(s.rates, recluster_period_s=5.0),
+        clustering=ClusteringSettings(min_cluster_duration_s=2.0),
+    )
+
+
+def test_station_exports_the_fixed_port_names():
+    scenario = short_scenario(1.0)
+    station = MakeVehicleStation(scenario)
+    assert station.get_name() == "vehicle_station"
+    inputs = {station.get_input_port(i).get_name() for i in range(station.num_input_ports())}
+    outputs = {station.get_output_port(i).get_name() for i in range(station.num_output_ports())}
+    assert inputs == set(STATION_INPUTS) == {"actuation"}
+    assert outputs == set(STATION_OUTPUTS) | set(SIM_ONLY_OUTPUTS)
+    with pytest.raises(NotImplementedError, match="hardware interface is not available"):
+        MakeVehicleStation(scenario, hardware=True)
+
+
+def test_closed_loop_discovers_contexts_fits_friction_and_tracks(tmp_path):
+    scenario = short_scenario(20.0)
+    params = MeshcatParams()
+    params.host = "localhost"
+    meshcat = Meshcat(params)
+    folder = RunFolder(tmp_path / "run")
+    result = run_simulation(scenario, folder, meshcat=meshcat, progress=False)
+    s = result.summary
+
+    # Tracks the course without failures.
+    assert s["catastrophic_failures"] == 0
+    assert s["lateral_error_rms_m"] < 0.3
+    assert 3.0 < s["mean_speed_mps"] < 8.0
+    assert 0.2 < s["laps_fraction"] < 0.35
+    # Sand (start) and concrete discovered as distinct contexts, each fitted near its true mu.
+    by_terrain = {e["majority_terrain"]: e for e in s["mu_estimates"] if e["majority_share"] > 0.8}
+    assert {"sand", "concrete"} <= set(by_terrain)
+    assert by_terrain["sand"]["id"] != by_terrain["concrete"]["id"]
+    for name in ("sand", "concrete"):
+        e = by_terrain[name]
+        assert e["fit_status"] == "fitted", e
+        assert abs(e["mu_hat"] - e["true_mu"]) < 0.05, e
+        assert e["std"] is not None and e["samples"] > 100
+    # Noise only while a new terrain waits for its first re-clustering.
+    assert s["noise_fraction"] < 0.6
+
+    # Run folder: drive log on disk (incremental writer), summary, playback, figures.
+    log = read_drive_log(folder.drive_log)
+    assert len(log) == s["log_rows"] and {"context", "mu_hat", "f_00", "image"} <= set(log)
+    assert json.loads(folder.summary.read_text())["scenario"] == "paper_sim"
+    html = folder.playback.read_text()
+    assert "pcvfe" in html and len(html) > 100_000
+    assert result.figures["fig4_contexts_map"] and result.figures["fig5_mu_over_time"]
+    assert (folder.root / "frames").is_dir()
+
+
+def test_every_system_is_named_and_connected():
+    parts = MakeSimulation(short_scenario(1.0))
+    diagram = parts.diagram
+    assert diagram.get_name() == "pcvfe_simulation"
+    for name in ("station", "features", "clustering", "fitter", "nmpc", "run_logger"):
+        system = diagram.GetSubsystemByName(name)
+        for i in range(system.num_input_ports()):
+            assert diagram.IsConnectedOrExported(system.get_input_port(i)) or (
+                system.get_input_port(i).get_name() == "image" and name == "run_logger"
+            )
+    for name in ("log_state", "log_context_id", "log_theta_hat", "log_true_mu"):
+        diagram.GetSubsystemByName(name)
+
+
+def test_ctrl_c_keeps_what_was_logged(tmp_path, monkeypatch):
+    class InterruptedSimulator(run_module.Simulator):
+        def AdvanceTo(self, t):
+            if t > 2.0:
+                raise KeyboardInterrupt
+            return super().AdvanceTo(t)
+
+    monkeypatch.setattr(run_module, "Simulator", InterruptedSimulator)
+    folder = RunFolder(tmp_path / "run")
+    result = run_simulation(short_scenario(10.0), folder, progress=False)
+    assert result.summary["interrupted"] is True
+    assert result.summary["sim_time_s"] == pytest.approx(2.1, abs=0.11)
+    assert len(read_drive_log(folder.drive_log)) == result.summary["log_rows"] == 21
+    assert json.loads(folder.summary.read_text())["interrupted"] is True
