@@ -1,0 +1,102 @@
+"""ContextClustering LeafSystem: ports, FixValue, and a short simulation over two terrains."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pcvfe_drake.systems.context_clustering import ContextClustering
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import LogVectorOutput, TrajectorySource
+from pydrake.trajectories import PiecewisePolynomial
+
+from pcvfe_drake.clustering import ClusteringParams, ClusterTable
+from pcvfe_drake.feature_streams import synthetic_feature_stream
+
+
+def test_ports_and_defaults():
+    system = ContextClustering(feature_dim=36)
+    assert system.get_input_port(0).get_name() == "features"
+    assert system.get_input_port(0).size() == 36
+    assert system.GetOutputPort("context_id").size() == 1
+    assert system.frame_period_s == pytest.approx(0.1)
+    assert system.recluster_period_s == pytest.approx(10.0)
+    # Output from state: no direct feedthrough, no algebraic loop with a downstream fitter.
+    assert not system.HasDirectFeedthrough(0, system.GetOutputPort("context_id").get_index())
+    context = system.CreateDefaultContext()
+    assert system.GetOutputPort("context_id").Eval(context)[0] == -1
+    table = system.GetOutputPort("cluster_table").Eval(context)
+    assert isinstance(table, ClusterTable) and table.records == []
+    with pytest.raises(ValueError, match="feature_dim"):
+        ContextClustering(feature_dim=0)
+    with pytest.raises(ValueError, match="recluster_period_s"):
+        ContextClustering(recluster_period_s=-1.0)
+
+
+def test_fixed_input_forms_one_context_after_the_first_reclustering():
+    system = ContextClustering(feature_dim=4)
+    context = system.CreateDefaultContext()
+    z = np.array([0.1, 0.7, 0.2, 0.05])
+    system.get_input_port(0).FixValue(context, z)
+    simulator = Simulator(system, context)
+    simulator.AdvanceTo(9.95)
+    assert system.GetOutputPort("context_id").Eval(context)[0] == -1  # nothing clustered yet
+    simulator.AdvanceTo(10.25)
+    assert system.GetOutputPort("context_id").Eval(context)[0] == 0
+    table = system.GetOutputPort("cluster_table").Eval(context)
+    assert table.active_ids == [0]
+    assert table.recluster_time_s == pytest.approx(10.0)
+    rec = table.record(0)
+    np.testing.assert_allclose(rec.centroid, z)
+    assert rec.first_seen_s == pytest.approx(0.0)
+    assert rec.last_seen_s == pytest.approx(10.2)
+    assert rec.size == pytest.approx(103)  # frames at 0.0, 0.1, ..., 10.2
+    # A corrupt frame (NaN) is reported as noise, not stored, and does not stop the simulation.
+    system.get_input_port(0).FixValue(context, np.full(4, np.nan))
+    simulator.AdvanceTo(10.35)
+    assert system.GetOutputPort("context_id").Eval(context)[0] == -1
+    assert system.clusterer(context).n_frames == 103
+
+
+def test_simulation_two_terrains_new_id_and_reidentification():
+    # Terrain A 0-25 s, B 25-45 s, A again from ~45 s (10 Hz frames, 36 numbers each).
+    stream = synthetic_feature_stream(
+        n_laps=2, terrain_durations_s=(25.0, 20.0), outlier_fraction=0.0, seed=5
+    )
+    builder = DiagramBuilder()
+    source = builder.AddNamedSystem(
+        "features",
+        TrajectorySource(PiecewisePolynomial.ZeroOrderHold(stream.t_s, stream.z.T)),
+    )
+    clustering = builder.AddNamedSystem(
+        "context_clustering", ContextClustering(36, ClusteringParams(frame_rate_hz=10.0))
+    )
+    builder.Connect(source.get_output_port(), clustering.GetInputPort("features"))
+    logger = LogVectorOutput(clustering.GetOutputPort("context_id"), builder, 0.1)
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(52.0)
+
+    log = logger.FindLog(simulator.get_context())
+    t, ids = log.sample_times(), log.data()[0]
+    # Frame k's id is published from t = 0.1 k + 0.1 on (zero-order hold).
+    truth = stream.label[np.clip(np.round(t * 10).astype(int) - 1, 0, None)]
+    a_start = 0
+    b = (truth == 1) & (t < 45.0)
+    a_again = (truth == 0) & (t > 45.0)
+    assert np.all(ids[t < 10.05] == -1)
+    a_id = ids[(t > 10.5) & (truth == 0)]
+    assert np.all(a_id == a_start)
+    # B: noise (never A's id) until a re-clustering holds enough of it, then a new id.
+    assert not np.any(ids[b] == a_start)
+    b_after = ids[b & (t > 40.5)]
+    assert b_after.size > 30 and np.mean(b_after == 1) > 0.95
+    # Back on A: re-identified within a few frames.
+    first_a_again = t[a_again][0]
+    hits = t[a_again & (ids == a_start)]
+    assert hits[0] - first_a_again <= 0.3
+    table = clustering.GetOutputPort("cluster_table").Eval(
+        clustering.GetMyContextFromRoot(simulator.get_context())
+    )
+    assert table.active_ids == [0, 1]
+    assert table.n_reclusterings == 5
