@@ -231,64 +231,15 @@ class DescriptorExtractor(FeatureExtractor):
 
 
 # --------------------------------------------------------------------------------- CLIP
-@lru_cache(maxsize=64)
-def _pil_bicubic_weights(in_size: int, out_size: int):
-    """(out_size, in_size) sparse fixed-point weights of Pillow's bicubic resampling (a = -0.5,
-    antialiased when shrinking), as integers scaled by 2**22, so that a float64 sparse matrix
-    product followed by Pillow's rounding reproduces ``PIL.Image.resize(..., BICUBIC)``
-    exactly (every partial sum is an integer below 2**53)."""
-    from scipy.sparse import csr_matrix
-
-    def cubic(x: np.ndarray) -> np.ndarray:
-        a = -0.5
-        x = np.abs(x)
-        return np.where(
-            x < 1.0,
-            ((a + 2.0) * x - (a + 3.0)) * x * x + 1,
-            np.where(x < 2.0, (((x - 5) * x + 8) * x - 4) * a, 0.0),
-        )
-
-    scale = in_size / out_size
-    filterscale = max(scale, 1.0)
-    support = 2.0 * filterscale
-    rows, cols, vals = [], [], []
-    for xx in range(out_size):
-        center = (xx + 0.5) * scale
-        xmin = max(int(center - support + 0.5), 0)
-        xmax = min(int(center + support + 0.5), in_size)
-        x = np.arange(xmin, xmax)
-        k = cubic((x - center + 0.5) / filterscale)
-        total = k.sum()
-        if total != 0.0:
-            k = k / total
-        fixed = np.where(k < 0, np.trunc(-0.5 + k * (1 << 22)), np.trunc(0.5 + k * (1 << 22)))
-        rows.append(np.full(x.size, xx))
-        cols.append(x)
-        vals.append(fixed)
-    return csr_matrix(
-        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-        shape=(out_size, in_size),
-    )
-
-
-def _pil_round(acc: np.ndarray) -> np.ndarray:
-    return np.clip(np.floor((acc + (1 << 21)) / (1 << 22)), 0, 255)
-
-
 def resize_bicubic_pil(rgb: np.ndarray, width: int, height: int) -> np.ndarray:
-    """Resize RGB uint8 exactly like ``PIL.Image.resize((width, height), Image.BICUBIC)``
-    (horizontal pass, rounding to 8 bits, then vertical pass), with sparse matrix products."""
-    h, w, c = rgb.shape
-    img = rgb.astype(np.float64)
-    if w != width:
-        wh = _pil_bicubic_weights(w, width)
-        cols = wh @ img.transpose(1, 0, 2).reshape(w, h * c)  # (width, h * c)
-        img = _pil_round(cols).reshape(width, h, c).transpose(1, 0, 2)
-        w = width
-    if h != height:
-        wv = _pil_bicubic_weights(h, height)
-        img = _pil_round(wv @ np.ascontiguousarray(img).reshape(h, w * c)).reshape(height, w, c)
-    return img.astype(np.uint8)
+    """Resize RGB uint8 with Pillow's antialiased bicubic filter, the resize CLIP's own
+    preprocessing uses (torchvision ``Resize`` on a PIL image), so the pixels match it exactly."""
+    from PIL import Image
+
+    resized = Image.fromarray(np.ascontiguousarray(rgb)).resize(
+        (int(width), int(height)), Image.Resampling.BICUBIC
+    )
+    return np.asarray(resized)
 
 
 @lru_cache(maxsize=8)
@@ -305,12 +256,16 @@ def clip_preprocess(
     size: int,
     mean: Sequence[float] = CLIP_MEAN,
     std: Sequence[float] = CLIP_STD,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
-    """CLIP's preprocessing, exactly: resize the short side to ``size`` (bicubic, as PIL),
+    """CLIP's preprocessing, exactly: resize the short side to ``size`` (Pillow bicubic),
     centre crop ``size`` x ``size`` (torchvision's rounding), RGB / 255, normalise by mean and
     std (through a per-channel look-up table of the 256 values). Returns float32
-    (N, 3, size, size)."""
-    out = np.empty((len(images), 3, size, size), np.float32)
+    (N, 3, size, size), written into ``out[:N]`` when given (a reusable buffer)."""
+    if out is None:
+        out = np.empty((len(images), 3, size, size), np.float32)
+    else:
+        out = out[: len(images)]
     lut = _normalise_lut(tuple(float(v) for v in mean), tuple(float(v) for v in std))
     for i, img in enumerate(images):
         h, w = img.shape[:2]
@@ -365,6 +320,7 @@ class ClipFeatureExtractor(FeatureExtractor):
         self.logit_scale: float = cfg["logit_scale"]
         self.captions: list[str] = cfg["captions"]
         self.text_embeddings = self._read_embeddings(self.folder / self.EMBEDDINGS)
+        self._buffer: np.ndarray | None = None
         self._session, self._input_name = self._open_session(self.folder / self.ENCODER, threads)
 
     # ------------------------------------------------------------------ loading
@@ -467,7 +423,16 @@ class ClipFeatureExtractor(FeatureExtractor):
         return list(self.captions)
 
     def preprocess(self, images: list[np.ndarray]) -> np.ndarray:
-        return clip_preprocess(images, self.image_size, self.mean, self.std)
+        """(N, 3, S, S) float32 encoder input. Batches of up to ``batch_size`` images are
+        written into one reused buffer (a fresh multi-megabyte array per call costs more than
+        the preprocessing itself); the result is valid until the next call."""
+        n = len(images)
+        if n > self.batch_size:
+            return clip_preprocess(images, self.image_size, self.mean, self.std)
+        if self._buffer is None or self._buffer.shape[0] < n:
+            s = self.image_size
+            self._buffer = np.empty((max(n, self.batch_size), 3, s, s), np.float32)
+        return clip_preprocess(images, self.image_size, self.mean, self.std, out=self._buffer)
 
     def encode(self, pixels: np.ndarray) -> np.ndarray:
         """Image embeddings (N, D) of preprocessed pixels, unnormalised."""
