@@ -1,0 +1,263 @@
+"""CommonRoad's multi-body (MB) vehicle model as a high-fidelity "truth" plant.
+
+The MB model of the ``vehiclemodels`` package (``vehicle_dynamics_mb``: 29 states, sprung and
+unsprung masses, suspension, Pacejka magic-formula tires with combined slip, load transfer, wheel
+spin) is wrapped here with three additions:
+
+* **Friction per terrain.** The package's tire has one friction level: the peak factors
+  ``p_dy1`` (lateral, 1.0489 for the Ford Escort) and ``p_dx1`` (longitudinal, 1.1739). For a
+  terrain of friction coefficient ``mu`` both are scaled by ``s = mu / p_dy1_nominal``, so the
+  lateral peak factor equals ``mu`` and the longitudinal one keeps its ratio to it
+  (``p_dx1 = 1.1739 s``). With ``friction_scaling="peak_and_stiffness"`` (the default) the slip
+  stiffnesses ``p_ky1`` and ``p_kx1`` are scaled by ``s`` too: the normalised cornering stiffness
+  ``C_S = -p_ky1 / p_dy1`` then stays at its nominal value and the small-slip lateral force is
+  ``mu C_S F_z alpha``, exactly the single-track model's parametrisation (``VehicleParams``), so a
+  single-track fit of mu on MB data recovers the terrain's mu. With ``friction_scaling="peak"``
+  only the peak factors change (the brush-model view: friction limits the peak force, the
+  stiffness at small slip is unchanged), and mu shows only near saturation.
+* **State in single-track order.** :meth:`MbTruth.st_state` reports
+  ``[sx, sy, delta, v, psi, psi_dot, beta]`` with ``v = sign(v_x) hypot(v_x, v_y)`` and
+  ``beta = atan(v_y / v_x)`` (0 when ``|v_x| < 0.1`` m/s, as in the package), from the MB body
+  velocities ``v_x = x[3]``, ``v_y = x[10]``.
+* **Integration.** The wheel-spin dynamics are stiff: the fastest eigenvalues are about
+  ``-4750 / v`` 1/s for the Ford Escort (-475 1/s at 10 m/s, -4750 1/s at 1 m/s), so fixed-step
+  RK4 at 1 ms is stable only above ~2 m/s. :meth:`MbTruth.integrate` therefore uses LSODA
+  (scipy; switches between Adams and BDF by stiffness) by default, or fixed-step RK4 substeps on
+  request (``method="rk4"``). See ``benchmarks/plant_realtime.py`` for the measured speeds.
+* **Wheel speeds >= 0.** The package zeroes the derivative of a negative wheel speed; an
+  integrator stage that overshoots below 0 then leaves the wheel locked for good (from rest,
+  LSODA and Drake's RK3 both ended at 0.37 m/s instead of 2.0 m/s after 1 s at 2 m/s^2).
+  :meth:`MbTruth.rhs` evaluates the package at ``max(omega, 0)`` instead, which spins such a
+  wheel up again.
+
+The package's model switches to kinematic equations below ``|v_x| = 0.1`` m/s and its wheel
+slip becomes very stiff at low speed (eigenvalues ~ -47000 1/s at 0.1 m/s), so driving from rest
+is slow to integrate (about real time); the model is meant for driving at speed.
+
+The inputs are the single-track ones, ``u = [steer_rate rad/s, accel m/s^2]``; the package applies
+its steering and acceleration constraints itself.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+
+import numpy as np
+from scipy.integrate import solve_ivp
+from vehiclemodels.init_mb import init_mb
+from vehiclemodels.vehicle_dynamics_mb import vehicle_dynamics_mb
+
+NX_MB = 29
+"""Number of MB states."""
+VX, VY = 3, 10
+"""Indices of the body-frame longitudinal and lateral velocity [m/s] in the MB state."""
+WHEEL_SPEEDS = slice(23, 27)
+"""Indices of the four wheel angular speeds [rad/s] in the MB state."""
+
+FRICTION_SCALINGS = ("peak_and_stiffness", "peak")
+
+
+def _vehicle1():
+    from vehiclemodels.parameters_vehicle1 import parameters_vehicle1
+
+    return parameters_vehicle1()
+
+
+def _vehicle2():
+    from vehiclemodels.parameters_vehicle2 import parameters_vehicle2
+
+    return parameters_vehicle2()
+
+
+def _vehicle3():
+    from vehiclemodels.parameters_vehicle3 import parameters_vehicle3
+
+    return parameters_vehicle3()
+
+
+MB_VEHICLES = {"ford_escort": _vehicle1, "bmw_320i": _vehicle2, "vw_vanagon": _vehicle3}
+"""Vehicles with a full CommonRoad parameter set (names as in ``pcvfe_drake.params.PRESETS``)."""
+
+
+def commonroad_parameters(vehicle: str = "ford_escort"):
+    """The ``vehiclemodels`` parameter set of a vehicle preset name (a fresh copy)."""
+    if vehicle not in MB_VEHICLES:
+        raise ValueError(
+            f"vehicle {vehicle!r} has no CommonRoad multi-body parameters; "
+            f"choose one of {sorted(MB_VEHICLES)}"
+        )
+    return MB_VEHICLES[vehicle]()
+
+
+def _check_mu(mu: float) -> float:
+    mu = float(mu)
+    if not math.isfinite(mu) or mu <= 0.0:
+        raise ValueError(f"friction coefficient mu={mu!r} must be finite and > 0")
+    return mu
+
+
+class MbTruth:
+    """The CommonRoad multi-body model with per-terrain friction (see the module docstring).
+
+    Args:
+        vehicle: a preset name with CommonRoad parameters (``MB_VEHICLES``).
+        friction_scaling: ``"peak_and_stiffness"`` (default) or ``"peak"``.
+    """
+
+    def __init__(
+        self, vehicle: str = "ford_escort", friction_scaling: str = "peak_and_stiffness"
+    ) -> None:
+        if friction_scaling not in FRICTION_SCALINGS:
+            raise ValueError(
+                f"friction_scaling={friction_scaling!r}; choose one of {FRICTION_SCALINGS}"
+            )
+        self.vehicle = vehicle
+        self.friction_scaling = friction_scaling
+        self.base_parameters = commonroad_parameters(vehicle)
+        self.mu_nominal = float(self.base_parameters.tire.p_dy1)
+        self._by_mu: dict[float, object] = {}
+
+    def parameters_for_mu(self, mu: float):
+        """The CommonRoad parameter set with the tire friction scaled to ``mu`` (cached)."""
+        mu = _check_mu(mu)
+        p = self._by_mu.get(mu)
+        if p is None:
+            p = copy.deepcopy(self.base_parameters)
+            base = self.base_parameters.tire
+            s = mu / self.mu_nominal
+            p.tire.p_dy1 = base.p_dy1 * s
+            p.tire.p_dx1 = base.p_dx1 * s
+            if self.friction_scaling == "peak_and_stiffness":
+                p.tire.p_ky1 = base.p_ky1 * s
+                p.tire.p_kx1 = base.p_kx1 * s
+            self._by_mu[mu] = p
+        return p
+
+    def initial_state(self, x_st) -> np.ndarray:
+        """MB state (29,) from a single-track state [sx, sy, delta, v, psi, psi_dot, beta]
+        (``vehiclemodels.init_mb``: suspension at rest, wheels rolling without slip)."""
+        x_st = np.asarray(x_st, dtype=float)
+        if x_st.shape != (7,) or not np.all(np.isfinite(x_st)):
+            raise ValueError(f"initial single-track state must be 7 finite numbers, got {x_st}")
+        return np.array(init_mb(x_st.tolist(), self.base_parameters), dtype=float)
+
+    def derivatives(self, x, u, mu: float) -> np.ndarray:
+        """Time derivative (29,) of the MB state ``x`` under input ``u`` on friction ``mu``."""
+        x = np.asarray(x, dtype=float)
+        u = np.asarray(u, dtype=float)
+        if x.shape != (NX_MB,):
+            raise ValueError(f"MB state must have {NX_MB} entries, got shape {x.shape}")
+        if u.shape != (2,):
+            raise ValueError(f"input must be [steer_rate, accel], got shape {u.shape}")
+        if not np.all(np.isfinite(x)):
+            raise ValueError(f"MB state is not finite: entries {np.flatnonzero(~np.isfinite(x))}")
+        if not np.all(np.isfinite(u)):
+            raise ValueError(f"input [steer_rate, accel] = {u.tolist()} is not finite")
+        return self.rhs(x.tolist(), u.tolist(), self.parameters_for_mu(mu))
+
+    @staticmethod
+    def rhs(x: list, u: list, p) -> np.ndarray:
+        """Unchecked fast path: derivative for a state list (modified in place), an input list
+        and a parameter set from :meth:`parameters_for_mu` (the caller has validated them)."""
+        # Wheel speeds are evaluated at max(omega, 0). The package itself zeroes the derivative
+        # of a negative wheel speed, which lets a wheel that an integrator stage pushed below 0
+        # stay there, locked, for ever (seen from rest with Drake's RK3 and with LSODA); at 0 the
+        # package's derivative is the physical one and spins the wheel up again.
+        for i in range(23, 27):
+            if x[i] < 0.0:
+                x[i] = 0.0
+        return np.array(vehicle_dynamics_mb(x, u, p), dtype=float)
+
+    def integrate(
+        self,
+        x,
+        u,
+        mu: float,
+        duration_s: float,
+        method: str = "lsoda",
+        rtol: float = 1e-6,
+        atol: float = 1e-6,
+        rk4_step_s: float = 1e-3,
+    ) -> np.ndarray:
+        """Advance the MB state by ``duration_s`` [s] with ``u`` and ``mu`` held constant.
+
+        ``method="lsoda"`` (default) uses scipy's LSODA with tolerances ``rtol``/``atol``;
+        ``method="rk4"`` takes fixed RK4 substeps of at most ``rk4_step_s`` (stable for
+        v >~ 2 m/s at 1 ms). Wheel speeds are kept >= 0 as in the package.
+        """
+        x = np.asarray(x, dtype=float)
+        self.derivatives(x, u, mu)  # validates shapes, finiteness and mu
+        if not duration_s > 0:
+            raise ValueError(f"duration_s={duration_s!r} must be > 0")
+        p = self.parameters_for_mu(mu)
+        ul = np.asarray(u, dtype=float).tolist()
+        if method == "lsoda":
+            sol = solve_ivp(
+                lambda _t, y: self.rhs(y.tolist(), ul, p),
+                (0.0, float(duration_s)),
+                x,
+                method="LSODA",
+                rtol=rtol,
+                atol=atol,
+            )
+            if not sol.success:
+                raise RuntimeError(f"MB integration failed: {sol.message}")
+            xn = sol.y[:, -1]
+        elif method == "rk4":
+            n = max(1, math.ceil(duration_s / rk4_step_s - 1e-9))
+            h = duration_s / n
+            xn = x.copy()
+            for _ in range(n):
+                k1 = self.rhs(xn.tolist(), ul, p)
+                k2 = self.rhs((xn + 0.5 * h * k1).tolist(), ul, p)
+                k3 = self.rhs((xn + 0.5 * h * k2).tolist(), ul, p)
+                k4 = self.rhs((xn + h * k3).tolist(), ul, p)
+                xn = xn + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+                np.maximum(xn[WHEEL_SPEEDS], 0.0, out=xn[WHEEL_SPEEDS])
+        else:
+            raise ValueError(f"method={method!r}; choose 'lsoda' or 'rk4'")
+        np.maximum(xn[WHEEL_SPEEDS], 0.0, out=xn[WHEEL_SPEEDS])
+        if not np.all(np.isfinite(xn)):
+            raise RuntimeError(
+                f"MB integration produced a non-finite state (mu={mu}, u={ul}, "
+                f"from v_x={x[VX]:.3f} m/s)"
+            )
+        return xn
+
+    def simulate(
+        self, x0_st, inputs, dt_s: float, mu, method: str = "lsoda"
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Roll out from a single-track state with inputs ``(H, 2)`` held for ``dt_s`` each.
+
+        ``mu`` is a number or a callable ``mu(x_st) -> float`` (friction under the car, sampled
+        at the start of each interval). Returns ``(X_st (H+1, 7), X_mb (H+1, 29))``.
+        """
+        inputs = np.asarray(inputs, dtype=float)
+        if inputs.ndim != 2 or inputs.shape[1] != 2:
+            raise ValueError(f"inputs must have shape (H, 2), got {inputs.shape}")
+        xs = [self.initial_state(x0_st)]
+        for u in inputs:
+            mu_k = mu(st_state(xs[-1])) if callable(mu) else mu
+            xs.append(self.integrate(xs[-1], u, mu_k, dt_s, method=method))
+        x_mb = np.array(xs)
+        return st_state(x_mb), x_mb
+
+
+def st_state(x_mb) -> np.ndarray:
+    """Single-track state(s) ``[sx, sy, delta, v, psi, psi_dot, beta]`` of MB state(s).
+
+    ``x_mb`` is (29,) or (N, 29). ``v`` is the signed speed ``sign(v_x) hypot(v_x, v_y)``;
+    ``beta = atan(v_y / v_x)``, 0 where ``|v_x| < 0.1`` m/s (the package's own convention).
+    """
+    x = np.asarray(x_mb, dtype=float)
+    single = x.ndim == 1
+    x2 = np.atleast_2d(x)
+    if x2.shape[1] != NX_MB:
+        raise ValueError(f"MB state must have {NX_MB} entries, got shape {x.shape}")
+    vx, vy = x2[:, VX], x2[:, VY]
+    moving = np.abs(vx) >= 0.1
+    speed = np.hypot(vx, vy) * np.where(vx < 0, -1.0, 1.0)
+    beta = np.where(moving, np.arctan(vy / np.where(moving, vx, 1.0)), 0.0)
+    out = np.stack([x2[:, 0], x2[:, 1], x2[:, 2], speed, x2[:, 4], x2[:, 5], beta], axis=1)
+    return out[0] if single else out
