@@ -1,0 +1,252 @@
+"""VehiclePlant: the simulated car, with a selectable truth model and friction from the terrain."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from pydrake.systems.framework import BasicVector, LeafSystem
+
+from pcvfe_drake.mb_truth import MbTruth, st_state
+from pcvfe_drake.params import VehicleParams, ford_escort
+from pcvfe_drake.vehicle import INPUT_NAMES, NX, STATE_NAMES, st_dynamics
+
+TRUTH_MODELS = ("st", "mb")
+
+
+class VehiclePlant(LeafSystem):
+    """The simulated vehicle: single-track (ST) or CommonRoad multi-body (MB) dynamics.
+
+    .. pydrake_system::
+
+        name: VehiclePlant
+        input_ports:
+        - actuation
+        output_ports:
+        - state
+        - true_mu
+        - true_terrain
+
+    Ports:
+        actuation: input (2) ``[steer_rate rad/s, accel m/s^2]``; a non-finite value raises a
+            ``ValueError`` naming the port, the value and the time.
+        state: output (7) ``[sx m, sy m, delta rad, v m/s, psi rad, psi_dot rad/s, beta rad]``
+            (ST order, ``pcvfe_drake.vehicle.STATE_NAMES``); for the MB truth, ``v`` and ``beta``
+            come from the body velocities (``pcvfe_drake.mb_truth.st_state``). No direct
+            feedthrough.
+        true_mu: output (1), **simulation only**: the true friction coefficient under the centre
+            of gravity (the terrain map's mu there; ``params.mu`` without a map).
+        true_terrain: output (1), **simulation only**: index of the terrain under the centre of
+            gravity in ``terrain_map.terrains``; -1 without a map.
+
+    Truth models:
+        ``"st"``: ``pcvfe_drake.vehicle.st_dynamics`` with theta = [mu under the car, C_Sf,
+        C_Sr]; continuous state (7); any Drake integrator works (the default error-controlled
+        RK3 is the fast choice).
+        ``"mb"``: ``vehiclemodels.vehicle_dynamics_mb`` through :class:`MbTruth`, tire friction
+        scaled to the mu under the car. Two state realisations (``mb_integration``):
+
+        * ``"continuous"`` (default): 29 continuous states, integrated by the simulator's
+          integrator. Drake's default error-controlled RK3 is the fastest choice measured
+          (``benchmarks/plant_realtime.py``): it shrinks its steps where the wheel-spin modes
+          are stiff (eigenvalues ~ -4750/v 1/s for the Ford Escort), so it slows down below
+          ~2 m/s; implicit integrators (radau3) were slower because their finite-difference
+          Jacobians cost 29 evaluations each.
+        * ``"discrete"``: 29 discrete states advanced every ``mb_period_s`` (e.g. 0.01 s, the
+          public PC-VFE simulator's 100 Hz), each update integrating the MB equations over the
+          period with ``mb_method`` (``"rk4"``, default: 1 ms RK4 substeps with wheel speeds
+          kept >= 0, stable above ~2 m/s and well behaved from rest in our runs; ``"lsoda"``:
+          stiff-aware but restarted every period, which made it ~100x slower than real time
+          from rest) with the input and mu sampled at the update. The outputs hold between
+          updates. Slower than ``"continuous"`` at speed, but independent of the simulator's
+          integrator settings.
+
+        The MB truth exists for vehicles with CommonRoad parameter sets (Ford Escort, BMW 320i,
+        VW Vanagon; ``mb_vehicle`` defaults to ``params.name``).
+
+    Friction changes with the terrain under the car: the ST derivatives (and each MB update)
+    look up the terrain at the current ``(sx, sy)``. A car that leaves a map without an
+    ``outside`` terrain stops the simulation with the terrain map's ``ValueError``.
+
+    Args:
+        params: vehicle parameters (default: Ford Escort).
+        terrain_map: a ``pcvfe_drake.terrain.TerrainMap``; None uses ``params.mu`` everywhere.
+        truth: ``"st"`` or ``"mb"``.
+        x0: default initial ST state (7) of new contexts; default at rest at the origin, heading
+            along +x. :meth:`set_initial_state` sets it in a given context.
+        mb_vehicle: CommonRoad vehicle name for the MB truth (default ``params.name``).
+        friction_scaling: MB tire friction mapping, see ``pcvfe_drake.mb_truth``.
+        mb_integration: ``"continuous"`` or ``"discrete"`` (MB only).
+        mb_period_s: period of the MB discrete update [s] (``"discrete"`` only).
+        mb_method: ``"rk4"`` or ``"lsoda"``, the integrator inside a discrete MB update.
+    """
+
+    def __init__(
+        self,
+        params: VehicleParams | None = None,
+        terrain_map=None,
+        truth: str = "st",
+        x0=None,
+        *,
+        mb_vehicle: str | None = None,
+        friction_scaling: str = "peak_and_stiffness",
+        mb_integration: str = "continuous",
+        mb_period_s: float = 0.01,
+        mb_method: str = "rk4",
+    ) -> None:
+        super().__init__()
+        if truth not in TRUTH_MODELS:
+            raise ValueError(f"VehiclePlant: truth={truth!r}; choose one of {TRUTH_MODELS}")
+        if mb_integration not in ("discrete", "continuous"):
+            raise ValueError(
+                f"VehiclePlant: mb_integration={mb_integration!r}; "
+                "choose 'discrete' or 'continuous'"
+            )
+        if not (math.isfinite(mb_period_s) and mb_period_s > 0):
+            raise ValueError(f"VehiclePlant: mb_period_s={mb_period_s!r} must be > 0")
+        self.params = params if params is not None else ford_escort()
+        self.terrain_map = terrain_map
+        self.truth = truth
+        self.mb_integration = mb_integration if truth == "mb" else None
+        self.mb_period_s = float(mb_period_s)
+        if mb_method not in ("lsoda", "rk4"):
+            raise ValueError(f"VehiclePlant: mb_method={mb_method!r}; choose 'lsoda' or 'rk4'")
+        self.mb_method = mb_method
+        x0 = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]) if x0 is None else x0
+        x0 = self._checked_st_state(x0, "x0")
+        if terrain_map is not None:
+            self._mu_index(x0)  # fail now, not at the first step, if x0 is off the map
+
+        self._actuation_port = self.DeclareVectorInputPort("actuation", len(INPUT_NAMES))
+        self.mb = None
+        if truth == "st":
+            self._state_index = None
+            self._x0 = x0
+            self.DeclareContinuousState(BasicVector(self._x0))
+            state_ticket = self.xc_ticket()
+        else:
+            self.mb = MbTruth(mb_vehicle or self.params.name, friction_scaling)
+            # Tire parameter sets per terrain (index -1: no map, params.mu), built once.
+            self._mb_params = {-1: self.mb.parameters_for_mu(self.params.mu)}
+            if terrain_map is not None:
+                for k, terrain in enumerate(terrain_map.terrains):
+                    self._mb_params[k] = self.mb.parameters_for_mu(terrain.mu)
+            self._x0 = self.mb.initial_state(x0)
+            if mb_integration == "continuous":
+                self._state_index = None
+                self.DeclareContinuousState(BasicVector(self._x0))
+                state_ticket = self.xc_ticket()
+            else:
+                self._state_index = self.DeclareDiscreteState(self._x0)
+                self.DeclarePeriodicDiscreteUpdateEvent(
+                    period_sec=self.mb_period_s, offset_sec=0.0, update=self._mb_discrete_update
+                )
+                state_ticket = self.xd_ticket()
+
+        self._state_port = self.DeclareVectorOutputPort(
+            "state", NX, self._calc_state, prerequisites_of_calc={state_ticket}
+        )
+        self._true_mu_port = self.DeclareVectorOutputPort(
+            "true_mu", 1, self._calc_true_mu, prerequisites_of_calc={state_ticket}
+        )
+        self._true_terrain_port = self.DeclareVectorOutputPort(
+            "true_terrain", 1, self._calc_true_terrain, prerequisites_of_calc={state_ticket}
+        )
+
+    # ------------------------------------------------------------------ set-up helpers
+    @staticmethod
+    def _checked_st_state(x, name: str) -> np.ndarray:
+        x = np.asarray(x, dtype=float).reshape(-1)
+        if x.shape != (NX,) or not np.all(np.isfinite(x)):
+            raise ValueError(
+                f"VehiclePlant: {name} must be {NX} finite numbers {STATE_NAMES}, got {x.tolist()}"
+            )
+        return x
+
+    def set_initial_state(self, context, x_st) -> None:
+        """Set this plant's state in ``context`` from an ST state (7) (MB: via ``init_mb``)."""
+        x_st = self._checked_st_state(x_st, "initial state")
+        if self.terrain_map is not None:
+            self._mu_index(x_st)
+        x = x_st if self.mb is None else self.mb.initial_state(x_st)
+        if self._state_index is None:
+            context.SetContinuousState(x)
+        else:
+            context.SetDiscreteState(self._state_index, x)
+
+    # ------------------------------------------------------------------ helpers
+    def _mu_index(self, x) -> tuple[float, int]:
+        """(mu, terrain index) under the centre of gravity; ``x`` is an ST or MB state (both
+        start with sx, sy)."""
+        if self.terrain_map is None:
+            return self.params.mu, -1
+        k = int(self.terrain_map.index_at(x[:2]))
+        return self.terrain_map.terrains[k].mu, k
+
+    def _raw_state(self, context) -> np.ndarray:
+        if self._state_index is None:
+            return context.get_continuous_state_vector().CopyToVector()
+        return context.get_discrete_state(self._state_index).CopyToVector()
+
+    def _st_of(self, context) -> np.ndarray:
+        x = self._raw_state(context)
+        return x if self.mb is None else st_state(x)
+
+    def _actuation(self, context) -> np.ndarray:
+        u = self._actuation_port.Eval(context)
+        if not (math.isfinite(u[0]) and math.isfinite(u[1])):
+            raise ValueError(
+                f"VehiclePlant: input 'actuation' {list(INPUT_NAMES)} = {u.tolist()} is not "
+                f"finite at t = {context.get_time():.4f} s"
+            )
+        return u
+
+    # ------------------------------------------------------------------ dynamics
+    def DoCalcTimeDerivatives(self, context, derivatives) -> None:  # noqa: N802 (Drake's name)
+        x = self._raw_state(context)
+        u = self._actuation(context)
+        if self.mb is None:
+            mu, _ = self._mu_index(x)
+            theta = np.array([mu, self.params.C_Sf, self.params.C_Sr])
+            xdot = st_dynamics(x, u, self.params, theta)
+        else:
+            _, k = self._mu_index(x)
+            xdot = self.mb.rhs(x.tolist(), u.tolist(), self._mb_params[k])
+            if not np.all(np.isfinite(xdot)):
+                raise ValueError(
+                    f"VehiclePlant: MB derivatives are not finite at t = {context.get_time():.4f} "
+                    f"s (state {x.tolist()}, input {u.tolist()})"
+                )
+        derivatives.get_mutable_vector().SetFromVector(xdot)
+
+    def _mb_discrete_update(self, context, discrete_state) -> None:
+        x = context.get_discrete_state(self._state_index).CopyToVector()
+        u = self._actuation(context)
+        mu, _ = self._mu_index(x)
+        x_next = self.mb.integrate(x, u, mu, self.mb_period_s, method=self.mb_method)
+        discrete_state.get_mutable_vector(self._state_index).SetFromVector(x_next)
+
+    # ------------------------------------------------------------------ outputs
+    def _calc_state(self, context, output: BasicVector) -> None:
+        output.SetFromVector(self._st_of(context))
+
+    def _calc_true_mu(self, context, output: BasicVector) -> None:
+        mu, _ = self._mu_index(self._raw_state(context))
+        output.SetAtIndex(0, mu)
+
+    def _calc_true_terrain(self, context, output: BasicVector) -> None:
+        _, k = self._mu_index(self._raw_state(context))
+        output.SetAtIndex(0, float(k))
+
+    # ------------------------------------------------------------------ port accessors
+    def get_actuation_input_port(self):
+        return self._actuation_port
+
+    def get_state_output_port(self):
+        return self._state_port
+
+    def get_true_mu_output_port(self):
+        return self._true_mu_port
+
+    def get_true_terrain_output_port(self):
+        return self._true_terrain_port
