@@ -136,14 +136,16 @@ def run_simulation(
     error = None
     rows_seen = 0
     wall = 0.0
+    cpu = 0.0
     try:
         simulator.Initialize()
         t = 0.0
         while t < stop_t - 1e-9:
             target = min(t + chunk_s, stop_t)
-            w0 = time.perf_counter()
+            w0, c0 = time.perf_counter(), time.process_time()
             simulator.AdvanceTo(target)
             wall += time.perf_counter() - w0
+            cpu += time.process_time() - c0
             t = simulator.get_context().get_time()
             rows = run_log.rows_since(rows_seen)
             rows_seen += len(rows)
@@ -192,6 +194,8 @@ def run_simulation(
         estimate_table=table,
         interrupted=interrupted,
     )
+    summary["cpu_time_s"] = cpu
+    summary["realtime_factor_cpu"] = summary["sim_time_s"] / cpu if cpu > 0 else None
     summary["truth_model"] = scenario.truth_model
     summary["feature_backend"] = scenario.features.backend
     summary["seed"] = scenario.seed

@@ -168,8 +168,10 @@ def figure_contexts_map(
             sub = fig.add_subplot(grid[row, n_maps + col])
             sub.set_xticks([])
             sub.set_yticks([])
-            if col < len(images):
-                sub.imshow(images[col])
+            if col >= len(images):
+                sub.axis("off")
+                continue
+            sub.imshow(images[col])
             for spine in sub.spines.values():
                 spine.set_edgecolor(context_rgb(k))
                 spine.set_linewidth(3)

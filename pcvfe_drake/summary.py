@@ -282,6 +282,7 @@ def summary_table(summary: Mapping[str, Any]) -> str:
         ("simulated time", fmt(s.get("sim_time_s"), " s")),
         ("wall time", fmt(s.get("wall_time_s"), " s")),
         ("real-time factor", fmt(s.get("realtime_factor"), "x")),
+        ("real-time factor (CPU time)", fmt(s.get("realtime_factor_cpu"), "x")),
         ("laps completed", fmt(s.get("laps_completed"))),
         ("lap time", fmt(s.get("lap_time_s"), " s")),
         ("mean speed", fmt(s.get("mean_speed_mps"), " m/s")),
