@@ -3,7 +3,7 @@
 Right-hand side, evaluated for N batch rows at once (``z`` = the 7 ST states in CommonRoad order
 followed by the effects' own states)::
 
-    1. CommonRoad's input constraints (``pcvfe_drake.vehicle.constrain_inputs``)
+    1. CommonRoad's input constraints (as ``pcvfe_drake.vehicle.constrain_inputs``)
     2. accel hooks            (e.g. motor_power_limit)            -> applied command a
     3. wheel_angle hooks      (steering_lag, then steering_offset) -> road-wheel angle delta_w
     4. axle loads             Fz_f = m (g lr - a h) / L,  Fz_r = m (g lf + a h) / L
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pcvfe_drake.params import THETA_NAMES, VehicleParams, load_vehicle
-from pcvfe_drake.vehicle import BETA, DELTA, NX, PSI, PSI_DOT, V, constrain_inputs, wrap_angle
+from pcvfe_drake.vehicle import BETA, DELTA, NX, PSI, PSI_DOT, V, wrap_angle
 from pcvfe_drake.workbench.data import DriveData
 from pcvfe_drake.workbench.effects import Effect, StepContext, get_effect
 
@@ -55,6 +55,23 @@ class ParamInfo:
     null: float
     effect: str | None  # None for base parameters
     context: int | None  # context index for base parameters
+
+
+def applied_inputs(x: np.ndarray, u: np.ndarray, vp: VehicleParams):
+    """CommonRoad's input constraints (as ``pcvfe_drake.vehicle.constrain_inputs``, which also
+    returns derivatives) in the lean form the rollouts need: (steer_rate, accel), each (N,)."""
+    delta, v = x[:, DELTA], x[:, V]
+    steer = np.clip(u[:, 0], vp.delta_dot_min, vp.delta_dot_max)
+    stop = ((delta <= vp.delta_min) & (steer <= 0)) | ((delta >= vp.delta_max) & (steer >= 0))
+    if stop.any():
+        steer = np.where(stop, 0.0, steer)
+    above = v > vp.v_switch
+    upper = np.where(above, vp.a_max * vp.v_switch / np.where(above, v, 1.0), vp.a_max)
+    acc = np.clip(u[:, 1], -vp.a_max, upper)
+    halt = ((v <= vp.v_min) & (acc <= 0)) | ((v >= vp.v_max) & (acc >= 0))
+    if halt.any():
+        acc = np.where(halt, 0.0, acc)
+    return steer, acc
 
 
 class WorkbenchModel:
@@ -177,8 +194,7 @@ class WorkbenchModel:
         """Time derivative of the augmented state ``z`` (N, nz) under inputs ``u`` (N, 2)."""
         vp = self.vehicle
         x = z[:, :NX]
-        u_c, _, _, _ = constrain_inputs(x, u, vp)
-        steer, acc = u_c[:, 0], u_c[:, 1]
+        steer, acc = applied_inputs(x, u, vp)
         ctx = StepContext(x, z[:, NX:NX], steer, acc, vp)
         for e, sl in zip(self.effects, self._state_slices, strict=True):
             ctx.states = z[:, sl]

@@ -36,6 +36,9 @@ from pcvfe_drake.workbench.effects import get_effect, known_effects
 from pcvfe_drake.workbench.estimate import FitResult, fit
 from pcvfe_drake.workbench.model import WorkbenchModel
 
+UNEXPLAINED_RATIO = 0.5
+"""Model error (above the noise floor) / noise floor beyond which structure is unexplained."""
+
 METHOD = (
     "likelihood-ratio test (chi-square, dof = number of effect parameters, one observation per "
     "training window and fitted state, Bonferroni over candidates) at alpha={alpha:g}, AND a "
@@ -167,7 +170,7 @@ class Workbench:
             self._base_eval = self.evaluate(self.baseline)
         return self._base_eval
 
-    def evaluate(self, result: FitResult) -> dict:
+    def evaluate(self, result: FitResult, with_free_run: bool = True) -> dict:
         return evaluate(
             result.model,
             result.theta,
@@ -175,6 +178,7 @@ class Workbench:
             self.eval_starts,
             self.h_eval,
             self.config.n_blocks,
+            with_free_run,
         )
 
     def compare_nested(
@@ -183,7 +187,7 @@ class Workbench:
         dof = alt.model.n_params - ref.model.n_params
         lr = max(0.0, ref.n_eff * float(np.log(ref.cost / alt.cost)))
         p = float(chi2.sf(lr, dof)) if dof > 0 else 1.0
-        ev = self.evaluate(alt)
+        ev = self.evaluate(alt, with_free_run=False)
         drop = error_drop(ref_eval, ev)
         sig = p < self.config.alpha / max(n_candidates, 1) and drop >= self.config.min_drop
         return lr, dof, p, drop, sig, ev
@@ -248,8 +252,8 @@ class Workbench:
         self.candidates = results
         significant = [c for c in results if c.significant]
         remaining = []
-        if significant:
-            best = significant[0]
+        best = significant[0] if significant else None
+        if best is not None:
             for c in significant[1:]:
                 both = self.fit_model(best.fit.model.with_effects(c.name), warm=best.fit)
                 lr, dof, p, drop, sig, _ = self.compare_nested(
@@ -264,18 +268,29 @@ class Workbench:
                         "heldout_error_drop": drop,
                     }
                 )
-            still = [r["name"] for r in remaining if r["significant"]]
+        still = [r["name"] for r in remaining if r["significant"]]
+        final = best.evaluation if best is not None else base_eval
+        ratio = final["model_error"] / max(final["noise_floor"], 1e-12)
+        unexplained = ratio > UNEXPLAINED_RATIO
+        if best is not None:
+            verdict = (
+                f"missing effect: {best.name} (p = {best.p_value:.2g}, held-out model error "
+                f"-{best.drop:.0%})"
+            )
             if still:
-                verdict = (
-                    f"missing effect: {best.name} (p = {best.p_value:.2g}, held-out error "
-                    f"-{best.drop:.0%}); significant structure remains after it: "
-                    f"{', '.join(still)}"
+                verdict += f"; significant structure remains after it: {', '.join(still)}"
+            elif unexplained:
+                verdict += (
+                    f"; its held-out error is still {ratio:.2g} x the noise floor: structure "
+                    "remains that no library effect explains"
                 )
             else:
-                verdict = (
-                    f"missing effect: {best.name} (p = {best.p_value:.2g}, held-out error "
-                    f"-{best.drop:.0%}); no significant structure remains among the candidates"
-                )
+                verdict += "; no significant structure remains (error at the noise floor)"
+        elif unexplained:
+            verdict = (
+                f"no candidate effect is significant, but the baseline's held-out error is "
+                f"{ratio:.2g} x the noise floor: the model misses something outside the library"
+            )
         else:
             verdict = "no candidate effect is significant: the baseline explains the data"
         return {
@@ -283,7 +298,9 @@ class Workbench:
             "ranked_effects": [c.summary() for c in results],
             "best": significant[0].name if significant else None,
             "remaining": remaining,
-            "remaining_significant": [r["name"] for r in remaining if r["significant"]],
+            "remaining_significant": still,
+            "unexplained_structure": bool(unexplained or still),
+            "final_error_to_noise_floor": float(ratio),
             "verdict": verdict,
         }
 

@@ -71,7 +71,7 @@ def _plots(report: dict, wb: Workbench, folder: Path) -> list[str]:
     after_eval = getattr(wb, "added_eval", None)
     if after_fit is None and report.get("best"):
         best = next(c for c in wb.candidates if c.name == report["best"])
-        after_fit, after_eval = best.fit, best.evaluation
+        after_fit, after_eval = best.fit, wb.evaluate(best.fit)
     label_after = "+ " + " + ".join(after_fit.model.effect_names) if after_fit else ""
 
     # 1. measured vs free-run overlays

@@ -140,6 +140,23 @@ def design_excitation(
     return Excitation(v_ref, coast, phase, freq, lat)
 
 
+def driver_commands(vp: VehicleParams, ex: Excitation, k: int, x: np.ndarray):
+    """Commands (steer_rate (B,), accel (B,)) of the driving program at sample k for true
+    single-track states x (B, 7): a steering sweep tracked by a P loop and a P speed loop."""
+    v = x[:, 3]
+    wheelbase = vp.lf + vp.lr
+    steer_limit = 0.95 * min(abs(vp.delta_dot_min), vp.delta_dot_max)
+    amp = np.minimum(ex.lat_target[k] * wheelbase / np.maximum(v, 4.0) ** 2, 0.3)
+    # like a driver, corner less while braking hard (avoids spinning a saturated car)
+    braking = (~ex.coast[k]) & (ex.v_ref[k] < v - 2.0)
+    amp = np.where(braking, 0.5 * amp, amp)
+    d_des = amp * np.sin(ex.phase[k])
+    d_rate = amp * 2.0 * np.pi * ex.freq_hz[k] * np.cos(ex.phase[k])
+    steer = np.clip(d_rate + 3.0 * (d_des - x[:, 2]), -steer_limit, steer_limit)
+    acc = np.where(ex.coast[k], 0.0, np.clip(0.8 * (ex.v_ref[k] - v), -3.5, 2.5))
+    return steer, acc
+
+
 def _constrain(vp: VehicleParams, delta, v, steer, acc):
     steer = np.clip(steer, vp.delta_dot_min, vp.delta_dot_max)
     steer = np.where(
@@ -249,20 +266,9 @@ def simulate_truths(
     steer_log = np.empty((n, b))
     acc_log = np.empty((n, b))
     h = dt / substeps
-    steer_limit = 0.95 * min(abs(vp.delta_dot_min), vp.delta_dot_max)
-    wheelbase = vp.lf + vp.lr
     for k in range(n):
         states[k] = s[:, :7]
-        v = s[:, 3]
-        # steering: amplitude for the target lateral acceleration, tracked by a P loop
-        amp = np.minimum(ex.lat_target[k] * wheelbase / np.maximum(v, 4.0) ** 2, 0.3)
-        # like a driver, corner less while braking hard (avoids spinning a saturated car)
-        braking = (~ex.coast[k]) & (ex.v_ref[k] < v - 2.0)
-        amp = np.where(braking, 0.5 * amp, amp)
-        d_des = amp * np.sin(ex.phase[k])
-        d_rate = amp * 2.0 * np.pi * ex.freq_hz[k] * np.cos(ex.phase[k])
-        steer_log[k] = np.clip(d_rate + 3.0 * (d_des - s[:, 2]), -steer_limit, steer_limit)
-        acc_log[k] = np.where(ex.coast[k], 0.0, np.clip(0.8 * (ex.v_ref[k] - v), -3.5, 2.5))
+        steer_log[k], acc_log[k] = driver_commands(vp, ex, k, s[:, :7])
         if k == n - 1:
             break
         for j in range(substeps):
@@ -281,27 +287,64 @@ def simulate_truths(
             s = s + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
         if not np.all(np.isfinite(s)):
             raise RuntimeError(f"truth simulation diverged at t={k * dt:.2f} s")
+    return [
+        _to_log(states[:, i], steer_log[:, i], acc_log[:, i], dt, noise, seed + 1 + i)
+        for i in range(b)
+    ]
+
+
+def simulate_multibody(
+    vehicle: str = "ford_escort",
+    duration_s: float = 60.0,
+    rate_hz: float = 20.0,
+    seed: int = 0,
+    noise: InsNoise | None = InsNoise(),
+    mu: float | None = None,
+    v0_mps: float = 10.0,
+) -> pd.DataFrame:
+    """A drive log of CommonRoad's multi-body model (``pcvfe_drake.mb_truth.MbTruth``: Pacejka
+    tires with combined slip, load transfer, suspension, wheel spin) under the same driving
+    program, integrated with LSODA between samples."""
+    from pcvfe_drake.mb_truth import MbTruth, st_state
+
+    vp = load_vehicle(vehicle)
+    truth = MbTruth(vehicle)
+    mu = truth.mu_nominal if mu is None else float(mu)
+    dt = 1.0 / rate_hz
+    ex = design_excitation(vp, duration_s, dt, seed)
+    n = ex.v_ref.size
+    x_mb = truth.initial_state(np.array([0.0, 0.0, 0.0, v0_mps, 0.0, 0.0, 0.0]))
+    states = np.empty((n, 7))
+    steer_log = np.empty(n)
+    acc_log = np.empty(n)
+    for k in range(n):
+        states[k] = st_state(x_mb)
+        steer, acc = driver_commands(vp, ex, k, states[k][None, :])
+        steer_log[k], acc_log[k] = steer[0], acc[0]
+        if k < n - 1:
+            x_mb = truth.integrate(x_mb, [steer_log[k], acc_log[k]], mu, dt)
+    return _to_log(states, steer_log, acc_log, dt, noise, seed + 101)
+
+
+def _to_log(states, steer, acc, dt, noise, seed) -> pd.DataFrame:
+    n = states.shape[0]
     t = np.arange(n) * dt
-    logs = []
-    for i in range(b):
-        x = states[:, i].copy()
-        if noise is not None:
-            rng = np.random.default_rng(seed + 1 + i)
-            x = x + rng.standard_normal(x.shape) * noise.as_array()
-        x[:, 4] = np.pi - np.mod(np.pi - x[:, 4], 2.0 * np.pi)
-        df = pd.DataFrame(
-            {
-                "t": t,
-                "sx": x[:, 0],
-                "sy": x[:, 1],
-                "delta": x[:, 2],
-                "v": x[:, 3],
-                "psi": x[:, 4],
-                "psi_dot": x[:, 5],
-                "beta": x[:, 6],
-                "steer_rate": steer_log[:, i],
-                "accel": acc_log[:, i],
-            }
-        )
-        logs.append(df)
-    return logs
+    x = states.copy()
+    if noise is not None:
+        rng = np.random.default_rng(seed)
+        x = x + rng.standard_normal(x.shape) * noise.as_array()
+    x[:, 4] = np.pi - np.mod(np.pi - x[:, 4], 2.0 * np.pi)
+    return pd.DataFrame(
+        {
+            "t": t,
+            "sx": x[:, 0],
+            "sy": x[:, 1],
+            "delta": x[:, 2],
+            "v": x[:, 3],
+            "psi": x[:, 4],
+            "psi_dot": x[:, 5],
+            "beta": x[:, 6],
+            "steer_rate": steer,
+            "accel": acc,
+        }
+    )
