@@ -7,9 +7,9 @@ changing with the terrain. Drake's default integrator (error-controlled RK3, acc
 
 Measured for the ST truth (target >= 50x real time) and the multi-body truth (target >= 5x),
 continuous state (the default) and, for reference, the discrete 100 Hz update with 1 ms RK4
-substeps (at most 10 s of it). To show what limits each, the same run also measures the cost of one bare derivative
-evaluation (``st_dynamics`` on one state; the package's ``vehicle_dynamics_mb``) and counts the
-derivative evaluations Drake made.
+substeps (at most 10 s of it). To show what limits each, the same run also measures the cost of
+one bare derivative evaluation (``st_dynamics`` on one state; the package's
+``vehicle_dynamics_mb``) and counts the derivative evaluations Drake made.
 
 Usage: python benchmarks/plant_realtime.py [--quick]   (last stdout line: one JSON object)
 """
