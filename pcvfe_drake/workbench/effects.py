@@ -412,6 +412,13 @@ def register_effect(cls: type[Effect]) -> type[Effect]:
     return cls
 
 
+def unregister_effect(name: str) -> None:
+    """Remove an effect from the library (e.g. one registered for a test)."""
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown effect {name!r}; known effects: {', '.join(known_effects())}")
+    del _REGISTRY[name]
+
+
 for _cls in (
     Drag,
     RollingResistance,

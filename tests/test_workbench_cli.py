@@ -1,0 +1,136 @@
+"""``pcvfe diagnose``: JSON output, run folders, reports, and clear errors on bad input."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from pcvfe_drake.cli import main
+from pcvfe_drake.drivelog import write_drive_log
+from pcvfe_drake.workbench import synth
+
+
+@pytest.fixture(scope="module")
+def drag_log(tmp_path_factory):
+    df = synth.simulate_truths(
+        [synth.PLANTED["drag"][0]], duration_s=45.0, rate_hz=20.0, seed=3, substeps=2
+    )[0]
+    path = tmp_path_factory.mktemp("logs") / "drive.csv"
+    write_drive_log(df, path)
+    return df, path
+
+
+def test_json_with_add(drag_log, tmp_path, capsys):
+    _, path = drag_log
+    out = tmp_path / "report"
+    code = main(
+        [
+            "diagnose",
+            str(path),
+            "--add",
+            "drag",
+            "--candidates",
+            "drag,rolling_resistance",
+            "--json",
+            "--out",
+            str(out),
+        ]
+    )
+    assert code == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    report = json.loads(lines[-1])
+    assert set(report["baseline"]["fit_percent"]) >= {"v", "psi_dot", "beta"}
+    assert report["baseline"]["heldout_error"] > 0
+    ranked = report["ranked_effects"]
+    assert [r["name"] for r in ranked][0] == "drag"
+    for r in ranked:
+        assert {
+            "name",
+            "significant",
+            "p_value",
+            "confidence",
+            "heldout_error_drop",
+            "params",
+        } <= set(r)
+    assert report["added"]["effects"] == ["drag"]
+    assert 0.5 <= report["error_drop"] <= 1.0
+    assert "drag.CdA" in report["added"]["params"]
+    # the written report
+    saved = json.loads((out / "report.json").read_text())
+    assert saved["ranked_effects"][0]["name"] == "drag"
+    html = (out / "report.html").read_text()
+    assert html.count("data:image/png;base64,") == 4
+    for png in ("overlay.png", "residual_autocorr.png", "ranking.png", "breakdown.png"):
+        assert (out / png).stat().st_size > 1000
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temp left
+
+
+def test_run_folder_and_text_output(drag_log, tmp_path, capsys):
+    df, _ = drag_log
+    run = tmp_path / "run_001"
+    write_drive_log(df, run / "log.parquet")
+    (run / "summary.json").write_text("{}")
+    assert main(["diagnose", str(run), "--candidates", "drag"]) == 0
+    text = capsys.readouterr().out
+    assert "missing effect: drag" in text
+
+
+def _expect_error(capsys, tmp_path, argv, *needles):
+    out = tmp_path / "out"
+    code = main(["diagnose", *argv, "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    for needle in needles:
+        assert needle in err, err
+    assert not out.exists()  # nothing half-written
+    return err
+
+
+def test_unknown_effect_lists_the_known_ones(drag_log, tmp_path, capsys):
+    _, path = drag_log
+    err = _expect_error(capsys, tmp_path, [str(path), "--add", "warp_drive"], "warp_drive")
+    for name in ("drag", "rolling_resistance", "steering_lag", "input_delay", "tire_saturation"):
+        assert name in err
+
+
+def test_missing_column(drag_log, tmp_path, capsys):
+    df, _ = drag_log
+    bad = tmp_path / "bad.csv"
+    df.drop(columns=["beta"]).to_csv(bad, index=False)
+    _expect_error(capsys, tmp_path, [str(bad)], "missing column", "beta")
+
+
+def test_non_increasing_time(drag_log, tmp_path, capsys):
+    df, _ = drag_log
+    bad = tmp_path / "bad.csv"
+    d = df.copy()
+    d.loc[300, "t"] = d.loc[298, "t"]
+    d.to_csv(bad, index=False)
+    _expect_error(capsys, tmp_path, [str(bad)], "time does not increase", "300")
+
+
+def test_nan_run(drag_log, tmp_path, capsys):
+    df, _ = drag_log
+    bad = tmp_path / "bad.csv"
+    d = df.copy()
+    d.loc[200:240, "v"] = np.nan
+    d.to_csv(bad, index=False)
+    _expect_error(capsys, tmp_path, [str(bad)], "'v'", "NaN", "200")
+
+
+def test_too_short(drag_log, tmp_path, capsys):
+    df, _ = drag_log
+    bad = tmp_path / "short.csv"
+    df.iloc[:200].to_csv(bad, index=False)
+    _expect_error(capsys, tmp_path, [str(bad)], "too short")
+
+
+def test_missing_file(tmp_path, capsys):
+    _expect_error(capsys, tmp_path, [str(tmp_path / "nope.csv")], "nope.csv")
+
+
+def test_unknown_vehicle(drag_log, tmp_path, capsys):
+    _, path = drag_log
+    _expect_error(capsys, tmp_path, [str(path), "--vehicle", "batmobile"], "batmobile")
