@@ -18,9 +18,9 @@ from pcvfe_drake.workbench import (
     register_effect,
     synth,
 )
-from pcvfe_drake.workbench.effects import unregister_effect
 from pcvfe_drake.workbench.compare import fit_percent
 from pcvfe_drake.workbench.data import robust_noise_sigma, window_starts
+from pcvfe_drake.workbench.effects import unregister_effect
 from pcvfe_drake.workbench.estimate import _residuals_and_jacobian, fit
 from pcvfe_drake.workbench.model import applied_inputs
 
