@@ -18,8 +18,9 @@ Shipped courses live in ``pcvfe_drake/data/courses/<name>.yaml``:
   120 m x 80 m centred at the world origin, driven counter-clockwise, with two S-curve sides
   (y = -40 m and y = +40 m, three waves of radius 12 m each, bulging inwards) and two straight sides
   (x = -60 m and x = +60 m), joined by 12 m corners. Each quadrant of the four-terrain map holds a
-  quarter of the course (about 99 m, about 20 s at the planned 5 m/s).
-- ``slalom_small``: the same course at 1/5 scale for the RoboRacer (24 m x 16 m, 2.24 m/s, the
+  quarter of the course (about 99 m, over 20 s on each quadrant terrain at the planned
+  4.75 m/s, transition strips excluded: the fitter wants about 20 s per terrain).
+- ``slalom_small``: the same course at 1/5 scale for the RoboRacer (24 m x 16 m, 2.12 m/s, the
   speed scaled by sqrt(1/5) so the lateral accelerations match).
 
 Speed profile: :func:`speed_profile` gives v_ref(s) <= ``speed_margin`` * sqrt(mu g / |kappa|),

@@ -52,15 +52,18 @@ def test_shipped_courses_listed_and_slalom_is_the_papers_layout():
     assert np.max(np.abs(np.angle(np.exp(1j * (chord_heading - mid_heading))))) < 1e-6
 
 
-def test_each_quadrant_gets_about_20_s_at_the_planned_speed():
+def test_each_terrain_gets_20_s_at_the_planned_speed():
+    from pcvfe_drake.terrain import default_terrain_map
+
     c = load_course("slalom")
+    terrain = default_terrain_map()
+    names = terrain.name_at(np.column_stack([c.x, c.y]))
+    quadrants = {t.name for t in terrain.terrains if t.name not in ("gravel", "dry_soil")}
+    assert len(quadrants) == 4
     for mu in (0.3, 0.45, 0.6, 0.8):
-        prof = speed_profile(c, mu)
-        dt = np.diff(prof.t)
-        for sx in (-1, 1):
-            for sy in (-1, 1):
-                in_quadrant = (np.sign(c.x) == sx) & (np.sign(c.y) == sy)
-                assert dt[in_quadrant].sum() > 19.5
+        dt = np.diff(speed_profile(c, mu).t)
+        for name in quadrants:  # the fitter wants about 20 s of driving per terrain
+            assert dt[names == name].sum() >= 20.0
 
 
 def test_small_course_is_the_slalom_at_one_fifth_scale():
