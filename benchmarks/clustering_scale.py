@@ -5,11 +5,13 @@ slow light drift; 36 numbers per frame at 10 Hz). Every frame goes through
 ``ContextClusterer.assign`` (timed); the store is re-clustered every 10 s of driving up to
 ``--dense-until`` frames and every 100 s after that (to keep the benchmark short; the store's
 size does not depend on it). At each checkpoint N the benchmark times a re-clustering of the
-store (median of repeats, on copies), its memory (bytes held by the store, peak allocation during
-the re-clustering, by tracemalloc), and, where N <= --full-max, full scikit-learn HDBSCAN on all N
-frames with the same parameters (time, peak allocation) and the adjusted Rand index between the
-two labelings of all N frames (bounded: ``predict`` with the re-clustered store; full: HDBSCAN
-labels). Timed claims are ratios against full HDBSCAN in the same run.
+store (median of repeats, on copies; wall-clock and CPU time, the latter close to what an
+unloaded core takes, BLAS being single-threaded there), its memory (bytes held by the store,
+peak allocation during the re-clustering, by tracemalloc), and, where N <= --full-max, full
+scikit-learn HDBSCAN on all N frames with the same parameters (time, peak allocation) and the
+adjusted Rand index between the two labelings of all N frames (bounded: ``predict`` with the
+re-clustered store; full: HDBSCAN labels). Timed claims are ratios against full HDBSCAN in the
+same run.
 
 Usage: python benchmarks/clustering_scale.py [--quick]
 Last stdout line: one JSON object.
@@ -74,14 +76,16 @@ def main() -> int:
 
     clusterer = ContextClusterer(params)
     assign_s: list[float] = []
+    assign_cpu_s: list[float] = []
     online_ids = np.empty(max(checkpoints), dtype=int)
     next_recluster = 10.0
     rows: list[dict] = []
     for i in range(max(checkpoints)):
         t = float(stream.t_s[i])
-        a = time.perf_counter()
+        a, a_cpu = time.perf_counter(), time.process_time()
         online_ids[i] = clusterer.assign(stream.z[i], t)
         assign_s.append(time.perf_counter() - a)
+        assign_cpu_s.append(time.process_time() - a_cpu)
         if t >= next_recluster:
             clusterer.recluster(t)
             next_recluster += 10.0 if i < args.dense_until else 100.0
@@ -89,12 +93,13 @@ def main() -> int:
         if n not in checkpoints:
             continue
         z = stream.z[:n]
-        times = []
+        times, cpu_times = [], []
         for _ in range(max(1, args.repeats)):
             probe = copy.deepcopy(clusterer)
-            start = time.perf_counter()
+            start, cpu_start = time.perf_counter(), time.process_time()
             probe.recluster(t)
             times.append(time.perf_counter() - start)
+            cpu_times.append(time.process_time() - cpu_start)
         # Memory in a separate run: tracemalloc slows allocation-heavy code down.
         spare = copy.deepcopy(clusterer)
         _, peak = _peak_bytes(lambda c=spare, t=t: c.recluster(t))
@@ -104,19 +109,22 @@ def main() -> int:
             "stored": probe.n_stored,
             "stored_bytes": probe.stored_bytes,
             "recluster_s": statistics.median(times),
+            "recluster_cpu_s": statistics.median(cpu_times),
             "recluster_peak_bytes": peak,
             "n_contexts": len(probe.table().active_ids),
             "ari_bounded_vs_truth": adjusted_rand(stream.label[:n], ours),
             "noise_fraction_bounded": float(np.mean(ours < 0)),
         }
         if n <= full_max:
-            start = time.perf_counter()
+            start, cpu_start = time.perf_counter(), time.process_time()
             full = full_hdbscan_labels(z, params)
             full_s = time.perf_counter() - start
+            full_cpu_s = time.process_time() - cpu_start
             _, full_peak = _peak_bytes(lambda z=z: full_hdbscan_labels(z, params))
             row.update(
                 {
                     "full_s": full_s,
+                    "full_cpu_s": full_cpu_s,
                     "full_peak_bytes": full_peak,
                     "full_data_bytes": int(z.nbytes),
                     "speedup_vs_full": full_s / row["recluster_s"],
@@ -153,8 +161,10 @@ def main() -> int:
         "assign_ms_mean": float(a_ms.mean()),
         "assign_ms_median": float(np.median(a_ms)),
         "assign_ms_p99": float(np.percentile(a_ms, 99)),
+        "assign_cpu_ms_mean": float(np.mean(assign_cpu_s) * 1e3),
         "recluster_s_max": max(r["recluster_s"] for r in rows),
         "recluster_s_at_max_n": rows[-1]["recluster_s"],
+        "recluster_cpu_s_at_max_n": rows[-1]["recluster_cpu_s"],
         "ari_bounded_vs_full_min": min((r["ari_bounded_vs_full"] for r in with_full), default=None),
         "speedup_vs_full_at_largest_full_n": with_full[-1]["speedup_vs_full"]
         if with_full
