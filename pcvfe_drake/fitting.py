@@ -687,21 +687,12 @@ def fit_adam(
         loss_b, grad = window_loss_and_gradient(theta, batch, params, weights)
         work += batch.n_windows / n
         count = batch.n_windows * batch.horizon
+        full = None
         if full_batch:
-            if step == 1:
-                loss_initial = loss_b
-            if not math.isfinite(loss_b):
-                status = STATUS_DIVERGED
-                break
-            if history is not None:
-                history.append((step, *elapsed(), loss_b, theta.copy()))
-            if loss_b < best_loss:
-                best_theta, best_loss = theta.copy(), loss_b
-            if target_loss is not None and loss_b <= target_loss:
-                status = STATUS_TARGET_REACHED
-                break
+            full = loss_b
         elif step == 1 or step % check_every == 0:
             full = window_loss(theta, data, params, weights)
+        if full is not None:
             if step == 1:
                 loss_initial = full
             if not math.isfinite(full):
