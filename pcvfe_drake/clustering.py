@@ -13,15 +13,18 @@ cost:
   stands for), used for centroids and sizes. The store holds at most about ``max_stored`` vectors,
   whatever the length of the drive.
 * **Re-clustering** (:meth:`ContextClusterer.recluster`) runs scikit-learn's HDBSCAN (no number of
-  clusters) on the store, then re-forms the strata from its labels.
+  clusters) on the store, detaches small groups hanging off a cluster (they become noise), and
+  re-forms the strata from the labels. At the start of a drive (one terrain only) HDBSCAN's
+  densest core is grown into the whole terrain.
 * **Persistence** (paper Algorithm 1): new centroids take the id of the closest previous centroid
   within epsilon; pairs are taken in order of increasing distance so one id goes to at most one
   cluster. Previous centroids include clusters that vanished earlier: they stay in the table and
   get their id back if they reappear. Unmatched clusters get fresh ids.
 * **Online assignment** (:meth:`ContextClusterer.assign`): every frame gets an id at once, the id
-  of its nearest stored member of a current cluster, if that distance passes the cluster's outlier
-  gate (a high quantile of the members' own nearest-member distances, times a margin); otherwise
-  -1 (noise), so unseen terrain is not forced into a known context.
+  of its nearest stored member of a current cluster, if its k-th nearest member of that cluster
+  passes the cluster's outlier gate (a high quantile of the members' own k-th-neighbour
+  distances, times a margin); otherwise -1 (noise), so unseen terrain is not forced into a known
+  context.
 
 Parameters are given in physical terms where they have one (seconds of driving at the camera
 rate); see ``docs/clustering.md``. Core module: numpy, scipy and scikit-learn only, no pydrake.
@@ -256,25 +259,18 @@ def hdbscan_labels(x: np.ndarray, min_cluster_size: int, min_samples: int) -> np
     x = np.asarray(x, dtype=float)
     if x.shape[0] < max(min_cluster_size, min_samples + 1, 2):
         return np.full(x.shape[0], NOISE, dtype=int)
+    return _fit_hdbscan(x, min_cluster_size, min_samples, allow_single_cluster=False)
+
+
+def _fit_hdbscan(
+    x: np.ndarray, min_cluster_size: int, min_samples: int, *, allow_single_cluster: bool
+) -> np.ndarray:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FutureWarning)
         model = HDBSCAN(
             min_cluster_size=min_cluster_size,
             min_samples=min_samples,
-            allow_single_cluster=False,
-            copy=True,
-        )
-        return model.fit_predict(x).astype(int)
-
-
-def _single_cluster_core(x: np.ndarray, min_cluster_size: int, min_samples: int) -> np.ndarray:
-    """Densest-region labels of HDBSCAN(allow_single_cluster=True) (the one-terrain case)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", FutureWarning)
-        model = HDBSCAN(
-            min_cluster_size=min_cluster_size,
-            min_samples=min_samples,
-            allow_single_cluster=True,
+            allow_single_cluster=allow_single_cluster,
             copy=True,
         )
         return model.fit_predict(x).astype(int)
@@ -472,8 +468,8 @@ class ContextClusterer:
             z: (d,) or (N, d) feature vectors.
 
         Returns:
-            (N,) int ids (-1 = noise / unseen / non-finite vector); an int for a (d,) input is
-            returned as a length-1 array.
+            (N,) int ids (-1 = noise / unseen / non-finite vector); a (d,) input gives a
+            length-1 array.
         """
         z = np.atleast_2d(np.asarray(z, dtype=float))
         if self._dim is not None and z.shape[1] != self._dim:
@@ -484,17 +480,6 @@ class ContextClusterer:
         for s in range(0, finite.size, block):
             rows = finite[s : s + block]
             out[rows] = self._index.labels(z[rows])
-        return out
-        finite = np.isfinite(z).all(1)
-        block = 4096
-        gates = np.array([self._gate_sq[int(i)] for i in self._ex_id])
-        for s in range(0, z.shape[0], block):
-            zb = z[s : s + block]
-            d2 = self._ex_sq[None, :] - 2.0 * zb @ self._ex.T + (zb * zb).sum(1)[:, None]
-            j = d2.argmin(1)
-            ok = d2[np.arange(zb.shape[0]), j] <= gates[j]
-            out[s : s + block] = np.where(ok, self._ex_id[j], NOISE)
-        out[~finite] = NOISE
         return out
 
     def assign(self, z: np.ndarray, t_s: float) -> int:
@@ -658,7 +643,7 @@ class ContextClusterer:
         of a next terrain) stay noise.
         """
         p = self.params
-        labels = _single_cluster_core(x, p.min_cluster_size, p.min_samples)
+        labels = _fit_hdbscan(x, p.min_cluster_size, p.min_samples, allow_single_cluster=True)
         if labels.max(initial=NOISE) != 0:
             return labels
         for _ in range(10):
