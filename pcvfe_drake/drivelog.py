@@ -242,7 +242,10 @@ def _yaw_consistency(cols: dict[str, np.ndarray | None], problems: list[str]) ->
 
 
 def validate_drive_log(
-    df: pd.DataFrame, source: str = "<DataFrame>", max_gap_s: float | None = None
+    df: pd.DataFrame,
+    source: str = "<DataFrame>",
+    max_gap_s: float | None = None,
+    check_units: bool = True,
 ) -> pd.DataFrame:
     """Check ``df`` against the drive-log format; raise one :class:`DriveLogError` listing all.
 
@@ -251,6 +254,8 @@ def validate_drive_log(
         source: a name for messages (usually the file path).
         max_gap_s: the largest allowed time step [s]; default ``GAP_FACTOR`` x the median step.
             ``math.inf`` disables the gap check.
+        check_units: run the range and consistency checks that catch wrong units (off for
+            the chunks of :class:`DriveLogWriter`, so a simulated spin is never refused).
     Returns:
         ``df`` itself, unchanged, when it is valid.
     """
@@ -278,6 +283,15 @@ def validate_drive_log(
 
     if cols.get("t") is not None:
         _time_checks(cols["t"], max_gap_s, problems)
+    if check_units:
+        _unit_checks(cols, problems)
+    _optional_checks(df, cols, problems)
+    if problems:
+        raise DriveLogError(source, problems)
+    return df
+
+
+def _unit_checks(cols: dict[str, np.ndarray | None], problems: list[str]) -> None:
     _check_range("delta", cols.get("delta"), MAX_ABS_DELTA_RAD, "degrees instead of rad?", problems)
     _check_range("beta", cols.get("beta"), MAX_ABS_BETA_RAD, "degrees instead of rad?", problems)
     _check_range(
@@ -295,6 +309,10 @@ def validate_drive_log(
     _speed_consistency(cols, problems)
     _yaw_consistency(cols, problems)
 
+
+def _optional_checks(
+    df: pd.DataFrame, cols: dict[str, np.ndarray | None], problems: list[str]
+) -> None:
     mu = cols.get("mu_true")
     if mu is not None:
         bad = np.flatnonzero((mu <= 0) | (mu > MAX_MU_TRUE))
@@ -319,9 +337,6 @@ def validate_drive_log(
                 problems.append(
                     f"column '{name}': not text at {_rows(bad)} (e.g. {col.iloc[bad[0]]!r})"
                 )
-    if problems:
-        raise DriveLogError(source, problems)
-    return df
 
 
 def _format_of(path: Path) -> str:
@@ -348,9 +363,14 @@ def _normalise(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def read_drive_log(
-    path: str | os.PathLike, validate: bool = True, max_gap_s: float | None = None
+    path: str | os.PathLike,
+    validate: bool = True,
+    max_gap_s: float | None = None,
+    check_units: bool = True,
 ) -> pd.DataFrame:
     """Load a drive log from CSV or Parquet (by suffix), validated and with normalised dtypes.
+
+    ``max_gap_s`` and ``check_units`` are passed to :func:`validate_drive_log`.
 
     Raises:
         FileNotFoundError: no such file.
@@ -368,7 +388,7 @@ def read_drive_log(
     except Exception as exc:  # parser errors of pandas/pyarrow come in many types
         raise DriveLogError(str(path), [f"cannot be read as {fmt}: {exc}"]) from exc
     if validate:
-        validate_drive_log(df, source=str(path), max_gap_s=max_gap_s)
+        validate_drive_log(df, source=str(path), max_gap_s=max_gap_s, check_units=check_units)
         df = _normalise(df)
     return df
 
@@ -399,10 +419,11 @@ class DriveLogWriter:
     """Appends rows to a CSV drive log as a run goes, flushing every chunk to disk.
 
     The first chunk fixes the columns (required ones first, then the others in their order);
-    later chunks must have the same set of columns. Each chunk is validated on its own and time
-    must keep increasing across chunks. An interrupted run leaves a readable CSV with every row
-    appended so far. (Parquet files are only readable once closed, so this writer writes CSV;
-    convert at the end with ``write_drive_log(read_drive_log(p), p_parquet)`` if wanted.)
+    later chunks must have the same set of columns. Each chunk is checked on its own (columns,
+    numbers, NaN/inf, time order; not the unit heuristics, so a simulated spin is never refused)
+    and time must keep increasing across chunks. An interrupted run leaves a readable CSV with
+    every row appended so far. (Parquet files are only readable once closed, so this writer
+    writes CSV; convert at the end with ``write_drive_log(read_drive_log(p), p_parquet)``.)
 
     Use as a context manager, or call :meth:`close`.
     """
@@ -443,7 +464,7 @@ class DriveLogWriter:
                         f"{sorted(columns)}"
                     ],
                 )
-        validate_drive_log(chunk, source=source, max_gap_s=math.inf)
+        validate_drive_log(chunk, source=source, max_gap_s=math.inf, check_units=False)
         t0 = float(chunk["t"].iloc[0])
         if not t0 > self._last_t:
             raise DriveLogError(

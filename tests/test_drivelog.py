@@ -166,3 +166,14 @@ def test_writer_appends_and_survives_interruption(tmp_path, log):
         writer.append(log.iloc[:1])
     with pytest.raises(ValueError, match="plain .csv"):
         DriveLogWriter(tmp_path / "live.parquet")
+
+
+def test_unit_checks_can_be_turned_off_and_writer_accepts_a_spin(tmp_path, log):
+    spin = log.copy()
+    spin["psi_dot"] = spin["psi_dot"] * 40.0  # far beyond 6 rad/s, and inconsistent with psi
+    with pytest.raises(DriveLogError, match="psi_dot"):
+        validate_drive_log(spin)
+    validate_drive_log(spin, check_units=False)
+    with DriveLogWriter(tmp_path / "spin.csv") as writer:
+        writer.append(spin)
+    assert len(read_drive_log(tmp_path / "spin.csv", check_units=False)) == len(spin)
