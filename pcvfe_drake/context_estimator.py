@@ -33,7 +33,7 @@ from pcvfe_drake.fit_dataset import (
     DEFAULT_HORIZON,
     DEFAULT_STRIDE,
     DEFAULT_V_MIN_MPS,
-    DEFAULT_X0_SMOOTHING,
+    DEFAULT_X0_SMOOTHING_S,
     build_windows,
 )
 from pcvfe_drake.fitting import (
@@ -193,7 +193,7 @@ class LiveFitConfig:
     """Settings of :class:`ContextEstimator`.
 
     Attributes:
-        horizon_steps, stride_steps, min_speed_mps, x0_smoothing: window building
+        horizon_steps, stride_steps, min_speed_mps, x0_smoothing_s: window building
             (``pcvfe_drake.fit_dataset.build_windows``).
         fit_stiffness: fit C_Sf, C_Sr too, with Gaussian priors of ``stiffness_prior_rel``
             times their nominal values (default: mu only).
@@ -211,7 +211,7 @@ class LiveFitConfig:
     horizon_steps: int = DEFAULT_HORIZON
     stride_steps: int = DEFAULT_STRIDE
     min_speed_mps: float = DEFAULT_V_MIN_MPS
-    x0_smoothing: int = DEFAULT_X0_SMOOTHING
+    x0_smoothing_s: float = DEFAULT_X0_SMOOTHING_S
     fit_stiffness: bool = False
     stiffness_prior_rel: float = 0.1
     prior_theta: tuple[float, float, float] | None = None
@@ -369,7 +369,7 @@ class ContextEstimator:
             stride=cfg.stride_steps,
             v_min=cfg.min_speed_mps,
             dt=cfg.sample_period_s,
-            x0_smoothing=cfg.x0_smoothing,
+            x0_smoothing_s=cfg.x0_smoothing_s,
         )
         data = split.by_context.get(0)
         n_windows = 0 if data is None else data.n_windows

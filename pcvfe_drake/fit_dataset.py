@@ -20,11 +20,11 @@ the rollout from the measured state is an errors-in-variables problem. The noise
 yaw rate and side slip decays at a rate that grows with mu, so the fit prefers a larger mu to
 shed it faster: with the noise model of ``pcvfe_drake.synthetic_drive`` and H = 10 this biases mu
 by +0.01 to +0.02. By default the initial steering angle, yaw rate and side slip of a window are
-therefore the mean of the ``2 m + 1`` samples centred on the start (``x0_smoothing = m = 3``,
-70 ms at 100 Hz), where those samples are finite, evenly spaced and in the same context (else the
-raw measurement is used). This removes the bias to within the scatter (measured: |mean error|
-<= 0.003) and costs at most ~0.002 on noise-free S-curve data. ``x0_smoothing=0`` gives eq. 5b
-exactly.
+therefore the mean of the ``2 m + 1`` samples centred on the start, with
+``m = round(x0_smoothing_s / dt)`` (default 0.03 s: m = 3, 7 samples at 100 Hz; m = 0 at 10 Hz),
+where those samples are finite, evenly spaced and in the same context (else the raw measurement
+is used). This removes the bias to within the scatter (measured: |mean error| <= 0.003) and costs
+at most ~0.002 on noise-free S-curve data. ``x0_smoothing_s=0`` gives eq. 5b exactly.
 
 State order is the project's (``pcvfe_drake.vehicle``): [sx, sy, delta, v, psi, psi_dot, beta];
 inputs are [steer_rate, accel].
@@ -54,8 +54,8 @@ DEFAULT_V_MIN_MPS = 1.0
 """Speed filter of eq. 6 [m/s]."""
 DEFAULT_DT_REL_TOL = 0.1
 """Allowed relative deviation of a time step from the nominal step."""
-DEFAULT_X0_SMOOTHING = 3
-"""Half-width [samples] of the mean that smooths a window's initial delta, psi_dot and beta."""
+DEFAULT_X0_SMOOTHING_S = 0.03
+"""Half-width [s] of the mean that smooths a window's initial delta, psi_dot and beta."""
 SMOOTHED_STATES = (DELTA, PSI_DOT, BETA)
 """States whose initial value is smoothed (see the module docstring)."""
 
@@ -222,7 +222,7 @@ def build_windows(
     v_min: float = DEFAULT_V_MIN_MPS,
     dt: float | None = None,
     dt_rel_tol: float = DEFAULT_DT_REL_TOL,
-    x0_smoothing: int = DEFAULT_X0_SMOOTHING,
+    x0_smoothing_s: float = DEFAULT_X0_SMOOTHING_S,
     default_label: Hashable = 0,
 ) -> WindowSplit:
     """Cut sample arrays into fitting windows per context (see the module docstring).
@@ -239,8 +239,9 @@ def build_windows(
         v_min: smallest speed allowed in a window [m/s] (eq. 6).
         dt: nominal step [s]; default the median step of ``t``.
         dt_rel_tol: allowed relative deviation of each step from ``dt``.
-        x0_smoothing: half-width m [samples] of the centred mean that gives the initial delta,
-            psi_dot and beta of each window (0 = the raw measurement, eq. 5b).
+        x0_smoothing_s: half-width [s] of the centred mean that gives the initial delta,
+            psi_dot and beta of each window (rounded to whole samples; 0 = the raw measurement,
+            eq. 5b).
         default_label: the label used when ``contexts`` is None.
     Raises:
         ValueError: bad shapes or arguments, or time stamps that do not increase.
@@ -254,8 +255,8 @@ def build_windows(
         raise ValueError(f"v_min must be finite, got {v_min!r}")
     if not (np.isfinite(dt_rel_tol) and dt_rel_tol >= 0):
         raise ValueError(f"dt_rel_tol must be >= 0, got {dt_rel_tol!r}")
-    if int(x0_smoothing) != x0_smoothing or x0_smoothing < 0:
-        raise ValueError(f"x0_smoothing must be an integer >= 0, got {x0_smoothing!r}")
+    if not (np.isfinite(x0_smoothing_s) and x0_smoothing_s >= 0):
+        raise ValueError(f"x0_smoothing_s must be >= 0 s, got {x0_smoothing_s!r}")
     t = np.asarray(t, dtype=float).reshape(-1)
     n = t.shape[0]
     states = np.asarray(states, dtype=float)
@@ -309,7 +310,8 @@ def build_windows(
             skipped_by_context[labels[c]][reason] = int(count)
         remaining &= ok
 
-    x0_all = _initial_states(states, starts, sample_ok, step_ok, codes, int(x0_smoothing))
+    half_width = int(round(x0_smoothing_s / dt))
+    x0_all = _initial_states(states, starts, sample_ok, step_ok, codes, half_width)
     by_context: dict[Hashable, WindowDataset] = {}
     for c, label in enumerate(labels):
         sel = np.flatnonzero(remaining & (code_w[:, 0] == c))
@@ -339,7 +341,7 @@ def windows_from_log(
     v_min: float = DEFAULT_V_MIN_MPS,
     dt: float | None = None,
     dt_rel_tol: float = DEFAULT_DT_REL_TOL,
-    x0_smoothing: int = DEFAULT_X0_SMOOTHING,
+    x0_smoothing_s: float = DEFAULT_X0_SMOOTHING_S,
     default_label: Hashable = "all",
 ) -> WindowSplit:
     """Fitting windows from a drive log (the format of ``pcvfe_drake.drivelog``).
@@ -381,6 +383,6 @@ def windows_from_log(
         v_min=v_min,
         dt=dt,
         dt_rel_tol=dt_rel_tol,
-        x0_smoothing=x0_smoothing,
+        x0_smoothing_s=x0_smoothing_s,
         default_label=default_label,
     )

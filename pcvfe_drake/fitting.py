@@ -65,6 +65,11 @@ MU_BOUNDS = (0.02, 2.0)
 STIFFNESS_REL_BOUNDS = (0.2, 5.0)
 """Range of the normalised cornering stiffnesses, relative to the vehicle's nominal values."""
 
+MAX_STEP_S = 0.01
+"""Longest RK4 step of a rollout [s]; longer data steps (e.g. a 10 Hz log) are integrated in equal
+substeps with the input held. The ST model is stiff at low speed (eigenvalues ~ -215 1/s at
+1 m/s for the Ford Escort): RK4 at 0.1 s would be unstable."""
+
 ADAM_LEARNING_RATE = 0.01
 """The paper's Adam learning rate."""
 ADAM_BATCH_SIZE = 1024
@@ -97,6 +102,7 @@ class FitOptions:
         coarse_windows: with at least 4x as many windows, first fit an evenly spaced subset of
             this many windows (to ``coarse_xtol``), then refine on all windows (None: off).
         coarse_xtol: the step tolerance of the coarse stage.
+        max_step_s: longest RK4 step of the rollouts [s] (see ``MAX_STEP_S``).
         min_windows: fewer windows than this: no fit, the starting theta is kept.
         cond_warn: condition number of the scaled information matrix above which a warning is
             raised.
@@ -114,6 +120,7 @@ class FitOptions:
     xtol: float = 1e-7
     coarse_windows: int | None = 64
     coarse_xtol: float = 1e-3
+    max_step_s: float = MAX_STEP_S
     min_windows: int = 20
     cond_warn: float = 1e8
     rel_std_warn: float = 0.5
@@ -142,6 +149,8 @@ class FitOptions:
             raise ValueError(f"state_scales must be 7 positive numbers, got {self.state_scales!r}")
         if self.max_iterations < 1:
             raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations!r}")
+        if not (math.isfinite(self.max_step_s) and self.max_step_s > 0):
+            raise ValueError(f"max_step_s must be > 0 s, got {self.max_step_s!r}")
         if self.min_windows < 1:
             raise ValueError(f"min_windows must be >= 1, got {self.min_windows!r}")
 
@@ -277,26 +286,35 @@ def window_residuals(
     params: VehicleParams,
     weights=None,
     jacobian: bool = False,
+    max_step_s: float = MAX_STEP_S,
 ):
     """Weighted residuals of the rollouts, and optionally their derivative w.r.t. theta.
 
     Returns ``R`` (B, H, 7) (see the module docstring), and with ``jacobian=True`` also
     ``J = dR/dtheta`` (B, H, 7, 3) from the exact rollout sensitivities. Rollouts that leave the
-    finite range give non-finite residuals instead of raising.
+    finite range give non-finite residuals instead of raising. A data step longer than
+    ``max_step_s`` is integrated in equal RK4 substeps (inputs held over the data step).
     """
     theta = _check_theta(theta, params)
     if weights is None:
         w = 1.0 / np.asarray(DEFAULT_STATE_SCALES, dtype=float)
     else:
         w = np.asarray(weights, dtype=float)
+    substeps = max(1, math.ceil(data.dt / max_step_s - 1e-9))
+    U = np.repeat(data.U, substeps, axis=1) if substeps > 1 else data.U
     try:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            out = rollout(data.x0, data.U, params, data.dt, theta=theta, sensitivities=jacobian)
+            out = rollout(
+                data.x0, U, params, data.dt / substeps, theta=theta, sensitivities=jacobian
+            )
     except ValueError:
         # rk4_step refuses non-finite intermediate states: the rollout diverged at this theta.
         R = np.full(data.X.shape, np.nan)
         return (R, np.full((*data.X.shape, NTHETA), np.nan)) if jacobian else R
     X, S = out if jacobian else (out, None)
+    if substeps > 1:
+        X = X[:, ::substeps]
+        S = None if S is None else S[:, ::substeps]
     E = X[:, 1:] - data.X
     E[..., PSI] = wrap_angle(E[..., PSI])
     R = E * w
@@ -305,17 +323,19 @@ def window_residuals(
     return R, S[:, 1:] * w[:, None]
 
 
-def window_loss(theta, data: WindowDataset, params: VehicleParams, weights=None) -> float:
+def window_loss(
+    theta, data: WindowDataset, params: VehicleParams, weights=None, max_step_s: float = MAX_STEP_S
+) -> float:
     """The loss (mean weighted squared error per window step) at ``theta``."""
-    R = window_residuals(theta, data, params, weights)
+    R = window_residuals(theta, data, params, weights, max_step_s=max_step_s)
     return float(np.sum(R * R) / max(data.n_windows * data.horizon, 1))
 
 
 def window_loss_and_gradient(
-    theta, data: WindowDataset, params: VehicleParams, weights=None
+    theta, data: WindowDataset, params: VehicleParams, weights=None, max_step_s: float = MAX_STEP_S
 ) -> tuple[float, np.ndarray]:
     """The loss and its exact gradient w.r.t. [mu, C_Sf, C_Sr] (through the rollout)."""
-    R, J = window_residuals(theta, data, params, weights, jacobian=True)
+    R, J = window_residuals(theta, data, params, weights, jacobian=True, max_step_s=max_step_s)
     count = max(data.n_windows * data.horizon, 1)
     loss = float(np.sum(R * R) / count)
     grad = 2.0 * np.einsum("bhs,bhsp->p", R, J) / count
@@ -472,7 +492,7 @@ def fit_gauss_newton(
     def objective(th, windows):
         # Trial points are evaluated with sensitivities: most steps are accepted, and then the
         # next iteration needs them (one rollout per iteration instead of two).
-        R_t, J_t = window_residuals(th, windows, params, weights, jacobian=True)
+        R_t, J_t = window_residuals(th, windows, params, weights, True, options.max_step_s)
         work[0] += windows.n_windows / data.n_windows
         with np.errstate(over="ignore", invalid="ignore"):
             value = float(np.sum(R_t * R_t)) + prior_ss(th)
@@ -488,7 +508,7 @@ def fit_gauss_newton(
     use_coarse = bool(coarse) and data.n_windows >= 4 * coarse
     if use_coarse:
         # The starting loss without sensitivities (they are needed only after the coarse stage).
-        R0 = window_residuals(theta, data, params, weights)
+        R0 = window_residuals(theta, data, params, weights, max_step_s=options.max_step_s)
         with np.errstate(over="ignore", invalid="ignore"):
             cost = float(np.sum(R0 * R0)) + prior_ss(theta)
         R = J = None
@@ -684,14 +704,14 @@ def fit_adam(
     work = 0.0
     for step in range(1, max_steps + 1):
         batch = data if full_batch else data.subset(rng.choice(n, batch_size, replace=False))
-        loss_b, grad = window_loss_and_gradient(theta, batch, params, weights)
+        loss_b, grad = window_loss_and_gradient(theta, batch, params, weights, options.max_step_s)
         work += batch.n_windows / n
         count = batch.n_windows * batch.horizon
         full = None
         if full_batch:
             full = loss_b
         elif step == 1 or step % check_every == 0:
-            full = window_loss(theta, data, params, weights)
+            full = window_loss(theta, data, params, weights, options.max_step_s)
         if full is not None:
             if step == 1:
                 loss_initial = full
@@ -719,11 +739,11 @@ def fit_adam(
             theta[free] - learning_rate * m_hat / (np.sqrt(v_hat) + eps), lower[free], upper[free]
         )
     if status == STATUS_MAX_ITERATIONS:
-        final = window_loss(theta, data, params, weights)
+        final = window_loss(theta, data, params, weights, options.max_step_s)
         if final < best_loss:
             best_theta, best_loss = theta.copy(), final
     theta = best_theta
-    R, J = window_residuals(theta, data, params, weights, jacobian=True)
+    R, J = window_residuals(theta, data, params, weights, True, options.max_step_s)
     std, cond, ill, warnings = _uncertainty(theta, R, J, options, params)
     loss = float(np.sum(R * R)) / (n * data.horizon)
     if not math.isfinite(loss):

@@ -75,6 +75,7 @@ def s_curve_drive(
     delta_amp_rad: float = 0.1,
     steer_freq_hz: float = 0.3,
     phase_rad=0.0,
+    hold_steps: int = 1,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Simulate S-curve drives of the ST model with friction ``mu`` (one drive per entry).
 
@@ -87,6 +88,9 @@ def s_curve_drive(
         delta_amp_rad: steering angle amplitude [rad].
         steer_freq_hz: steering frequency [Hz].
         phase_rad: steering phase per drive [rad], scalar or (D,).
+        hold_steps: the inputs are recomputed every ``hold_steps`` samples and held in between
+            (e.g. 10 with dt = 0.01 s: a 10 Hz controller, so that every 10th sample is an
+            exact 10 Hz log).
     Returns:
         ``(t (N,), states (D, N, 7), inputs (D, N, 2))`` with N = duration_s / dt + 1 samples;
         ``inputs[:, i]`` is held from ``t[i]`` to ``t[i+1]`` (the last row repeats the one before).
@@ -104,15 +108,20 @@ def s_curve_drive(
     x[:, DELTA] = delta_amp_rad * np.sin(phase)
     x[:, V] = speed_mps
     x[:, PSI] = 0.0
+    if int(hold_steps) != hold_steps or hold_steps < 1:
+        raise ValueError(f"hold_steps must be an integer >= 1, got {hold_steps!r}")
+    hold = dt * hold_steps
+    u = np.zeros((n_drives, 2))
     for i in range(n):
         states[:, i] = x
         tk = t[i]
-        # Steering rate that makes delta follow the sinusoid exactly over the step.
-        delta_next = delta_amp_rad * np.sin(omega * (tk + dt) + phase)
-        steer_rate = (delta_next - x[:, DELTA]) / dt
-        v_ref = speed_mps * (1.0 + 0.05 * np.sin(0.5 * omega * (tk + dt)))
-        accel = np.clip(2.0 * (v_ref - x[:, V]), -3.0, 3.0)
-        u = np.stack([steer_rate, accel], axis=1)
+        if i % hold_steps == 0:
+            # Steering rate that makes delta follow the sinusoid exactly over the hold.
+            delta_next = delta_amp_rad * np.sin(omega * (tk + hold) + phase)
+            steer_rate = (delta_next - x[:, DELTA]) / hold
+            v_ref = speed_mps * (1.0 + 0.05 * np.sin(0.5 * omega * (tk + hold)))
+            accel = np.clip(2.0 * (v_ref - x[:, V]), -3.0, 3.0)
+            u = np.stack([steer_rate, accel], axis=1)
         inputs[:, i] = u
         if i + 1 < n:
             x = rk4_step(x, u, params, dt, theta=theta)

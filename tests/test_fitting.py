@@ -79,7 +79,7 @@ def test_window_filter_counts_each_reason_like_a_plain_loop():
     contexts[150:200] = 1
     contexts[340:360] = -1  # noise
     split = build_windows(
-        t, states, inputs, contexts, horizon=10, stride=3, v_min=1.0, x0_smoothing=0
+        t, states, inputs, contexts, horizon=10, stride=3, v_min=1.0, x0_smoothing_s=0
     )
     expected, kept = _oracle_counts(t, states, inputs, contexts, 10, 3, 1.0, dt)
     assert split.skipped == expected
@@ -184,7 +184,7 @@ def test_raw_initial_state_is_biased_by_noise_and_smoothing_fixes_it(params, dri
     t, S, U = drives
     rng = np.random.default_rng(11)
     measured = MeasurementNoise().apply(S[3], rng)
-    raw_data = build_windows(t, measured, U[3], stride=10, x0_smoothing=0).by_context[0]
+    raw_data = build_windows(t, measured, U[3], stride=10, x0_smoothing_s=0).by_context[0]
     raw = fit_gauss_newton(raw_data, params)
     smooth = fit_gauss_newton(build_windows(t, measured, U[3], stride=10).by_context[0], params)
     assert raw.mu - 0.8 > 0.005
@@ -304,3 +304,16 @@ def test_estimator_keeps_prior_then_fits_then_survives_divergence(params, drives
     # Unknown contexts get the prior.
     np.testing.assert_array_equal(est.theta_for(-1), params.theta)
     np.testing.assert_array_equal(est.theta_for(99), params.theta)
+
+
+def test_a_10_hz_log_is_fitted_with_rk4_substeps(params):
+    """Logs slower than 100 Hz: rollouts take 10 ms RK4 substeps with the logged input held."""
+    t, S, U = s_curve_drive(params, [0.45], duration_s=10.0, hold_steps=10)
+    t10, S10, U10 = t[::10], S[0, ::10], U[0, ::10]
+    data = build_windows(t10, S10, U10, horizon=5, stride=1).by_context[0]
+    assert data.dt == pytest.approx(0.1)
+    result = fit_gauss_newton(data, params)
+    assert result.converged and abs(result.mu - 0.45) < 0.01, result.mu
+    # One 0.1 s RK4 step per sample instead: unstable/inaccurate, far off.
+    coarse = fit_gauss_newton(data, params, options=FitOptions(max_step_s=0.1))
+    assert coarse.loss > 100 * result.loss

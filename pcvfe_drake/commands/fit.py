@@ -12,7 +12,7 @@ from pcvfe_drake.fit_dataset import (
     DEFAULT_HORIZON,
     DEFAULT_STRIDE,
     DEFAULT_V_MIN_MPS,
-    DEFAULT_X0_SMOOTHING,
+    DEFAULT_X0_SMOOTHING_S,
     windows_from_log,
 )
 from pcvfe_drake.fitting import JOINT_PRIOR_REL_SIGMA, FitOptions, fit_contexts, joint_options
@@ -61,10 +61,10 @@ def register(subparsers) -> None:
         "--min-speed", type=float, default=DEFAULT_V_MIN_MPS, help="speed filter [m/s] (eq. 6)"
     )
     parser.add_argument(
-        "--x0-smoothing",
-        type=int,
-        default=DEFAULT_X0_SMOOTHING,
-        help="half-width [samples] of the initial-state smoothing (0 = raw, eq. 5b)",
+        "--x0-smoothing-s",
+        type=float,
+        default=DEFAULT_X0_SMOOTHING_S,
+        help="half-width [s] of the initial-state smoothing (0 = raw measurement, eq. 5b)",
     )
     parser.add_argument(
         "--solver",
@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
         horizon=args.horizon,
         stride=args.stride,
         v_min=args.min_speed,
-        x0_smoothing=args.x0_smoothing,
+        x0_smoothing_s=args.x0_smoothing_s,
     )
     if args.joint:
         options = joint_options(params, rel_sigma=args.prior_rel or None)
