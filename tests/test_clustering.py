@@ -229,3 +229,23 @@ def test_any_feature_dimension():
     assert len(clusterer.table().active_ids) == 4
     m = context_metrics(stream.t_s, stream.label, ids)
     assert m.n_contexts == 4
+
+
+def test_epsilon_decides_between_same_id_and_new_id():
+    stream = synthetic_feature_stream(n_laps=1, terrain_durations_s=(12.0, 12.0), seed=6)
+    tables = {}
+    for name, eps in (("tiny", 1e-9), ("default", None)):
+        clusterer = ContextClusterer(ClusteringParams(persistence_epsilon=eps))
+        for t, z in zip(stream.t_s, stream.z, strict=True):
+            clusterer.assign(z, t)
+        clusterer.recluster(25.0)
+        # The same data again: centroids move by (much) less than a cluster radius.
+        for t, z in zip(stream.t_s, stream.z, strict=True):
+            clusterer.assign(z, t + 30.0)
+        tables[name] = clusterer.recluster(55.0)
+    # Default epsilon: the two terrains keep ids 0 and 1.
+    assert tables["default"].ids == [0, 1] and tables["default"].active_ids == [0, 1]
+    # Epsilon below the centroid shift: fresh ids 2 and 3; 0 and 1 stay in the table, inactive.
+    tiny = tables["tiny"]
+    assert tiny.ids == [0, 1, 2, 3] and tiny.active_ids == [2, 3]
+    assert not tiny.record(0).active and tiny.record(0).size > 200
