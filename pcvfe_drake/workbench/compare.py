@@ -56,13 +56,8 @@ def noise_floor_mse(
     clean = model.simulate(theta, data, starts, horizon)
     sigma0 = data.sigma.copy()
     sigma0[2] /= np.sqrt(2 * max(1, int(round(INIT_HALF_WINDOW_S / data.dt))) + 1)
-    saved = data.x0
-    try:
-        data.x0 = saved.copy()
-        data.x0[starts] = saved[starts] + rng.standard_normal((starts.size, NX)) * sigma0
-        noisy = model.simulate(theta, data, starts, horizon)
-    finally:
-        data.x0 = saved
+    perturbed = data.x0[starts] + rng.standard_normal((starts.size, NX)) * sigma0
+    noisy = model.simulate(theta, data, starts, horizon, x0=perturbed)
     idx = list(FIT_STATES)
     d = (noisy[:, 1:, idx] - clean[:, 1:, idx]) / data.sigma[idx]
     return float(np.mean(d**2) + 1.0)

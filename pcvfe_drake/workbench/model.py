@@ -251,6 +251,7 @@ class WorkbenchModel:
         starts: np.ndarray,
         horizon: int,
         ctx_rows: np.ndarray | None = None,
+        x0: np.ndarray | None = None,
     ) -> np.ndarray:
         """Roll out windows of ``horizon`` steps from the measured states at ``starts``.
 
@@ -260,6 +261,7 @@ class WorkbenchModel:
             starts: window start samples (N,).
             horizon: steps per window.
             ctx_rows: context index per window (default: the context at the start).
+            x0: initial ST states (N, 7) (default: ``data.x0[starts]``, the measurements).
         Returns:
             Z (N, horizon + 1, nz): RK4 with the inputs held over each sample step.
         """
@@ -271,7 +273,7 @@ class WorkbenchModel:
         base, eff = self._unpack(theta_rows, ctx_rows)
         idx = starts[:, None] + np.arange(horizon)[None, :]
         U = data.u[idx]
-        parts = [data.x0[starts]]
+        parts = [data.x0[starts] if x0 is None else np.asarray(x0, dtype=float)]
         for e in self.effects:
             U = e.inputs(U, data, starts, eff[e.name])
             if e.n_states:

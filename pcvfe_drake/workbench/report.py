@@ -179,6 +179,24 @@ def _html(report: dict, pngs: list[str], folder: Path) -> str:
     ranked = [
         {**r, "signature": r.get("signature", {}).get("text", "")} for r in report["ranked_effects"]
     ]
+    tables = ""
+    sections = [("baseline", base["residuals"])]
+    if "added" in report:
+        sections.append(
+            ("+ " + " + ".join(report["added"]["effects"]), report["added"]["residuals"])
+        )
+    for title, res in sections:
+        white = [
+            {"state": k, "fraction of lags outside 99% band": v["fraction_outside_band"]}
+            for k, v in res["whiteness"]["states"].items()
+        ]
+        tables += f"<h3>Residual whiteness, {html.escape(title)}</h3>"
+        tables += _table(white, ["state", "fraction of lags outside 99% band"])
+        for key, rows in res["breakdowns"].items():
+            tables += (
+                f"<h4>{html.escape(title)}: whitened multi-step RMS by {html.escape(key)}</h4>"
+            )
+            tables += _table(rows, ["bin", "n", "rms"])
     added = ""
     if "added" in report:
         a = report["added"]
@@ -208,7 +226,8 @@ td,th{{border:1px solid #ccc;padding:3px 6px;font-size:13px}}img{{max-width:100%
         )
     }
 {added}
-<h2>Plots</h2>{imgs}</body></html>"""
+<h2>Plots</h2>{imgs}
+<h2>Where the model fails</h2>{tables}</body></html>"""
 
 
 def write_report(report: dict, wb: Workbench, out_dir: str | Path) -> Path:
