@@ -185,23 +185,27 @@ def figure_contexts_map(
     return path
 
 
+def _plot_mu(ax, log: pd.DataFrame) -> None:
+    """Estimate and truth over time on ``ax``, the background shaded by the reported context."""
+    t = log["t"].to_numpy(float)
+    _shade_contexts(ax, t, log["context"].to_numpy(int))
+    ax.step(t, log["mu_true"], where="post", color=TRUTH_COLOR, lw=1.8, label="true mu")
+    ax.step(t, log["mu_hat"], where="post", color=ESTIMATE_COLOR, lw=1.8, label="PC-VFE estimate")
+    ax.set_ylabel("friction coefficient mu [-]")
+    ax.set_xlim(t[0], t[-1])
+    top = np.nanmax(np.concatenate([log["mu_true"], log["mu_hat"]]))
+    ax.set_ylim(0.0, max(1.0, 1.1 * top))
+
+
 def figure_mu_over_time(
     log: pd.DataFrame, path: str | Path, *, summary: Mapping[str, Any] | None = None
 ) -> Path:
     """Paper Fig. 5: friction estimate vs truth over time, shaded by the detected context."""
     path = Path(path)
-    t = log["t"].to_numpy(float)
-    ctx = log["context"].to_numpy(int)
     fig, ax = plt.subplots(figsize=(11, 4), constrained_layout=True)
-    _shade_contexts(ax, t, ctx)
-    ax.step(t, log["mu_true"], where="post", color=TRUTH_COLOR, lw=1.8, label="true mu")
-    ax.step(t, log["mu_hat"], where="post", color=ESTIMATE_COLOR, lw=1.8, label="PC-VFE estimate")
+    _plot_mu(ax, log)
     ax.set_xlabel("time [s]")
-    ax.set_ylabel("friction coefficient mu [-]")
-    ax.set_xlim(t[0], t[-1])
-    top = np.nanmax(np.concatenate([log["mu_true"], log["mu_hat"]]))
-    ax.set_ylim(0.0, max(1.0, 1.1 * top))
-    ids = sorted(set(ctx.tolist()))
+    ids = sorted(set(log["context"].astype(int).tolist()))
     handles = ax.get_legend_handles_labels()[0] + _context_legend(ids, _majority_names(summary))
     ax.legend(handles=handles, loc="upper left", fontsize=8, ncol=2)
     ax.set_title("Friction estimate vs truth; background: detected context")
@@ -217,14 +221,14 @@ def figure_reidentification(
     summary: Mapping[str, Any],
     window_s: float = 6.0,
 ) -> Path | None:
-    """Paper Fig. 7: zoom on the first re-identification with a finite latency (None if the run
-    has none)."""
+    """Paper Fig. 7: zoom on the re-identification with the longest finite latency (None if the
+    run has none)."""
     entries = [
         e for e in summary.get("reidentification_latency_s", []) if e["latency_s"] is not None
     ]
     if not entries:
         return None
-    e = entries[0]
+    e = max(entries, key=lambda entry: entry["latency_s"])
     path = Path(path)
     t_enter = float(e["t_enter_s"])
     t_id = t_enter + float(e["latency_s"])
@@ -235,9 +239,7 @@ def figure_reidentification(
     fig, (ax_mu, ax_id) = plt.subplots(
         2, 1, figsize=(9, 5), sharex=True, height_ratios=[3, 1], constrained_layout=True
     )
-    _shade_contexts(ax_mu, tt, part["context"].to_numpy(int))
-    ax_mu.step(tt, part["mu_true"], where="post", color=TRUTH_COLOR, lw=1.8, label="true mu")
-    ax_mu.step(tt, part["mu_hat"], where="post", color=ESTIMATE_COLOR, lw=1.8, label="estimate")
+    _plot_mu(ax_mu, part)
     for ax in (ax_mu, ax_id):
         ax.axvline(t_enter, color="k", ls="--", lw=1)
         ax.axvline(t_id, color="k", ls="-", lw=1)
@@ -248,12 +250,11 @@ def figure_reidentification(
         fontsize=10,
         arrowprops={"arrowstyle": "->"},
     )
-    ax_mu.set_ylabel("mu [-]")
-    ax_mu.set_ylim(0, 1.0)
     ax_mu.legend(loc="upper left", fontsize=8)
     ax_mu.set_title(
-        f"Re-identification of {e['terrain']}: entered at {t_enter:.1f} s (dashed), "
-        f"id reported at {t_id:.1f} s (solid)"
+        f"Re-identification of {e['terrain']}: entered at {t_enter:.1f} s (dashed), id reported "
+        f"at {t_id:.1f} s (solid); longest of {len(entries)} re-identification(s)",
+        fontsize=10,
     )
     ax_id.step(tt, part["context"], where="post", color="k")
     ax_id.set_ylabel("context id")

@@ -73,16 +73,22 @@ def course():
     return load_course("slalom")
 
 
-def test_summary_recovers_planted_values(course):
-    log = planted_log(course)
-    s = summarize_run(
+def summarize(log: pd.DataFrame, course, **kw) -> dict:
+    """summarize_run with the planted terrains, the strip excluded."""
+    kw.setdefault("wall_time_s", 1.0)
+    return summarize_run(
         log,
         scenario="synthetic",
-        wall_time_s=10.0,
         terrain_mu=TERRAIN_MU,
         excluded_terrains=["strip"],
         course=course,
+        **kw,
     )
+
+
+def test_summary_recovers_planted_values(course):
+    log = planted_log(course)
+    s = summarize(log, course, wall_time_s=10.0)
     assert s["laps_completed"] == 1
     assert s["lap_time_s"] == pytest.approx(course.length / 5.0, abs=0.15)
     assert s["catastrophic_failures"] == 0
@@ -121,14 +127,7 @@ def test_missed_reidentification_and_failures_are_counted(course):
         sel = (log["t"] >= t0) & (log["t"] < t0 + 1.0)
         log.loc[sel, "sy"] += 5.0 * np.sign(np.cos(log.loc[sel, "psi"]) + 1e-9)
     log.loc[(log["t"] >= 60.0) & (log["t"] < 60.5), "beta"] = 1.0
-    s = summarize_run(
-        log,
-        scenario="synthetic",
-        wall_time_s=1.0,
-        terrain_mu=TERRAIN_MU,
-        excluded_terrains=["strip"],
-        course=course,
-    )
+    s = summarize(log, course, wall_time_s=1.0)
     assert s["reidentification_latency_s"][0]["latency_s"] is None
     assert s["reidentifications_missed"] == 1
     assert s["catastrophic_failures"] == 3
@@ -140,16 +139,7 @@ def test_nan_state_is_a_failure_and_estimate_table_wins(course):
     log = planted_log(course, laps=0.5)
     log.loc[100:, ["sx", "sy", "v", "psi", "beta"]] = np.nan
     table = [{"id": 0, "mu": 0.31, "mu_std": 0.004, "samples": 1234}]
-    s = summarize_run(
-        log,
-        scenario="synthetic",
-        wall_time_s=1.0,
-        terrain_mu=TERRAIN_MU,
-        excluded_terrains=["strip"],
-        course=course,
-        estimate_table=table,
-        interrupted=True,
-    )
+    s = summarize(log, course, wall_time_s=1.0, estimate_table=table, interrupted=True)
     assert s["catastrophic_failures"] == 1
     assert s["interrupted"] is True
     e0 = next(e for e in s["mu_estimates"] if e["id"] == 0)
@@ -188,14 +178,7 @@ def test_figures_are_written(tmp_path, course):
         else:
             images.append("")
     log["image"] = images
-    s = summarize_run(
-        log,
-        scenario="synthetic",
-        wall_time_s=1.0,
-        terrain_mu=TERRAIN_MU,
-        excluded_terrains=["strip"],
-        course=course,
-    )
+    s = summarize(log, course, wall_time_s=1.0)
     map_image = np.full((120, 180, 3), 200, np.uint8)
     out = write_figures(
         log,
@@ -216,13 +199,6 @@ def test_final_clustering_scores(course):
     log = planted_log(course)
     ids = {"a": 0, "b": 1, "c": 2, "strip": -1}
     log["final_context"] = [ids[n] for n in log["terrain"]]
-    s = summarize_run(
-        log,
-        scenario="synthetic",
-        wall_time_s=1.0,
-        terrain_mu=TERRAIN_MU,
-        excluded_terrains=["strip"],
-        course=course,
-    )
+    s = summarize(log, course, wall_time_s=1.0)
     assert s["final_clustering"] == {"ari": 1.0, "noise_fraction": 0.0, "contexts": 3}
     assert s["ari"] < 1.0  # the online ids had noise at every entry
