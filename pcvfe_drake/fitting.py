@@ -205,7 +205,9 @@ class FitResult:
         loss: final mean weighted squared error per window step (see module docstring).
         loss_initial: the same at the starting theta.
         n_windows: windows used.
-        windows_skipped: reason -> skipped candidate windows (see ``fit_dataset.SKIP_REASONS``).
+        windows_skipped: reason -> skipped candidate windows attributed to this context (see
+            ``fit_dataset.SKIP_REASONS``); filled by :func:`fit_contexts`, zeros when a solver is
+            called on a dataset directly.
         converged: the solver met its convergence test (or the target loss).
         status: one of "converged", "target_reached", "max_iterations", "diverged",
             "too_little_data".
