@@ -455,6 +455,52 @@ def _no_fit_result(
     )
 
 
+def _final_result(
+    theta: np.ndarray,
+    R: np.ndarray,
+    J: np.ndarray,
+    data: WindowDataset,
+    params: VehicleParams,
+    options: FitOptions,
+    solver: str,
+    status: str,
+    success_status: str,
+    iterations: int,
+    loss_initial: float,
+    start_time: float,
+    rollouts: float,
+    note: str | None,
+) -> FitResult:
+    """The FitResult at the final theta (residuals R and Jacobian J evaluated there)."""
+    std, cond, ill, warnings = _uncertainty(theta, R, J, options, params)
+    loss = float(np.sum(R * R)) / (data.n_windows * data.horizon)
+    if not (math.isfinite(loss) and np.all(np.isfinite(theta))):
+        status = STATUS_DIVERGED
+    if note:
+        warnings.append(note)
+    if status == STATUS_DIVERGED:
+        warnings.append(f"{solver} diverged (non-finite loss); the best finite iterate is returned")
+    return FitResult(
+        theta=theta,
+        std=std,
+        loss=loss,
+        loss_initial=loss_initial,
+        n_windows=data.n_windows,
+        windows_skipped=dict.fromkeys(SKIP_REASONS, 0),
+        converged=status == success_status,
+        status=status,
+        iterations=iterations,
+        warnings=warnings,
+        free=options.free,
+        solver=solver,
+        condition_number=cond,
+        ill_conditioned=ill,
+        elapsed_s=time.perf_counter() - start_time,
+        residual_rms=_residual_rms(R, options.weights),
+        rollouts=rollouts,
+    )
+
+
 # --------------------------------------------------------------------------------------------
 # Solvers
 
@@ -614,30 +660,25 @@ def fit_gauss_newton(
     )
     iterations += fine_iterations
 
-    std, cond, ill, warnings = _uncertainty(theta, R, J, options, params)
-    loss = float(np.sum(R * R)) / count
-    if not (math.isfinite(loss) and np.all(np.isfinite(theta))):
-        status = STATUS_DIVERGED
     if status == STATUS_MAX_ITERATIONS:
-        warnings.append(f"stopped after {iterations} iterations before convergence")
-    return FitResult(
-        theta=theta,
-        std=std,
-        loss=loss,
-        loss_initial=loss_initial,
-        n_windows=data.n_windows,
-        windows_skipped=dict.fromkeys(SKIP_REASONS, 0),
-        converged=status == STATUS_CONVERGED,
-        status=status,
-        iterations=iterations,
-        warnings=warnings,
-        free=options.free,
-        solver="gauss_newton",
-        condition_number=cond,
-        ill_conditioned=ill,
-        elapsed_s=time.perf_counter() - start_time,
-        residual_rms=_residual_rms(R, weights),
-        rollouts=work[0],
+        note = f"stopped after {iterations} iterations before convergence"
+    else:
+        note = None
+    return _final_result(
+        theta,
+        R,
+        J,
+        data,
+        params,
+        options,
+        "gauss_newton",
+        status,
+        STATUS_CONVERGED,
+        iterations,
+        loss_initial,
+        start_time,
+        work[0],
+        note,
     )
 
 
@@ -746,30 +787,21 @@ def fit_adam(
             best_theta, best_loss = theta.copy(), final
     theta = best_theta
     R, J = window_residuals(theta, data, params, weights, True, options.max_step_s)
-    std, cond, ill, warnings = _uncertainty(theta, R, J, options, params)
-    loss = float(np.sum(R * R)) / (n * data.horizon)
-    if not math.isfinite(loss):
-        status = STATUS_DIVERGED
-    if status == STATUS_DIVERGED:
-        warnings.append("Adam diverged (non-finite loss); the best finite iterate is returned")
-    return FitResult(
-        theta=theta,
-        std=std,
-        loss=loss,
-        loss_initial=loss_initial,
-        n_windows=n,
-        windows_skipped=dict.fromkeys(SKIP_REASONS, 0),
-        converged=status == STATUS_TARGET_REACHED,
-        status=status,
-        iterations=steps,
-        warnings=warnings,
-        free=options.free,
-        solver="adam",
-        condition_number=cond,
-        ill_conditioned=ill,
-        elapsed_s=time.perf_counter() - start_time,
-        residual_rms=_residual_rms(R, weights),
-        rollouts=work,
+    return _final_result(
+        theta,
+        R,
+        J,
+        data,
+        params,
+        options,
+        "adam",
+        status,
+        STATUS_TARGET_REACHED,
+        steps,
+        loss_initial,
+        start_time,
+        work,
+        None,
     )
 
 
