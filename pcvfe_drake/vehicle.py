@@ -35,6 +35,8 @@ shapes. Jacobians are analytic (exact almost everywhere; the input constraints a
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from pcvfe_drake.params import VehicleParams
@@ -70,9 +72,27 @@ def _as_batch(x, u, theta, params: VehicleParams):
     n = max(x2.shape[0], u2.shape[0])
     x2 = np.broadcast_to(x2, (n, NX))
     u2 = np.broadcast_to(u2, (n, NU))
-    th = params.theta if theta is None else np.asarray(theta, dtype=float)
-    th = np.broadcast_to(np.atleast_2d(th), (n, NTHETA))
+    th = np.atleast_2d(params.theta if theta is None else np.asarray(theta, dtype=float))
+    if th.shape[-1] != NTHETA or th.shape[0] not in (1, n):
+        raise ValueError(f"theta must have shape (3,) or ({n}, 3), got {th.shape}")
     return x2, u2, th, single
+
+
+def _constrained(delta, v, u0, u1, p: VehicleParams, derivatives: bool):
+    """Constrained (steer, acc) from 1-D arrays, and their derivatives when asked."""
+    steer_stop = ((delta <= p.delta_min) & (u0 <= 0)) | ((delta >= p.delta_max) & (u0 >= 0))
+    steer = np.where(steer_stop, 0.0, np.clip(u0, p.delta_dot_min, p.delta_dot_max))
+    pos_limit = p.a_max * p.v_switch / np.maximum(v, p.v_switch)
+    acc_stop = ((v <= p.v_min) & (u1 <= 0)) | ((v >= p.v_max) & (u1 >= 0))
+    acc = np.where(acc_stop, 0.0, np.minimum(np.maximum(u1, -p.a_max), pos_limit))
+    if not derivatives:
+        return steer, acc, None, None, None
+    d_steer = np.where(steer_stop | (u0 <= p.delta_dot_min) | (u0 >= p.delta_dot_max), 0.0, 1.0)
+    acc_low = ~acc_stop & (u1 <= -p.a_max)
+    acc_high = ~acc_stop & ~acc_low & (u1 >= pos_limit)
+    d_acc_du1 = np.where(acc_stop | acc_low | acc_high, 0.0, 1.0)
+    d_acc_dv = np.where(acc_high & (v > p.v_switch), -pos_limit / np.maximum(v, p.v_switch), 0.0)
+    return steer, acc, d_steer, d_acc_du1, d_acc_dv
 
 
 def constrain_inputs(x, u, params: VehicleParams):
@@ -82,28 +102,11 @@ def constrain_inputs(x, u, params: VehicleParams):
     derivatives of the constrained steering rate w.r.t. the command, and of the constrained
     acceleration w.r.t. the command and w.r.t. the speed (each (N,)).
     """
-    p = params
-    delta = x[:, DELTA]
-    v = x[:, V]
-    u0 = u[:, 0]
-    u1 = u[:, 1]
-
-    steer_stop = ((delta <= p.delta_min) & (u0 <= 0)) | ((delta >= p.delta_max) & (u0 >= 0))
-    steer_low = ~steer_stop & (u0 <= p.delta_dot_min)
-    steer_high = ~steer_stop & ~steer_low & (u0 >= p.delta_dot_max)
-    steer = np.where(steer_stop, 0.0, np.clip(u0, p.delta_dot_min, p.delta_dot_max))
-    d_steer = np.where(steer_stop | steer_low | steer_high, 0.0, 1.0)
-
-    above = v > p.v_switch
-    v_safe = np.where(above, v, 1.0)
-    pos_limit = np.where(above, p.a_max * p.v_switch / v_safe, p.a_max)
-    d_pos_limit_dv = np.where(above, -p.a_max * p.v_switch / v_safe**2, 0.0)
-    acc_stop = ((v <= p.v_min) & (u1 <= 0)) | ((v >= p.v_max) & (u1 >= 0))
-    acc_low = ~acc_stop & (u1 <= -p.a_max)
-    acc_high = ~acc_stop & ~acc_low & (u1 >= pos_limit)
-    acc = np.where(acc_stop, 0.0, np.where(acc_low, -p.a_max, np.where(acc_high, pos_limit, u1)))
-    d_acc_du1 = np.where(acc_stop | acc_low | acc_high, 0.0, 1.0)
-    d_acc_dv = np.where(acc_high, d_pos_limit_dv, 0.0)
+    x = np.atleast_2d(np.asarray(x, dtype=float))
+    u = np.atleast_2d(np.asarray(u, dtype=float))
+    steer, acc, d_steer, d_acc_du1, d_acc_dv = _constrained(
+        x[:, DELTA], x[:, V], u[:, 0], u[:, 1], params, derivatives=True
+    )
     return np.stack([steer, acc], axis=1), d_steer, d_acc_du1, d_acc_dv
 
 
@@ -122,16 +125,16 @@ def _evaluate(x, u, params: VehicleParams, theta, with_jacobians: bool):
     g, m, iz, lf, lr, h = p.g, p.m, p.I_z, p.lf, p.lr, p.h
     wheelbase = lf + lr
     n = x.shape[0]
-    u_eff, d_steer, d_acc_du1, d_acc_dv = constrain_inputs(x, u, p)
-    steer, acc = u_eff[:, 0], u_eff[:, 1]
-
-    delta, v, psi, r, beta = x[:, DELTA], x[:, V], x[:, PSI], x[:, PSI_DOT], x[:, BETA]
+    xt = np.ascontiguousarray(x.T)  # one row per state entry: contiguous element-wise ops
+    delta, v, psi, r, beta = xt[DELTA], xt[V], xt[PSI], xt[PSI_DOT], xt[BETA]
+    ut = np.ascontiguousarray(u.T)
+    steer, acc, d_steer, d_acc_du1, d_acc_dv = _constrained(
+        delta, v, ut[0], ut[1], p, with_jacobians
+    )
     mu, c_sf, c_sr = theta[:, 0], theta[:, 1], theta[:, 2]
-    w, dw = _blend_weight(v)
 
     # Dynamic ST model, evaluated at a speed bounded away from zero.
     vd = np.maximum(v, V_BLEND_LO)
-    dvd_dv = (v > V_BLEND_LO).astype(float)
     gf = g * lr - acc * h
     gr = g * lf + acc * h
     ff = c_sf * gf
@@ -146,33 +149,46 @@ def _evaluate(x, u, params: VehicleParams, theta, with_jacobians: bool):
     cos_dyn = np.cos(psi + beta)
     sin_dyn = np.sin(psi + beta)
 
-    # Kinematic single-track model at the centre of gravity.
-    c = lr / wheelbase
-    t = np.tan(delta)
-    sec2 = 1.0 + t * t
-    q = 1.0 + c * c * t * t
-    beta_k = np.arctan(c * t)
-    gk = t / np.sqrt(q)  # cos(beta_k) tan(delta)
-    gk_t = q**-1.5  # d gk / d tan(delta)
-    psi_dot_k = v * gk / wheelbase
-    slip_rate_k = c * sec2 / q  # d beta_k / d delta
-    d_beta_kin = slip_rate_k * steer
-    dd_psi_kin = (acc * gk + v * gk_t * sec2 * steer) / wheelbase
-    cos_kin = np.cos(psi + beta_k)
-    sin_kin = np.sin(psi + beta_k)
+    # Kinematic single-track model at the centre of gravity; skipped when every speed is in the
+    # purely dynamic range (the common case for fitting and control).
+    kinematic = bool(np.any(v < V_BLEND_HI))
+    if kinematic or with_jacobians:
+        w, dw = _blend_weight(v)
+    if kinematic:
+        c = lr / wheelbase
+        t = np.tan(delta)
+        sec2 = 1.0 + t * t
+        q = 1.0 + c * c * t * t
+        beta_k = np.arctan(c * t)
+        gk = t / np.sqrt(q)  # cos(beta_k) tan(delta)
+        gk_t = q**-1.5  # d gk / d tan(delta)
+        psi_dot_k = v * gk / wheelbase
+        slip_rate_k = c * sec2 / q  # d beta_k / d delta
+        d_beta_kin = slip_rate_k * steer
+        dd_psi_kin = (acc * gk + v * gk_t * sec2 * steer) / wheelbase
+        cos_kin = np.cos(psi + beta_k)
+        sin_kin = np.sin(psi + beta_k)
 
-    wk = 1.0 - w
     f = np.empty((n, NX))
-    f[:, SX] = v * (w * cos_dyn + wk * cos_kin)
-    f[:, SY] = v * (w * sin_dyn + wk * sin_kin)
     f[:, DELTA] = steer
     f[:, V] = acc
-    f[:, PSI] = w * r + wk * psi_dot_k
-    f[:, PSI_DOT] = w * dd_psi_dyn + wk * dd_psi_kin
-    f[:, BETA] = w * d_beta_dyn + wk * d_beta_kin
+    if kinematic:
+        wk = 1.0 - w
+        f[:, SX] = v * (w * cos_dyn + wk * cos_kin)
+        f[:, SY] = v * (w * sin_dyn + wk * sin_kin)
+        f[:, PSI] = w * r + wk * psi_dot_k
+        f[:, PSI_DOT] = w * dd_psi_dyn + wk * dd_psi_kin
+        f[:, BETA] = w * d_beta_dyn + wk * d_beta_kin
+    else:
+        f[:, SX] = v * cos_dyn
+        f[:, SY] = v * sin_dyn
+        f[:, PSI] = r
+        f[:, PSI_DOT] = dd_psi_dyn
+        f[:, BETA] = d_beta_dyn
     if not with_jacobians:
         return f, None, None, None
 
+    dvd_dv = (v > V_BLEND_LO).astype(float)
     A = np.zeros((n, NX, NX))
     B = np.zeros((n, NX, NU))
     P = np.zeros((n, NX, NTHETA))
@@ -208,6 +224,14 @@ def _evaluate(x, u, params: VehicleParams, theta, with_jacobians: bool):
         "c_sf": k_slip * (gf * delta - gf * beta - lf * gf * r / vd),
         "c_sr": k_slip * (-gr * beta + lr * gr * r / vd),
     }
+
+    if not kinematic:
+        # w = 1 and dw = 0 everywhere: the kinematic terms below vanish; give them neutral values.
+        zeros = np.zeros(n)
+        c, t, sec2, q, gk, gk_t = 0.0, zeros, zeros, np.ones(n), zeros, zeros
+        slip_rate_k = psi_dot_k = d_beta_kin = dd_psi_kin = zeros
+        cos_kin = sin_kin = zeros
+    wk = 1.0 - w
 
     # --- derivatives of the kinematic parts w.r.t. delta
     dslip_rate_k_dt = 2.0 * c * t * (1.0 - c * c) / q**2
@@ -273,6 +297,60 @@ def _check_finite(x, u, theta):
             )
 
 
+_BLOCK = 4096
+"""Batches are evaluated in blocks of this many states so the temporaries stay in cache."""
+
+
+def _in_blocks(x2, u2, th, params, with_jacobians):
+    n = x2.shape[0]
+    if n <= _BLOCK:
+        return _evaluate(x2, u2, params, th, with_jacobians)
+    outputs = [np.empty((n, NX))]
+    if with_jacobians:
+        outputs += [np.empty((n, NX, NX)), np.empty((n, NX, NU)), np.empty((n, NX, NTHETA))]
+    for start in range(0, n, _BLOCK):
+        block = slice(start, start + _BLOCK)
+        th_block = th if th.shape[0] == 1 else th[block]
+        parts = _evaluate(x2[block], u2[block], params, th_block, with_jacobians)
+        for out, part in zip(outputs, parts, strict=False):
+            out[block] = part
+    return tuple(outputs) + (None,) * (4 - len(outputs))
+
+
+def _st_dynamics_single(x, u, p: VehicleParams) -> np.ndarray:
+    """Scalar evaluation of one state in the purely dynamic range (v >= V_BLEND_HI).
+
+    The same equations as ``_evaluate`` written with ``math`` for the per-step cost of a
+    simulated plant (a numpy call per entry would cost ~100x more for one state).
+    """
+    sx_, sy_, delta, v, psi, r, beta = (float(e) for e in x)
+    u0, u1 = float(u[0]), float(u[1])
+    if (delta <= p.delta_min and u0 <= 0) or (delta >= p.delta_max and u0 >= 0):
+        steer = 0.0
+    else:
+        steer = min(max(u0, p.delta_dot_min), p.delta_dot_max)
+    pos_limit = p.a_max * p.v_switch / v if v > p.v_switch else p.a_max
+    if (v <= p.v_min and u1 <= 0) or (v >= p.v_max and u1 >= 0):
+        acc = 0.0
+    else:
+        acc = min(max(u1, -p.a_max), pos_limit)
+    g, lf, lr, h = p.g, p.lf, p.lr, p.h
+    wheelbase = lf + lr
+    ff = p.C_Sf * (g * lr - acc * h)
+    fr = p.C_Sr * (g * lf + acc * h)
+    moment = lr * fr - lf * ff
+    dd_psi = (
+        p.mu
+        * p.m
+        / (p.I_z * wheelbase)
+        * (lf * ff * delta + moment * beta - (lf * lf * ff + lr * lr * fr) * r / v)
+    )
+    d_beta = p.mu / (v * wheelbase) * (ff * delta - (fr + ff) * beta + moment * r / v) - r
+    return np.array(
+        [v * math.cos(psi + beta), v * math.sin(psi + beta), steer, acc, r, dd_psi, d_beta]
+    )
+
+
 def st_dynamics(x, u, params: VehicleParams, theta=None) -> np.ndarray:
     """Time derivative of the ST state (see module docstring for orders and units).
 
@@ -284,9 +362,20 @@ def st_dynamics(x, u, params: VehicleParams, theta=None) -> np.ndarray:
     Raises:
         ValueError: on non-finite inputs or wrong shapes.
     """
+    x = np.asarray(x, dtype=float)
+    u = np.asarray(u, dtype=float)
+    if (
+        theta is None
+        and x.shape == (NX,)
+        and u.shape == (NU,)
+        and x[V] >= V_BLEND_HI
+        and all(math.isfinite(e) for e in x)
+        and all(math.isfinite(e) for e in u)
+    ):
+        return _st_dynamics_single(x, u, params)
     x2, u2, th, single = _as_batch(x, u, theta, params)
     _check_finite(x2, u2, th)
-    f, _, _, _ = _evaluate(x2, u2, params, th, with_jacobians=False)
+    f = _in_blocks(x2, u2, th, params, with_jacobians=False)[0]
     return f[0] if single else f
 
 
@@ -299,7 +388,7 @@ def st_jacobians(x, u, params: VehicleParams, theta=None):
     """
     x2, u2, th, single = _as_batch(x, u, theta, params)
     _check_finite(x2, u2, th)
-    f, A, B, P = _evaluate(x2, u2, params, th, with_jacobians=True)
+    f, A, B, P = _in_blocks(x2, u2, th, params, with_jacobians=True)
     if single:
         return f[0], A[0], B[0], P[0]
     return f, A, B, P

@@ -261,3 +261,14 @@ def test_wrap_angle():
     assert np.all(w <= np.pi) and np.all(w > -np.pi)
     np.testing.assert_allclose(np.sin(w), np.sin(a), atol=1e-12)
     np.testing.assert_allclose(np.cos(w), np.cos(a), atol=1e-12)
+
+
+def test_single_state_path_equals_batch():
+    """One state goes through a scalar fast path (the plant's per-step call); same numbers."""
+    params = ford_escort()
+    rng = np.random.default_rng(5)
+    x, u = random_states(rng, 300, v_low=-1.0, v_high=45.0)
+    batch = st.st_dynamics(x, u, params)
+    single = np.array([st.st_dynamics(x[i], u[i], params) for i in range(len(x))])
+    np.testing.assert_allclose(single, batch, rtol=1e-12, atol=1e-12)
+    assert batch.shape == (300, 7)
