@@ -52,13 +52,23 @@ class FitResult:
     n_iter: int
     converged: bool
     history: list[float] = field(default_factory=list)
+    informed: np.ndarray | None = None
 
     def params_dict(self, only_effects: bool = False) -> dict:
+        """{name: {value, std, unit, informed}}; ``informed`` is False for a parameter the
+        training windows carry no information on (e.g. the friction of a context that no
+        training window visits): it keeps its starting value."""
         out = {}
-        for p, value, s in zip(self.model.params, self.theta, self.std, strict=True):
+        informed = np.ones(self.theta.size, bool) if self.informed is None else self.informed
+        for p, value, s, inf in zip(self.model.params, self.theta, self.std, informed, strict=True):
             if only_effects and p.effect is None:
                 continue
-            out[p.name] = {"value": float(value), "std": float(s), "unit": p.unit}
+            out[p.name] = {
+                "value": float(value),
+                "std": float(s),
+                "unit": p.unit,
+                "informed": bool(inf),
+            }
         return out
 
 
@@ -200,7 +210,7 @@ def fit(
     n_eff = max(starts.size / max(overlap, 1.0) * len(FIT_STATES), model.n_params + 1.0)
     s2 = cost / max(n_res - model.n_params, 1)
     js = jac
-    free = ~((theta <= lo) | (theta >= hi))
+    free = ~((theta <= lo) | (theta >= hi)) & np.any(jac != 0.0, axis=0)
     std = np.full(model.n_params, np.nan)
     if free.any():
         h = js[:, free].T @ js[:, free]
@@ -210,4 +220,6 @@ def fit(
         except np.linalg.LinAlgError:
             pass
     std[~free] = 0.0
-    return FitResult(model, theta, std, cost, n_res, n_eff, it, converged, history)
+    informed = np.any(jac != 0.0, axis=0)
+    std[~informed] = np.nan
+    return FitResult(model, theta, std, cost, n_res, n_eff, it, converged, history, informed)
