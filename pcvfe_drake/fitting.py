@@ -101,6 +101,7 @@ class FitOptions:
             of its value (checked before the step is evaluated).
         coarse_windows: with at least 4x as many windows, first fit an evenly spaced subset of
             this many windows (to ``coarse_xtol``), then refine on all windows (None: off).
+            Each stage runs at most ``max_iterations`` iterations.
         coarse_xtol: the step tolerance of the coarse stage.
         max_step_s: longest RK4 step of the rollouts [s] (see ``MAX_STEP_S``).
         min_windows: fewer windows than this: no fit, the starting theta is kept.
@@ -552,20 +553,6 @@ def fit_gauss_newton(
         result.elapsed_s = time.perf_counter() - start_time
         return result
 
-    coarse = options.coarse_windows
-    use_coarse = bool(coarse) and data.n_windows >= 4 * coarse
-    if use_coarse:
-        # The starting loss without sensitivities (they are needed only after the coarse stage).
-        R0 = window_residuals(theta, data, params, weights, max_step_s=options.max_step_s)
-        with np.errstate(over="ignore", invalid="ignore"):
-            cost = float(np.sum(R0 * R0)) + prior_ss(theta)
-        R = J = None
-    else:
-        cost, R, J = objective(theta, data)
-    loss_initial = (cost - prior_ss(theta)) / count
-    if not math.isfinite(cost) or (J is not None and not np.all(np.isfinite(J))):
-        return diverged_result()
-
     def levenberg_marquardt(theta, cost, R, J, windows, max_iterations, xtol, ftol):
         """Bounded LM from theta (cost, R, J evaluated there); returns the final state."""
         lam = 1e-3
@@ -623,14 +610,22 @@ def fit_gauss_newton(
                 break
         return theta, cost, R, J, status, iterations
 
+    def full_start(th):
+        """Objective, residuals and Jacobian on all windows, and the loss, at th."""
+        value, R_s, J_s = objective(th, data)
+        return value, R_s, J_s, (value - prior_ss(th)) / count
+
     iterations = 0
-    if use_coarse:
-        # Coarse stage: an evenly spaced subset brings theta close at a fraction of the cost.
+    coarse = options.coarse_windows
+    theta_c = theta
+    if coarse and data.n_windows >= 4 * coarse:
+        # Coarse stage: an evenly spaced subset brings theta close at a fraction of the cost
+        # (from a warm start it usually takes no step at all).
         pick = np.linspace(0, data.n_windows - 1, coarse).round().astype(int)
         subset = data.subset(pick)
         sub_cost, sub_R, sub_J = objective(theta, subset)
         if math.isfinite(sub_cost) and np.all(np.isfinite(sub_J)):
-            theta_c, _, _, _, _, sub_iterations = levenberg_marquardt(
+            theta_c, _, _, _, _, iterations = levenberg_marquardt(
                 theta,
                 sub_cost,
                 sub_R,
@@ -640,21 +635,29 @@ def fit_gauss_newton(
                 options.coarse_xtol,
                 options.coarse_xtol**2,
             )
-            iterations += sub_iterations
-            start_cost, start_R, start_J = objective(theta_c, data)
-            if start_cost < cost and np.all(np.isfinite(start_J)):
-                theta, cost, R, J = theta_c, start_cost, start_R, start_J
-        if J is None:
-            cost, R, J = objective(theta, data)
-            if not math.isfinite(cost) or not np.all(np.isfinite(J)):
-                return diverged_result()
+    if theta_c is not theta and not np.array_equal(theta_c, theta):
+        # The coarse stage moved: the start's loss without sensitivities, then all windows at
+        # the coarse result (kept if it is better on all windows, as it nearly always is).
+        R0 = window_residuals(theta, data, params, weights, max_step_s=options.max_step_s)
+        with np.errstate(over="ignore", invalid="ignore"):
+            cost0 = float(np.sum(R0 * R0)) + prior_ss(theta)
+        loss_initial = (cost0 - prior_ss(theta)) / count
+        cost, R, J, _ = full_start(theta_c)
+        if cost < cost0 and np.all(np.isfinite(J)):
+            theta = theta_c
+        else:
+            cost, R, J, _ = full_start(theta)
+    else:
+        cost, R, J, loss_initial = full_start(theta)
+    if not math.isfinite(cost) or not np.all(np.isfinite(J)):
+        return diverged_result()
     theta, cost, R, J, status, fine_iterations = levenberg_marquardt(
         theta,
         cost,
         R,
         J,
         data,
-        max(options.max_iterations - iterations, 1),
+        options.max_iterations,
         options.xtol,
         options.ftol,
     )
