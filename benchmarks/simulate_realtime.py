@@ -36,10 +36,12 @@ from pcvfe_drake.scenario import build_terrain_map
 
 
 def plant_only_rtf(scenario, duration_s: float) -> float:
-    """Real-time factor of the truth plant alone with a constant actuation (same integrator)."""
+    """Real-time factor of the truth plant alone with a constant actuation (same integrator),
+    circling on the course's tightest corner (constant steering keeps it on the map)."""
     params = load_vehicle(scenario.vehicle)
     course = load_course(scenario.course)
-    x0 = initial_state(course, params, scenario.initial_speed_mps, scenario.start_s_m)
+    s_corner = float(course.s[int(np.argmax(np.abs(course.curvature)))])
+    x0 = initial_state(course, params, scenario.initial_speed_mps, s_corner)
     builder = DiagramBuilder()
     plant = builder.AddSystem(
         VehiclePlant(params, build_terrain_map(scenario), scenario.truth_model, x0=x0)

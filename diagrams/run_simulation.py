@@ -160,7 +160,7 @@ def run_simulation(
                 break
     except KeyboardInterrupt:
         interrupted = True
-    except (RuntimeError, ValueError) as exc:
+    except (RuntimeError, ValueError, ArithmeticError) as exc:
         error = f"{type(exc).__name__}: {exc}"
     finally:
         if bar is not None:
