@@ -27,7 +27,8 @@ cost:
   context.
 
 Parameters are given in physical terms where they have one (seconds of driving at the camera
-rate); see ``docs/clustering.md``. Core module: numpy, scipy and scikit-learn only, no pydrake.
+rate); see ``docs/clustering.md``. Core module: numpy, scipy, scikit-learn (and its dependency
+threadpoolctl), no pydrake.
 """
 
 from __future__ import annotations
