@@ -253,7 +253,7 @@ def figure_reidentification(
     ax_mu.legend(loc="upper left", fontsize=8)
     ax_mu.set_title(
         f"Re-identification of {e['terrain']}: entered at {t_enter:.1f} s (dashed), id reported "
-        f"at {t_id:.1f} s (solid); longest of {len(entries)} re-identification(s)",
+        f"at {t_id:.1f} s (solid)\nthe longest of {len(entries)} re-identification(s) in the run",
         fontsize=10,
     )
     ax_id.step(tt, part["context"], where="post", color="k")
