@@ -103,7 +103,6 @@ def run_simulation(
     ``scenario.max_duration_s`` at the latest), or at Ctrl-C (``summary["interrupted"]``), or
     when the simulation raises (``summary["error"]``; the outputs are still written).
     """
-    folder = folder if folder is not None else None
     log_path = folder.drive_log if folder is not None and write_outputs else None
     if folder is not None:
         folder.root.mkdir(parents=True, exist_ok=True)

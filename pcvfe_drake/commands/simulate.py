@@ -7,7 +7,6 @@ does not import pydrake.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import time
 from datetime import datetime
@@ -108,8 +107,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"  playback:   {result.playback}  (open in a browser; no server needed)")
     for name, path in result.figures.items():
         print(f"  {name}: {path or '(not drawn: ' + result.figure_notes.get(name, '') + ')'}")
+    if result.summary.get("error"):
+        print(f"  the simulation stopped early: {result.summary['error']}")
     if result.log_errors:
         print(f"  note: {len(result.log_errors)} log chunk(s) rejected by the drive-log format")
     print(f"total {time.perf_counter() - t0:.1f} s")
-    json.dumps(result.summary, allow_nan=False)
-    return 130 if result.summary.get("interrupted") else 0
+    if result.summary.get("interrupted"):
+        return 130
+    return 1 if result.summary.get("error") else 0
