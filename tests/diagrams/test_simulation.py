@@ -99,17 +99,21 @@ def test_every_system_is_named_and_connected():
         diagram.GetSubsystemByName(name)
 
 
-def test_ctrl_c_keeps_what_was_logged(tmp_path, monkeypatch):
-    class InterruptedSimulator(run_module.Simulator):
+@pytest.mark.parametrize("stop", [KeyboardInterrupt, RuntimeError])
+def test_ctrl_c_or_an_error_keeps_what_was_logged(tmp_path, monkeypatch, stop):
+    class StoppedSimulator(run_module.Simulator):
         def AdvanceTo(self, t):
             if t > 2.0:
-                raise KeyboardInterrupt
+                raise stop("stopped by the test")
             return super().AdvanceTo(t)
 
-    monkeypatch.setattr(run_module, "Simulator", InterruptedSimulator)
+    monkeypatch.setattr(run_module, "Simulator", StoppedSimulator)
     folder = RunFolder(tmp_path / "run")
     result = run_simulation(short_scenario(10.0), folder, progress=False)
-    assert result.summary["interrupted"] is True
-    assert result.summary["sim_time_s"] == pytest.approx(2.1, abs=0.11)
-    assert len(read_drive_log(folder.drive_log)) == result.summary["log_rows"] == 21
-    assert json.loads(folder.summary.read_text())["interrupted"] is True
+    s = result.summary
+    assert s["interrupted"] is (stop is KeyboardInterrupt)
+    assert ("stopped by the test" in s.get("error", "")) is (stop is RuntimeError)
+    assert s["sim_time_s"] == pytest.approx(2.1, abs=0.11)
+    assert len(read_drive_log(folder.drive_log)) == s["log_rows"] == 21
+    assert json.loads(folder.summary.read_text())["log_rows"] == 21
+    assert result.figures["fig5_mu_over_time"]
