@@ -57,7 +57,10 @@ def screenshot(chromium: str, html: Path, png: Path, size=(1280, 800), wait_ms=1
             f"--screenshot={png}",
             html.resolve().as_uri(),
         ]
-        subprocess.run(cmd, capture_output=True, timeout=120, check=False)
+        try:
+            subprocess.run(cmd, capture_output=True, timeout=120, check=False)
+        except subprocess.TimeoutExpired:
+            return False
     return png.is_file() and png.stat().st_size > 0
 
 

@@ -118,7 +118,11 @@ class MeshcatView(LeafSystem):
         mc.SetCamera(Meshcat.PerspectiveCamera(fov=50.0, near=0.5, far=20.0 * span))
         mc.SetCameraPose(centre + np.array([0.0, -0.6 * span, 0.6 * span]), centre)
         mc.SetProperty("/Grid", "visible", False)
-        mc.SetProperty("/Lights/AmbientLight/<object>", "intensity", 0.9)
+        # Flat, bright lighting so the ground shows the texture's own colours (the default point
+        # lights leave a hot spot at the origin and darken the rest of a course-sized scene).
+        mc.SetProperty("/Lights/AmbientLight/<object>", "intensity", 2.2)
+        mc.SetProperty("/Lights/PointLightNegativeX", "visible", False)
+        mc.SetProperty("/Lights/PointLightPositiveX", "visible", False)
 
     def _draw_ground(self) -> None:
         image = self._ground_image
