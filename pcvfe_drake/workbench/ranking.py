@@ -96,9 +96,14 @@ class Candidate:
 
 
 def error_drop(before: dict, after: dict) -> float:
-    """Fraction of the held-out model error (noise-corrected multi-step error) removed."""
-    e0 = before["model_error"]
-    return float((e0 - after["model_error"]) / e0) if e0 > 0 else 0.0
+    """Fraction of the held-out model error (noise-corrected multi-step error) removed.
+
+    Both errors are corrected with the *smaller* of the two models' noise floors, so a model
+    cannot gain by amplifying the initial-state noise (a larger floor of its own)."""
+    floor2 = min(before["noise_floor"], after["noise_floor"]) ** 2
+    e0 = np.sqrt(max(before["multistep_error"] ** 2 - floor2, 0.0))
+    e1 = np.sqrt(max(after["multistep_error"] ** 2 - floor2, 0.0))
+    return float((e0 - e1) / e0) if e0 > 0 else 0.0
 
 
 def _steps(seconds: float, data: DriveData) -> int:

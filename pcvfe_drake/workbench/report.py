@@ -187,11 +187,11 @@ def _html(report: dict, pngs: list[str], folder: Path) -> str:
         )
     for title, res in sections:
         white = [
-            {"state": k, "fraction of lags outside 99% band": v["fraction_outside_band"]}
+            {"state": k, "fraction of lags 2-25 outside 99% band": v["fraction_outside_band"]}
             for k, v in res["whiteness"]["states"].items()
         ]
         tables += f"<h3>Residual whiteness, {html.escape(title)}</h3>"
-        tables += _table(white, ["state", "fraction of lags outside 99% band"])
+        tables += _table(white, ["state", "fraction of lags 2-25 outside 99% band"])
         for key, rows in res["breakdowns"].items():
             tables += (
                 f"<h4>{html.escape(title)}: whitened multi-step RMS by {html.escape(key)}</h4>"

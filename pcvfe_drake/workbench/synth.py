@@ -14,10 +14,11 @@ Driving (the excitation), chosen so every library effect is identifiable:
   acceleration command, which reveal a dead time;
 * steering: sinusoidal sweeps whose frequency changes per segment (0.15-0.6 Hz, phase lag
   reveals a steering lag) and whose amplitude targets a lateral acceleration that changes per
-  segment (targets 0.5-6.5 m/s^2, halved while braking: small slips fix the cornering
-  stiffness, large ones the friction peak), in both directions (the heading turns through all
-  directions, which separates a road grade from rolling resistance). The steering rate stays
-  inside the vehicle's limit.
+  segment (targets alternating low and high between 0.5 and 6.5 m/s^2, so every ~12 s has
+  both; halved while braking): small slips fix the cornering stiffness, large ones the
+  friction peak. A slow mean turn (0.07 rad/s) sweeps the heading through all directions,
+  which separates a road grade from rolling resistance. The driver counter-steers on side
+  slip. The steering rate stays inside the vehicle's limit.
 
 Measurement noise (``InsNoise``): independent Gaussian noise per state with the accuracy of a
 survey-grade GNSS/INS (e.g. a dual-antenna RTK INS) and a steering encoder; inputs are the
@@ -79,6 +80,14 @@ powertrain dead time 0.17 s, peak friction 0.8 (damp asphalt), 3 % / -2 % grade,
 40 kW drive power, 0.01 rad (0.6 deg) steering offset."""
 
 
+LATERAL_PATTERN_MPS2 = np.array([1.0, 5.5, 2.5, 6.0, 3.5, 5.0])
+"""Cycle of lateral-acceleration targets of the steering sweep segments [m/s^2]."""
+HEADING_RATE_RADPS = 0.07
+"""Mean yaw rate of the driving program [rad/s]: one full turn of the heading in ~90 s."""
+COUNTER_STEER = 1.0
+"""Steering angle [rad] the driver adds per radian of side slip (steering into a slide)."""
+
+
 @dataclass(frozen=True)
 class InsNoise:
     """Measurement noise standard deviations (SI units) of a survey-grade GNSS/INS."""
@@ -132,7 +141,9 @@ def design_excitation(
     seg = int(6.0 / dt)
     n_seg = n // seg + 2
     freq_knots = rng.uniform(0.15, 0.6, n_seg)
-    lat_knots = rng.uniform(0.5, 6.5, n_seg)
+    # lateral-acceleration targets alternate low and high (plus jitter) so that every
+    # stretch of ~12 s, training or held-out, has both small and large tire slips
+    lat_knots = np.resize(LATERAL_PATTERN_MPS2, n_seg) + rng.uniform(-0.5, 0.5, n_seg)
     knots_t = np.arange(n_seg) * seg * dt
     freq = np.interp(t, knots_t, freq_knots)
     lat = np.interp(t, knots_t, lat_knots)
@@ -150,7 +161,14 @@ def driver_commands(vp: VehicleParams, ex: Excitation, k: int, x: np.ndarray):
     # like a driver, corner less while braking hard (avoids spinning a saturated car)
     braking = (~ex.coast[k]) & (ex.v_ref[k] < v - 2.0)
     amp = np.where(braking, 0.5 * amp, amp)
-    d_des = amp * np.sin(ex.phase[k])
+    # a slow turn (HEADING_RATE) on top, so that the heading sweeps through all directions,
+    # and a counter-steer: the wheels turn toward the direction of travel (psi + beta), as a
+    # driver catching a slide
+    d_des = (
+        amp * np.sin(ex.phase[k])
+        + wheelbase * HEADING_RATE_RADPS / np.maximum(v, 4.0)
+        + COUNTER_STEER * x[:, 6]
+    )
     d_rate = amp * 2.0 * np.pi * ex.freq_hz[k] * np.cos(ex.phase[k])
     steer = np.clip(d_rate + 3.0 * (d_des - x[:, 2]), -steer_limit, steer_limit)
     acc = np.where(ex.coast[k], 0.0, np.clip(0.8 * (ex.v_ref[k] - v), -3.5, 2.5))
