@@ -17,8 +17,8 @@ def register(subparsers) -> None:
         help="compare the model with a drive log, rank missing physical effects, add them",
         description=(
             "Fit the single-track model on the training blocks of a drive log, compare it on "
-            "held-out blocks (fit %%, k-step and free-run errors, residual analysis), fit every "
-            "candidate effect of the library and rank them by held-out error drop with a "
+            "held-out blocks (fit percent, k-step and free-run errors, residual analysis), fit "
+            "every candidate effect of the library and rank them by held-out error drop with a "
             "likelihood-ratio significance test; --add refits with the named effects. "
             f"Effects: {', '.join(known_effects())}."
         ),
