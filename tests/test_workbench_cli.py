@@ -134,3 +134,40 @@ def test_missing_file(tmp_path, capsys):
 def test_unknown_vehicle(drag_log, tmp_path, capsys):
     _, path = drag_log
     _expect_error(capsys, tmp_path, [str(path), "--vehicle", "batmobile"], "batmobile")
+
+
+def test_effects_file_adds_a_user_effect(drag_log, tmp_path, capsys):
+    from pcvfe_drake.workbench.effects import known_effects, unregister_effect
+
+    _, path = drag_log
+    plugin = tmp_path / "my_effects.py"
+    plugin.write_text(
+        "from pcvfe_drake.workbench import Effect, EffectParam, register_effect\n"
+        "@register_effect\n"
+        "class AccelGainCli(Effect):\n"
+        "    name = 'accel_gain_cli'\n"
+        "    params = (EffectParam('k', '-', 0.5, 1.5, 1.0, 0.1, 1.0),)\n"
+        "    def accel(self, accel, ctx, p):\n"
+        "        return p['k'] * accel\n"
+    )
+    try:
+        code = main(
+            [
+                "diagnose",
+                str(path),
+                "--effects-file",
+                str(plugin),
+                "--candidates",
+                "accel_gain_cli",
+                "--add",
+                "accel_gain_cli",
+                "--json",
+            ]
+        )
+        assert code == 0
+        report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+        assert report["added"]["effects"] == ["accel_gain_cli"]
+        assert "accel_gain_cli.k" in report["added"]["params"]
+    finally:
+        if "accel_gain_cli" in known_effects():
+            unregister_effect("accel_gain_cli")

@@ -36,6 +36,13 @@ def register(subparsers) -> None:
         default=None,
         help="comma-separated effects to rank (default: the whole library)",
     )
+    p.add_argument(
+        "--effects-file",
+        action="append",
+        default=[],
+        metavar="FILE.py",
+        help="a Python file that registers effects of your own (repeatable; docs/workbench.md)",
+    )
     p.add_argument("--vehicle", default=None, help="vehicle preset or YAML file (default: Ford)")
     p.add_argument(
         "--context-column",
@@ -47,9 +54,29 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
+def load_effects_file(path: str) -> None:
+    """Import a Python file (it registers effects with ``register_effect``)."""
+    import importlib.util
+    from pathlib import Path
+
+    file = Path(path)
+    if not file.is_file():
+        raise FileNotFoundError(f"--effects-file {file}: no such file")
+    spec = importlib.util.spec_from_file_location(f"pcvfe_user_effects_{file.stem}", file)
+    if spec is None or spec.loader is None:
+        raise ValueError(f"--effects-file {file}: not an importable Python file")
+    module = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(module)
+    except Exception as exc:  # a user's file can fail in any way; report it cleanly
+        raise ValueError(f"--effects-file {file}: {type(exc).__name__}: {exc}") from exc
+
+
 def run(args: argparse.Namespace) -> int:
     from pcvfe_drake.workbench.report import diagnose, to_jsonable, write_report
 
+    for path in args.effects_file:
+        load_effects_file(path)
     add = [get_effect(e).name for e in args.add]  # unknown names fail before any work
     candidates = None
     if args.candidates:
