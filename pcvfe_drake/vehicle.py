@@ -142,9 +142,10 @@ def _evaluate(x, u, params: VehicleParams, theta, with_jacobians: bool):
     k_yaw = mu * m / (iz * wheelbase)
     yaw_sum = lf**2 * ff + lr**2 * fr
     moment = lr * fr - lf * ff
-    dd_psi_dyn = k_yaw * (lf * ff * delta + moment * beta - yaw_sum * r / vd)
+    r_v = r / vd
+    dd_psi_dyn = k_yaw * ((lf * ff) * delta + moment * beta - yaw_sum * r_v)
     k_slip = mu / (vd * wheelbase)
-    slip_sum = ff * delta - (fr + ff) * beta + moment * r / vd
+    slip_sum = ff * delta - (fr + ff) * beta + moment * r_v
     d_beta_dyn = k_slip * slip_sum - r
     cos_dyn = np.cos(psi + beta)
     sin_dyn = np.sin(psi + beta)
@@ -169,22 +170,23 @@ def _evaluate(x, u, params: VehicleParams, theta, with_jacobians: bool):
         cos_kin = np.cos(psi + beta_k)
         sin_kin = np.sin(psi + beta_k)
 
-    f = np.empty((n, NX))
-    f[:, DELTA] = steer
-    f[:, V] = acc
+    ft = np.empty((NX, n))  # filled row by row (contiguous), returned transposed
+    ft[DELTA] = steer
+    ft[V] = acc
     if kinematic:
         wk = 1.0 - w
-        f[:, SX] = v * (w * cos_dyn + wk * cos_kin)
-        f[:, SY] = v * (w * sin_dyn + wk * sin_kin)
-        f[:, PSI] = w * r + wk * psi_dot_k
-        f[:, PSI_DOT] = w * dd_psi_dyn + wk * dd_psi_kin
-        f[:, BETA] = w * d_beta_dyn + wk * d_beta_kin
+        ft[SX] = v * (w * cos_dyn + wk * cos_kin)
+        ft[SY] = v * (w * sin_dyn + wk * sin_kin)
+        ft[PSI] = w * r + wk * psi_dot_k
+        ft[PSI_DOT] = w * dd_psi_dyn + wk * dd_psi_kin
+        ft[BETA] = w * d_beta_dyn + wk * d_beta_kin
     else:
-        f[:, SX] = v * cos_dyn
-        f[:, SY] = v * sin_dyn
-        f[:, PSI] = r
-        f[:, PSI_DOT] = dd_psi_dyn
-        f[:, BETA] = d_beta_dyn
+        np.multiply(v, cos_dyn, out=ft[SX])
+        np.multiply(v, sin_dyn, out=ft[SY])
+        ft[PSI] = r
+        ft[PSI_DOT] = dd_psi_dyn
+        ft[BETA] = d_beta_dyn
+    f = ft.T
     if not with_jacobians:
         return f, None, None, None
 
