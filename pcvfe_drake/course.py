@@ -15,13 +15,17 @@ point is positive to the left of the path (seen in the direction of travel).
 Shipped courses live in ``pcvfe_drake/data/courses/<name>.yaml``:
 
 - ``slalom``: the paper's course (Appendix D, Fig. 4) for the Ford Escort: a closed loop of about
-  120 m x 80 m centred at the world origin, driven counter-clockwise, with two S-curve sides
-  (y = -40 m and y = +40 m, three waves of radius 12 m each, bulging inwards) and two straight sides
-  (x = -60 m and x = +60 m), joined by 12 m corners. Each quadrant of the four-terrain map holds a
-  quarter of the course (about 99 m, over 20 s on each quadrant terrain at the planned
-  4.75 m/s, transition strips excluded: the fitter wants about 20 s per terrain).
-- ``slalom_small``: the same course at 1/5 scale for the RoboRacer (24 m x 16 m, 2.12 m/s, the
-  speed scaled by sqrt(1/5) so the lateral accelerations match).
+  260 m x 170 m centred at the world origin, driven counter-clockwise, with two S-curve sides
+  (y = -85 m and y = +85 m, seven waves of radius 12 m each, bulging inwards) and two straight
+  sides (x = -130 m and x = +130 m), joined by 12 m corners. The lap is ~891 m, ~190 s at the
+  planned 4.75 m/s (the paper's lap is ~230 s: its Fig. 5 re-identifies the first terrain at
+  160-220 s). Each quadrant of the four-terrain map holds a quarter of the course (~220 m, about
+  46 s on each quadrant terrain at the planned speed, transition strips excluded), so the
+  clustering (a new terrain waits up to one 10 s re-clustering) and the fitter (the issue's
+  friction target is scored after a context's first 20 s) both get a long visit per lap.
+- ``slalom_small``: the same shape at a smaller size for the RoboRacer (24 m x 16 m, three waves
+  per S-curve side, 2.4 m radii, 2.12 m/s: the earlier 120 m x 80 m slalom at 1/5 scale, the speed
+  scaled by sqrt(1/5) so the lateral accelerations match the full-size course's).
 
 Speed profile: :func:`speed_profile` gives v_ref(s) <= ``speed_margin`` * sqrt(mu g / |kappa|),
 capped by a cruise speed, with forward (acceleration) and backward (braking) passes whose limits

@@ -16,6 +16,7 @@ unless the map was given an ``outside`` terrain, which is then used for them.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -81,7 +82,7 @@ class TerrainMap:
         if labels.min() < 0 or labels.max() > UNKNOWN:
             present = np.unique(labels)
         else:
-            present = np.flatnonzero(np.bincount(labels.ravel().astype(np.intp), minlength=256))
+            present = _present_labels(labels)
         bad = np.setdiff1d(present, [*range(len(terrains)), UNKNOWN])
         if bad.size:
             raise ValueError(
@@ -310,6 +311,20 @@ class TerrainMap:
         return renderer.render(px_to_world, (height, width), flat=flat)
 
 
+def _present_labels(labels: np.ndarray) -> np.ndarray:
+    """Sorted label values (0..255) present in ``labels``, a histogram over 0..255 (never a
+    whole-raster copy into a wider integer type: a 24 Mcell map would need 192 MB)."""
+    if labels.dtype == np.uint8:
+        hist = cv2.calcHist([np.ascontiguousarray(labels)], [0], None, [256], [0, 256])
+        return np.flatnonzero(hist.ravel())
+    flat = labels.reshape(-1)
+    counts = np.zeros(256, dtype=np.int64)
+    block = 1 << 22
+    for start in range(0, flat.size, block):
+        counts += np.bincount(flat[start : start + block].astype(np.intp), minlength=256)[:256]
+    return np.flatnonzero(counts)
+
+
 def _rasterise_polygon(labels: np.ndarray, uv: np.ndarray, value: int) -> None:
     """Set ``labels`` to ``value`` on the cells whose centre (integer pixel coordinates) lies
     inside polygon ``uv`` (M, 2, pixel coordinates). ``cv2.fillPoly`` fills the interior
@@ -337,7 +352,9 @@ def _rasterise_polygon(labels: np.ndarray, uv: np.ndarray, value: int) -> None:
 
 
 # --------------------------------------------------------------------------------- default map
-DEFAULT_BOUNDS_M = (-90.0, 90.0, -60.0, 60.0)
+DEFAULT_BOUNDS_M = (-150.0, 150.0, -100.0, 100.0)
+"""Extent (x_min, x_max, y_min, y_max) [m] of the default map: the 260 m x 170 m slalom plus
+margin for the camera's view."""
 
 
 def default_terrains() -> dict[str, Terrain]:
@@ -359,23 +376,47 @@ def default_terrains() -> dict[str, Terrain]:
     }
 
 
-def _wavy_strip(axis: str, half_width_m: float, extent_m: float, phase: float) -> np.ndarray:
-    """Polygon of a strip centred on the line x = 0 (axis 'y': strip runs along y) or y = 0
-    (axis 'x'), with gently wavy, deterministic edges (amplitude about 0.35 m)."""
+def _strip_edges(
+    half_width_m: float, extent_m: float, phase: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Edges of a transition strip centred on a coordinate axis, with gently wavy deterministic
+    edges (amplitude about 0.35 m): along-strip samples ``s`` [m] every 0.25 m over
+    ``[-extent_m, extent_m]``, and the lower / upper edge offsets across the strip [m] there
+    (linear in between)."""
     s = np.linspace(-extent_m, extent_m, int(2 * extent_m / 0.25) + 1)
 
     def wobble(s: np.ndarray, p: float) -> np.ndarray:
         return 0.25 * np.sin(2 * np.pi * s / 7.3 + p) + 0.12 * np.sin(2 * np.pi * s / 2.9 + 2 * p)
 
-    lo = -half_width_m + wobble(s, phase)
-    hi = half_width_m + wobble(s, phase + 1.7)
-    if axis == "y":  # strip along y at x ~ 0
-        left = np.stack([lo, s], axis=1)
-        right = np.stack([hi[::-1], s[::-1]], axis=1)
-    else:  # strip along x at y ~ 0
-        left = np.stack([s, lo], axis=1)
-        right = np.stack([s[::-1], hi[::-1]], axis=1)
-    return np.concatenate([left, right], axis=0)
+    return s, -half_width_m + wobble(s, phase), half_width_m + wobble(s, phase + 1.7)
+
+
+def _paint_strip(
+    labels: np.ndarray,
+    along: np.ndarray,
+    across: np.ndarray,
+    edges: tuple[np.ndarray, np.ndarray, np.ndarray],
+    value: int,
+    *,
+    rows_along: bool,
+) -> None:
+    """Set the cells whose centre lies between a strip's edges to ``value``. ``along`` are the
+    cell-centre coordinates along the strip (columns if ``rows_along`` is False, else rows),
+    ``across`` the ones across it. Only the band of cells the strip can reach is touched."""
+    s, lo, hi = edges
+    lo_at = np.interp(along, s, lo)
+    hi_at = np.interp(along, s, hi)
+    band = np.flatnonzero((across >= lo.min()) & (across <= hi.max()))
+    if band.size == 0:
+        return
+    b0, b1 = int(band[0]), int(band[-1]) + 1
+    c = across[b0:b1]
+    if rows_along:  # strip along y (rows): band of columns
+        mask = (c[None, :] >= lo_at[:, None]) & (c[None, :] <= hi_at[:, None])
+        labels[:, b0:b1][mask] = value
+    else:  # strip along x (columns): band of rows
+        mask = (c[:, None] >= lo_at[None, :]) & (c[:, None] <= hi_at[None, :])
+        labels[b0:b1, :][mask] = value
 
 
 def default_terrain_map(
@@ -384,35 +425,61 @@ def default_terrain_map(
     resolution_m: float = 0.05,
     outside: str | None = None,
 ) -> TerrainMap:
-    """The paper's simulation layout, centred on the world origin, x in [-90, 90] m,
-    y in [-60, 60] m.
+    """The paper's simulation layout, centred on the world origin, x in [-150, 150] m,
+    y in [-100, 100] m (``DEFAULT_BOUNDS_M``).
 
     Quadrants (counter-clockwise, the order a counter-clockwise lap meets them starting east):
     x > 0, y > 0 ``patchy_grass`` (mu 0.3); x < 0, y > 0 ``brick`` (0.8); x < 0, y < 0 ``sand``
     (0.45); x > 0, y < 0 ``concrete`` (0.6). Transition strips ``strip_width_m`` wide (wavy
     edges): ``gravel`` (0.55) along x = 0 and ``dry_soil`` (0.5) along y = 0, crossing at the
-    origin. A course around the origin (e.g. a 120 m x 80 m rounded rectangle) crosses each
-    quadrant for about a quarter of its length and each strip twice.
+    origin. A course around the origin (the 260 m x 170 m ``slalom``, or its predecessor's
+    120 m x 80 m at 1/5 scale, ``slalom_small``) crosses each quadrant for about a quarter of
+    its length and each strip twice.
+
+    At the default 5 cm raster the map is 6000 x 4000 cells (24 MB of labels). The raster is
+    built once per (strip width, resolution) and shared, read-only, by the maps returned.
     """
     if not (np.isfinite(strip_width_m) and strip_width_m >= 0):
         raise ValueError(f"strip_width_m must be >= 0, got {strip_width_m!r}")
+    if not (np.isfinite(resolution_m) and resolution_m > 0):
+        raise ValueError(f"resolution_m must be positive, got {resolution_m!r}")
+    labels, terrains = _default_raster(float(strip_width_m), float(resolution_m))
+    x0, _, y0, _ = DEFAULT_BOUNDS_M
+    return TerrainMap.from_label_image(
+        labels, terrains, x_min_m=x0, y_min_m=y0, resolution_m=resolution_m, outside=outside
+    )
+
+
+@functools.lru_cache(maxsize=4)
+def _default_raster(strip_width_m: float, resolution_m: float) -> tuple[np.ndarray, list]:
+    """Label raster (read-only) and terrains of the default layout (see default_terrain_map).
+
+    A cell belongs to a region when its centre does (as in ``from_polygons``): the quadrants
+    are the signs of the centre's x and y, the strips the cells whose centre lies between the
+    strip's piecewise-linear edges (``dry_soil`` along y = 0 first, ``gravel`` along x = 0 over
+    it where they cross).
+    """
     t = default_terrains()
     x0, x1, y0, y1 = DEFAULT_BOUNDS_M
-    pad = 1.0
-
-    def rect(xa: float, xb: float, ya: float, yb: float) -> np.ndarray:
-        return np.array([[xa, ya], [xb, ya], [xb, yb], [xa, yb]])
-
-    regions: list[tuple[Terrain, np.ndarray]] = [
-        (t["patchy_grass"], rect(0.0, x1 + pad, 0.0, y1 + pad)),
-        (t["brick"], rect(x0 - pad, 0.0, 0.0, y1 + pad)),
-        (t["sand"], rect(x0 - pad, 0.0, y0 - pad, 0.0)),
-        (t["concrete"], rect(0.0, x1 + pad, y0 - pad, 0.0)),
-    ]
+    cols = int(round((x1 - x0) / resolution_m))
+    rows = int(round((y1 - y0) / resolution_m))
+    xc = x0 + (np.arange(cols) + 0.5) * resolution_m  # cell-centre x of each column
+    yc = y1 - (np.arange(rows) + 0.5) * resolution_m  # cell-centre y of each row (north first)
+    east = int(np.searchsorted(xc, 0.0))  # first column with x > 0
+    north = int(np.count_nonzero(yc > 0.0))  # rows 0..north-1 have y > 0
+    terrains = [t["patchy_grass"], t["brick"], t["sand"], t["concrete"]]
+    labels = np.empty((rows, cols), dtype=np.uint8)
+    labels[:north, east:] = 0  # patchy grass, x > 0, y > 0
+    labels[:north, :east] = 1  # brick, x < 0, y > 0
+    labels[north:, :east] = 2  # sand, x < 0, y < 0
+    labels[north:, east:] = 3  # concrete, x > 0, y < 0
     if strip_width_m > 0:
         half = 0.5 * strip_width_m
-        regions.append((t["dry_soil"], _wavy_strip("x", half, x1 + pad, phase=0.3)))
-        regions.append((t["gravel"], _wavy_strip("y", half, y1 + pad, phase=1.1)))
-    return TerrainMap.from_polygons(
-        regions, bounds_m=DEFAULT_BOUNDS_M, resolution_m=resolution_m, outside=outside
-    )
+        pad = 1.0
+        terrains += [t["dry_soil"], t["gravel"]]
+        dry = _strip_edges(half, x1 + pad, phase=0.3)
+        _paint_strip(labels, xc, yc, dry, 4, rows_along=False)
+        gravel = _strip_edges(half, y1 + pad, phase=1.1)
+        _paint_strip(labels, yc, xc, gravel, 5, rows_along=True)
+    labels.flags.writeable = False
+    return labels, terrains

@@ -151,5 +151,5 @@ def test_render_state_and_bad_inputs(m):
     with pytest.raises(ValueError, match="fov_deg"):
         CameraConfig(fov_deg=0.0)
     # near the edge of the map the part beyond it (behind the car: the lower rows) is black
-    edge = cam.render(-89.9, 0.0, 0.0)
+    edge = cam.render(m.x_min_m + 0.1, 0.0, 0.0)
     assert np.all(edge[140:] == 0) and edge[:100].mean() > 20

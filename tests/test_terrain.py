@@ -19,7 +19,7 @@ def solid_textures(names, colors):
 
 def test_default_map_layout_and_public_simulator_mu(default_map):
     m = default_map
-    assert m.bounds_m == (-90.0, 90.0, -60.0, 60.0)
+    assert m.bounds_m == (-150.0, 150.0, -100.0, 100.0)
     probes = {
         (30.0, 20.0): ("patchy_grass", 0.3),
         (-30.0, 20.0): ("brick", 0.8),
@@ -29,6 +29,10 @@ def test_default_map_layout_and_public_simulator_mu(default_map):
         (0.0, -45.0): ("gravel", 0.55),
         (55.0, 0.0): ("dry_soil", 0.5),
         (-62.0, 0.0): ("dry_soil", 0.5),
+        (140.0, 95.0): ("patchy_grass", 0.3),
+        (-140.0, -95.0): ("sand", 0.45),
+        (0.0, 95.0): ("gravel", 0.55),
+        (-145.0, 0.0): ("dry_soil", 0.5),
     }
     xy = np.array(list(probes))
     assert m.name_at(xy).tolist() == [v[0] for v in probes.values()]
@@ -37,7 +41,7 @@ def test_default_map_layout_and_public_simulator_mu(default_map):
 
 def test_default_map_strip_width_is_respected(default_map):
     # Strip edges wobble by at most 0.37 m around +-1.5 m (plus up to a 5 cm cell).
-    y = np.linspace(-58, 58, 500)
+    y = np.linspace(-98, 98, 800)
     y = y[np.abs(y) > 3.0]
     for x, expect_gravel in [
         (0.0, True),
@@ -56,8 +60,8 @@ def test_default_map_strip_width_is_respected(default_map):
 
 
 def test_a_lap_of_a_course_crosses_every_quadrant_for_a_quarter(default_map):
-    # A 120 m x 80 m rectangle with rounded corners (a clipped ellipse), sampled densely.
-    a, b = 60.0, 40.0
+    # A 260 m x 170 m rectangle (the slalom's size) with rounded corners (a clipped ellipse).
+    a, b = 130.0, 85.0
     t = np.linspace(0, 2 * np.pi, 20000, endpoint=False)
     x = np.clip(a * np.cos(t) * 1.3, -a, a)
     y = np.clip(b * np.sin(t) * 1.3, -b, b)
@@ -69,9 +73,58 @@ def test_a_lap_of_a_course_crosses_every_quadrant_for_a_quarter(default_map):
         assert 0.2 < share < 0.27, (name, share)
 
 
+def test_default_map_strips_are_the_cells_whose_centre_is_inside_the_strip_polygon(default_map):
+    # Exact point-in-polygon (matplotlib) of each wavy strip's polygon at raster cell centres,
+    # against the labels of the default map (gravel painted over dry soil where they cross).
+    from pcvfe_drake.terrain import _strip_edges
+
+    res = default_map.resolution_m
+    rng = np.random.default_rng(7)
+    for name, extent, phase, along_x in (
+        ("dry_soil", 151.0, 0.3, True),
+        ("gravel", 101.0, 1.1, False),
+    ):
+        s, lo, hi = _strip_edges(1.5, extent, phase)
+        poly = np.concatenate([np.stack([s, lo], 1), np.stack([s[::-1], hi[::-1]], 1)])
+        if not along_x:
+            poly = poly[:, ::-1]
+        cols = rng.integers(0, default_map.labels.shape[1], 4000)
+        rows = rng.integers(0, default_map.labels.shape[0], 4000)
+        if along_x:  # rows near y = 0
+            rows = rng.integers(1960, 2040, 4000)
+        else:  # columns near x = 0
+            cols = rng.integers(2960, 3040, 4000)
+        xy = np.stack(
+            [default_map.x_min_m + (cols + 0.5) * res, default_map.y_max_m - (rows + 0.5) * res], 1
+        )
+        inside = Path(poly).contains_points(xy)
+        names = default_map.name_at(xy)
+        if name == "dry_soil":  # gravel covers it along x ~ 0
+            keep = np.abs(xy[:, 0]) > 2.5
+            assert np.array_equal(inside[keep], names[keep] == "dry_soil")
+        else:
+            assert np.array_equal(inside, names == "gravel")
+        assert inside.sum() > 500
+
+
+def test_default_map_raster_is_built_once_and_read_only():
+    a = default_terrain_map()
+    b = default_terrain_map()
+    assert a is not b and a.labels is b.labels  # one shared raster per (strip, resolution)
+    assert not a.labels.flags.writeable
+    assert default_terrain_map(strip_width_m=0.0).names == [
+        "patchy_grass",
+        "brick",
+        "sand",
+        "concrete",
+    ]
+    with pytest.raises(ValueError, match="resolution_m"):
+        default_terrain_map(resolution_m=0.0)
+
+
 def test_scalar_and_batch_lookups_agree(default_map):
     rng = np.random.default_rng(1)
-    xy = rng.uniform([-90, -60], [90, 60], size=(500, 2))
+    xy = rng.uniform([-150, -100], [150, 100], size=(500, 2))
     idx = default_map.index_at(xy)
     assert idx.shape == (500,) and idx.dtype.kind == "i"
     for p, k in zip(xy[:50], idx[:50], strict=True):
@@ -178,11 +231,11 @@ def test_topdown_render_shows_each_terrain_where_the_map_has_it(default_map):
     ]
     textures = solid_textures(names, colors)
     img = default_map.render_topdown(2.0, textures=textures)
-    assert img.shape == (240, 360, 3) and img.dtype == np.uint8
+    assert img.shape == (400, 600, 3) and img.dtype == np.uint8
     # pixel (col, row) <-> world (x_min + (c + .5)/2, y_max - (r + .5)/2)
     rng = np.random.default_rng(3)
-    rc = rng.integers([0, 0], [240, 360], size=(400, 2))
-    xy = np.stack([-90 + (rc[:, 1] + 0.5) / 2, 60 - (rc[:, 0] + 0.5) / 2], axis=1)
+    rc = rng.integers([0, 0], [400, 600], size=(400, 2))
+    xy = np.stack([-150 + (rc[:, 1] + 0.5) / 2, 100 - (rc[:, 0] + 0.5) / 2], axis=1)
     idx = default_map.index_at(xy)
     # compare away from boundaries (where colours blend)
     near = (np.abs(xy[:, 0]) < 3) | (np.abs(xy[:, 1]) < 3)
@@ -190,8 +243,8 @@ def test_topdown_render_shows_each_terrain_where_the_map_has_it(default_map):
     got = img[rc[:, 0], rc[:, 1]].astype(int)
     assert np.abs(got[~near] - expected[~near]).max() <= 1
     flat = default_map.render_topdown(1.0, flat=True, textures=textures)
-    assert flat.shape == (120, 180, 3)
-    assert tuple(flat[30, 150]) == colors[0]  # x = 60.5, y = 29.5 -> patchy grass
+    assert flat.shape == (200, 300, 3)
+    assert tuple(flat[70, 210]) == colors[0]  # x = 60.5, y = 29.5 -> patchy grass
 
 
 def test_default_terrains_are_the_public_simulator_values():
@@ -212,6 +265,6 @@ def test_cli_terrain_map_writes_the_figure(tmp_path, capsys):
     out = tmp_path / "map.png"
     assert main(["terrain-map", "--out", str(out), "--px-per-m", "1", "--flat"]) == 0
     img = cv2.imread(str(out))
-    assert img.shape == (120, 180, 3)
+    assert img.shape == (200, 300, 3)
     text = capsys.readouterr().out
     assert "patchy_grass   mu 0.30" in text and "brick          mu 0.80" in text

@@ -24,12 +24,13 @@ from pcvfe_drake.scenario import ClusteringSettings
 
 def short_scenario(duration_s: float):
     """The default scenario, shortened: contexts form after 2 s of frames, re-clustering every
-    5 s, so the start terrain (sand, ~10 s) and the next one (concrete) both get contexts and
-    fits within 20 s of driving."""
+    5 s, and a start 80 m into the southern S-curve side (44 m west of the gravel strip), so the
+    start terrain (sand, ~10 s) and the next one (concrete) both get contexts and fits within
+    20 s of driving."""
     s = load_scenario("paper_sim").with_run_length(duration_s=duration_s)
     return dataclasses.replace(
         s,
-        start_s_m=0.0,
+        start_s_m=80.0,
         rates=dataclasses.replace(s.rates, recluster_period_s=5.0),
         clustering=ClusteringSettings(min_cluster_duration_s=2.0, min_samples_duration_s=1.0),
     )
@@ -60,7 +61,7 @@ def test_closed_loop_discovers_contexts_fits_friction_and_tracks(tmp_path):
     assert s["catastrophic_failures"] == 0
     assert s["lateral_error_rms_m"] < 0.3
     assert 3.0 < s["mean_speed_mps"] < 8.0
-    assert 0.2 < s["laps_fraction"] < 0.35
+    assert 0.08 < s["laps_fraction"] < 0.15  # ~95 m of the 891 m lap
     # Sand (start) and concrete discovered as distinct contexts, each fitted near its true mu.
     by_terrain = {e["majority_terrain"]: e for e in s["mu_estimates"] if e["majority_share"] > 0.8}
     assert {"sand", "concrete"} <= set(by_terrain)
