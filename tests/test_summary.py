@@ -202,3 +202,38 @@ def test_final_clustering_scores(course):
     s = summarize(log, course, wall_time_s=1.0)
     assert s["final_clustering"] == {"ari": 1.0, "noise_fraction": 0.0, "contexts": 3}
     assert s["ari"] < 1.0  # the online ids had noise at every entry
+
+
+def test_mu_error_after_the_first_20_s_of_a_context(course):
+    log = planted_log(course)
+    t = log["t"].to_numpy()
+    w = sample_weights(t)
+    rows_b = np.flatnonzero(log["context"].to_numpy() == 1)
+    in_b = np.cumsum(w[rows_b]) - w[rows_b]  # driving reported as context 1 before each row
+    # Context 1 (terrain b, mu 0.8): off by 0.1 for its first 20 s, then by 0.01 and once 0.03.
+    mu_hat = log["mu_hat"].to_numpy().copy()
+    mu_hat[rows_b] = np.where(in_b < 20.0, 0.9, 0.81)
+    mu_hat[rows_b[-5]] = 0.83
+    log["mu_hat"] = mu_hat
+    # Context 2 (terrain c) is only reported for its first 15 s: never scored.
+    rows_c = np.flatnonzero(log["context"].to_numpy() == 2)
+    late_c = rows_c[np.cumsum(w[rows_c]) > 15.0]
+    log.loc[late_c, "context"] = -1
+    s = summarize(log, course)
+    by_id = {e["id"]: e for e in s["mu_estimates"]}
+    b = by_id[1]
+    scored = in_b >= 20.0
+    assert b["scored_time_s"] == pytest.approx(np.sum(w[rows_b][scored]))
+    assert b["scored_time_s"] > 10.0
+    expected = np.average(np.abs(mu_hat[rows_b][scored] - 0.8), weights=w[rows_b][scored])
+    assert b["abs_error_after_settle_mean"] == pytest.approx(expected)
+    assert 0.01 < b["abs_error_after_settle_mean"] < 0.012
+    assert b["abs_error_after_settle_max"] == pytest.approx(0.03)
+    c = by_id[2]
+    assert c["abs_error_after_settle_mean"] is None and c["scored_time_s"] == 0.0
+    agg = s["mu_error_after_settle"]
+    assert agg["settle_time_s"] == 20.0 and 2 in agg["contexts_unscored"]
+    assert agg["worst_max"] == pytest.approx(0.03)
+    assert agg["worst_mean"] == pytest.approx(max(b["abs_error_after_settle_mean"], 0.02))
+    text = summary_table(s)
+    assert "mu error after 20 s, worst context" in text and "not scored: 2" in text
