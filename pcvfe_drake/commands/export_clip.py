@@ -1,8 +1,10 @@
 """``pcvfe export-clip``: write an open_clip model into the CLIP folder format.
 
-Needs ``torch`` and ``open_clip`` (``pip install 'pcvfe-drake[clip-export]'``) and, for
-pretrained weights, internet access for open_clip's download. Nothing else in the project
-needs them.
+Needs ``torch``, ``open_clip`` and ``onnxscript`` (torch's ONNX exporter; ``pip install
+'pcvfe-drake[clip-export]'``) and, for pretrained weights, internet access for open_clip's
+download. ``--pretrained none`` builds the same architecture with random weights, which is
+enough to verify the export and to time the encoder offline. Nothing else in the project needs
+these packages.
 """
 
 from __future__ import annotations
@@ -16,8 +18,9 @@ import numpy as np
 from pcvfe_drake.features import CAPTIONS, CLIP_MEAN, CLIP_STD, PROMPT_TEMPLATE
 
 INSTALL_HINT = (
-    "pcvfe export-clip needs torch and open_clip, which this environment lacks; install them "
-    "with: pip install 'pcvfe-drake[clip-export]' (or pip install open-clip-torch)"
+    "pcvfe export-clip needs torch and open_clip (and onnxscript, for torch's ONNX exporter), "
+    "which this environment lacks; install them with: pip install 'pcvfe-drake[clip-export]' "
+    "(or pip install open-clip-torch onnxscript)"
 )
 
 
@@ -28,15 +31,20 @@ def register(subparsers) -> None:
         description=(
             "Export an open_clip image encoder to ONNX (image_encoder.onnx), embed the captions "
             "with its text encoder (text_embeddings.npy) and write clip.json, the folder format "
-            "that --clip / ClipFeatures read. Requires torch and open_clip (optional extra "
-            "'clip-export'); pretrained weights are downloaded by open_clip."
+            "that --clip / ClipFeatures read. Requires torch, open_clip and onnxscript (optional "
+            "extra 'clip-export'); pretrained weights are downloaded by open_clip, "
+            "--pretrained none uses random weights (export check and timing only)."
         ),
     )
     parser.add_argument("--model", default="ViT-B-32", help="open_clip model name")
     parser.add_argument(
         "--pretrained",
         default="openai",
-        help="open_clip pretrained tag; 'none' for random weights (timing only)",
+        help=(
+            "open_clip pretrained tag (default: openai; downloaded by open_clip). 'none' gives "
+            "random weights of the same architecture, to verify the export and time the "
+            "encoder offline; their features mean nothing"
+        ),
     )
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument(
@@ -46,7 +54,10 @@ def register(subparsers) -> None:
         help="text file with one caption per line (default: the paper's 33 captions)",
     )
     parser.add_argument("--template", default=PROMPT_TEMPLATE, help="prompt template")
-    parser.add_argument("--opset", type=int, default=17, help="ONNX opset")
+    parser.add_argument(
+        "--seed", type=int, default=0, help="seed of the random weights with --pretrained none"
+    )
+    parser.add_argument("--opset", type=int, default=18, help="ONNX opset (>= 18)")
     parser.set_defaults(func=run)
 
 
@@ -61,36 +72,49 @@ def read_captions(path: Path | None) -> list[str]:
     return captions
 
 
-def run(args: argparse.Namespace) -> int:
-    captions = read_captions(args.captions)
-    if "{}" not in args.template:
-        raise ValueError(f"--template must contain '{{}}', got {args.template!r}")
+def _square_size(cfg: dict, visual, model_name: str) -> int:
+    size = cfg.get("size", getattr(visual, "image_size", 224))
+    if isinstance(size, list | tuple):
+        if len(set(int(v) for v in size)) != 1:
+            raise ValueError(f"{model_name}: non-square input size {tuple(size)} is not supported")
+        size = size[0]
+    return int(size)
+
+
+def import_export_deps():
+    """(open_clip, torch), or ValueError with the install hint when they are missing."""
     try:
+        import onnxscript  # noqa: F401  (torch's ONNX exporter needs it)
         import open_clip
         import torch
     except ImportError as exc:
         raise ValueError(f"{INSTALL_HINT} ({exc})") from exc
+    return open_clip, torch
 
-    pretrained = None if args.pretrained.lower() == "none" else args.pretrained
-    model, _, _ = open_clip.create_model_and_transforms(args.model, pretrained=pretrained)
+
+def load_open_clip(model_name: str, pretrained: str | None, seed: int = 0):
+    """(model in eval mode, tokenizer) from open_clip. ``pretrained=None`` (or "none") builds
+    the architecture with random weights drawn after ``torch.manual_seed(seed)``, so the same
+    seed gives the same weights."""
+    open_clip, torch = import_export_deps()
+    if pretrained is not None and pretrained.lower() in ("none", "random"):
+        pretrained = None
+    if pretrained is None:
+        torch.manual_seed(int(seed))
+    model = open_clip.create_model(model_name, pretrained=pretrained)
     model.eval()
-    cfg = dict(getattr(model.visual, "preprocess_cfg", {}) or {})
-    size = cfg.get("size", getattr(model.visual, "image_size", 224))
-    size = int(size[0] if isinstance(size, list | tuple) else size)
-    mean = [float(v) for v in cfg.get("mean", CLIP_MEAN)]
-    std = [float(v) for v in cfg.get("std", CLIP_STD)]
-    for key, expected in (("interpolation", "bicubic"), ("resize_mode", "shortest")):
-        if cfg.get(key, expected) != expected:
-            print(
-                f"warning: {args.model} uses {key}={cfg[key]!r}; pcvfe_drake preprocesses with "
-                f"{expected} (shortest side, centre crop), so features may differ slightly"
-            )
+    return model, open_clip.get_tokenizer(model_name)
 
-    tokenizer = open_clip.get_tokenizer(args.model)
-    sentences = [args.template.format(c) for c in captions]
-    with torch.no_grad():
-        text = model.encode_text(tokenizer(sentences)).float().numpy()
-        logit_scale = float(model.logit_scale.exp().item())
+
+def export_image_encoder(model, size: int, path: Path, opset: int = 18) -> None:
+    """Write ``model.encode_image`` to ONNX at ``path`` with a dynamic batch dimension.
+
+    Uses torch's ``torch.export``-based exporter (needs ``onnxscript``). The example batch has
+    two images: ``torch.export`` specialises dimensions of size 1, so a batch-1 example would
+    fix the batch at 1. Weights are stored inside the ``.onnx`` file unless they exceed about
+    1.5 GiB (protobuf's 2 GiB limit), in which case they go to ``<path>.data`` beside it.
+    """
+    import torch
 
     class ImageEncoder(torch.nn.Module):
         def __init__(self, clip_model):
@@ -100,42 +124,112 @@ def run(args: argparse.Namespace) -> int:
         def forward(self, pixel_values):
             return self.clip_model.encode_image(pixel_values)
 
-    args.out.mkdir(parents=True, exist_ok=True)
-    dummy = torch.zeros(1, 3, size, size)
-    onnx_path = args.out / "image_encoder.onnx"
-    torch.onnx.export(
-        ImageEncoder(model),
-        (dummy,),
-        str(onnx_path),
-        input_names=["pixel_values"],
-        output_names=["image_embeds"],
-        dynamic_axes={"pixel_values": {0: "N"}, "image_embeds": {0: "N"}},
-        opset_version=args.opset,
-    )
-    np.save(args.out / "text_embeddings.npy", text.astype(np.float32))
+    if opset < 18:
+        raise ValueError(f"--opset must be >= 18 for torch's exporter, got {opset}")
+    encoder = ImageEncoder(model).eval()
+    weight_bytes = sum(p.numel() * p.element_size() for p in model.visual.parameters())
+    external = weight_bytes > 1.5 * 2**30
+    stale = path.with_name(path.name + ".data")
+    if stale.exists():
+        stale.unlink()
+    example = torch.zeros(2, 3, size, size)
+    batch = torch.export.Dim("N", min=1, max=4096)
+    with torch.no_grad():
+        torch.onnx.export(
+            encoder,
+            (example,),
+            str(path),
+            input_names=["pixel_values"],
+            output_names=["image_embeds"],
+            dynamo=True,
+            dynamic_shapes={"pixel_values": {0: batch}},
+            opset_version=opset,
+            external_data=external,
+        )
+
+
+def write_clip_folder(
+    model,
+    tokenizer,
+    out: Path,
+    *,
+    name: str,
+    captions: list[str] | None = None,
+    template: str = PROMPT_TEMPLATE,
+    opset: int = 18,
+) -> dict:
+    """Export ``model`` (an open_clip CLIP in eval mode) into the CLIP folder ``out``:
+    ``image_encoder.onnx``, ``text_embeddings.npy`` (the caption sentences through the text
+    tower, unnormalised) and ``clip.json`` (from the model's preprocessing configuration).
+    Returns the ``clip.json`` content."""
+    import torch
+
+    captions = list(CAPTIONS) if captions is None else list(captions)
+    if "{}" not in template:
+        raise ValueError(f"--template must contain '{{}}', got {template!r}")
+    cfg = dict(getattr(model.visual, "preprocess_cfg", {}) or {})
+    size = _square_size(cfg, model.visual, name)
+    mean = [float(v) for v in cfg.get("mean", CLIP_MEAN)]
+    std = [float(v) for v in cfg.get("std", CLIP_STD)]
+    for key, expected in (("interpolation", "bicubic"), ("resize_mode", "shortest")):
+        if cfg.get(key, expected) != expected:
+            print(
+                f"warning: {name} uses {key}={cfg[key]!r}; pcvfe_drake preprocesses with "
+                f"{expected} (shortest side, centre crop), so features may differ slightly"
+            )
+    sentences = [template.format(c) for c in captions]
+    with torch.no_grad():
+        text = model.encode_text(tokenizer(sentences)).float().numpy()
+        logit_scale = float(model.logit_scale.exp().item())
+    out.mkdir(parents=True, exist_ok=True)
+    export_image_encoder(model, size, out / "image_encoder.onnx", opset)
+    np.save(out / "text_embeddings.npy", text.astype(np.float32))
     config = {
-        "model": f"{args.model}/{pretrained or 'random'}",
+        "model": name,
         "image_size": size,
         "mean": mean,
         "std": std,
         "logit_scale": logit_scale,
         "captions": captions,
-        "prompt_template": args.template,
+        "prompt_template": template,
     }
-    (args.out / "clip.json").write_text(json.dumps(config, indent=1) + "\n")
+    (out / "clip.json").write_text(json.dumps(config, indent=1) + "\n")
+    return config
 
-    # Check the export: onnxruntime and torch agree on one image.
+
+def check_export(model, folder: Path, batch: int = 3, seed: int = 0) -> float:
+    """Max relative difference between onnxruntime (through ``ClipFeatureExtractor``) and
+    torch image embeddings on a batch of random inputs (a batch dimension fixed at export time
+    fails here)."""
+    import torch
+
     from pcvfe_drake.features import ClipFeatureExtractor
 
-    extractor = ClipFeatureExtractor(args.out)
-    rng = np.random.default_rng(0)
-    pixels = rng.standard_normal((1, 3, size, size)).astype(np.float32)
+    extractor = ClipFeatureExtractor(folder)
+    s = extractor.image_size
+    pixels = np.random.default_rng(seed).standard_normal((batch, 3, s, s)).astype(np.float32)
     with torch.no_grad():
         ref = model.encode_image(torch.from_numpy(pixels)).float().numpy()
     got = extractor.encode(pixels)
-    err = float(np.abs(got - ref).max() / max(np.abs(ref).max(), 1e-12))
-    print(f"wrote {onnx_path}, text_embeddings.npy ({text.shape[0]} x {text.shape[1]}), clip.json")
-    print(f"check: onnxruntime vs torch image embedding, max relative difference {err:.2e}")
+    return float(np.abs(got - ref).max() / max(np.abs(ref).max(), 1e-12))
+
+
+def run(args: argparse.Namespace) -> int:
+    captions = read_captions(args.captions)
+    if "{}" not in args.template:
+        raise ValueError(f"--template must contain '{{}}', got {args.template!r}")
+    model, tokenizer = load_open_clip(args.model, args.pretrained, args.seed)
+    random = args.pretrained.lower() in ("none", "random")
+    name = f"{args.model}/random-seed{args.seed}" if random else f"{args.model}/{args.pretrained}"
+    write_clip_folder(
+        model, tokenizer, args.out, name=name, captions=captions, template=args.template,
+        opset=args.opset,
+    )  # fmt: skip
+    err = check_export(model, args.out)
+    files = sorted(p.name for p in args.out.iterdir())
+    print(f"wrote {args.out}: {', '.join(files)} ({len(captions)} captions)")
+    print(f"check: onnxruntime vs torch image embeddings (batch of 3), max relative difference "
+          f"{err:.2e}")  # fmt: skip
     if err > 1e-3:
         raise ValueError(f"exported encoder disagrees with torch (relative error {err:.2e})")
     return 0
