@@ -118,7 +118,7 @@ def run_simulation(
         )
     ResetIntegratorFromFlags(simulator, scenario.rates.integrator, scenario.rates.plant_max_step_s)
     if meshcat is not None:
-        meshcat.StartRecording(frames_per_second=1.0 / scenario.rates.log_period_s)
+        meshcat.StartRecording(frames_per_second=1.0 / scenario.rates.view_period_s)
     stop_t = scenario.stop_time_s()
     laps_goal = scenario.laps if scenario.duration_s is None else None
     lap_progress = LapProgress(course)
@@ -164,6 +164,7 @@ def run_simulation(
     finally:
         if bar is not None:
             bar.close()
+        diagram.GetSubsystemByName("run_logger").finish()
         run_log.close()
     context = simulator.get_context()
     result = SimulationResult(summary={}, log_errors=list(run_log.errors))

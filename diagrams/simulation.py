@@ -156,7 +156,7 @@ def MakeSimulation(
                 course_xy(course),
                 vehicle_length_m=params.length,
                 vehicle_width_m=params.width,
-                period_s=rates.log_period_s,
+                period_s=rates.view_period_s,
             ),
         )
         for name in ("state", "context_id", "theta_hat", "true_mu"):

@@ -48,8 +48,13 @@ class Rates:
     """Period at which the fitter samples state and actuation into its buffers (100 Hz)."""
     recluster_period_s: float = 10.0
     """Unrestricted HDBSCAN re-clustering period (0.1 Hz, the paper's)."""
-    log_period_s: float = 0.1
-    """Period of the run log rows appended to the drive log."""
+    log_period_s: float = 0.05
+    """Period of the run log rows appended to the drive log (20 Hz, the NMPC's rate: each row's
+    ``steer_rate`` and ``accel`` are the input held from that row to the next, which is what an
+    offline fit of the drive log assumes; a log period longer than the NMPC period samples the
+    input and biases such a fit)."""
+    view_period_s: float = 0.1
+    """Period of the Meshcat view's updates and of its recording's frames (10 Hz)."""
     plant_max_step_s: float = 0.01
     """Integrator step of the continuous plant [s] (the largest step for error-controlled
     schemes)."""

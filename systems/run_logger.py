@@ -34,7 +34,17 @@ class RunLogger(LeafSystem):
 
     Rate: one periodic publish event every ``period_s`` (the scenario's log period). The RunLog
     is the run's output sink, owned by the caller (its rows are written to disk in chunks, so an
-    interrupted run keeps what it had); call ``run_log.close()`` after the last AdvanceTo.
+    interrupted run keeps what it had); call :meth:`finish` and then ``run_log.close()`` after
+    the last AdvanceTo.
+
+    Input timing: a publish at time t runs before the discrete and unrestricted updates at t, so
+    the ``actuation`` it reads is the one held over the period *before* t. The drive-log format
+    pairs each row's state with the input applied *from* it (what an offline fit rolls out), so
+    each row is held back one period and written at the next publish, with the actuation read
+    there (with ``period_s`` equal to the controller's period that is exactly the input held from
+    the row to the next). :meth:`finish` writes the last row with the actuation at its own time
+    (the input held into it: the next one is not computed yet). Every other column is read at
+    the row's own time.
     """
 
     def __init__(self, run_log: RunLog, period_s: float) -> None:
@@ -51,20 +61,38 @@ class RunLogger(LeafSystem):
         self._true_terrain_port = self.DeclareVectorInputPort("true_terrain", 1)
         self._image_port = self.DeclareAbstractInputPort("image", AbstractValue.Make(ImageRgba8U()))
         self.DeclarePeriodicPublishEvent(period_sec=period_s, offset_sec=0.0, publish=self._log)
+        # The row waiting for the input applied from it (see "Input timing"); an output sink's
+        # bookkeeping like the RunLog itself, not part of the simulated state.
+        self._held_row: dict | None = None
 
     def _log(self, context) -> None:
+        actuation = np.array(self._actuation_port.Eval(context), dtype=float)
+        self._write_held(actuation)
         t = context.get_time()
         image = None
         if self._image_port.HasValue(context) and self.run_log.wants_frame(t):
-            image = np.asarray(self._image_port.Eval(context).data)
-        self.run_log.append(
-            t,
-            self._state_port.Eval(context),
-            self._actuation_port.Eval(context),
-            self._features_port.Eval(context),
-            float(self._context_port.Eval(context)[0]),
-            self._theta_port.Eval(context),
-            float(self._true_mu_port.Eval(context)[0]),
-            float(self._true_terrain_port.Eval(context)[0]),
-            image,
-        )
+            image = np.array(self._image_port.Eval(context).data)
+        self._held_row = {
+            "t_s": t,
+            "state": np.array(self._state_port.Eval(context), dtype=float),
+            "actuation": actuation,
+            "features": np.array(self._features_port.Eval(context), dtype=float),
+            "context_id": float(self._context_port.Eval(context)[0]),
+            "theta_hat": np.array(self._theta_port.Eval(context), dtype=float),
+            "mu_true": float(self._true_mu_port.Eval(context)[0]),
+            "terrain_index": float(self._true_terrain_port.Eval(context)[0]),
+            "image_rgb": image,
+        }
+
+    def _write_held(self, actuation: np.ndarray | None) -> None:
+        row, self._held_row = self._held_row, None
+        if row is None:
+            return
+        if actuation is not None:
+            row["actuation"] = actuation
+        self.run_log.append(**row)
+
+    def finish(self) -> None:
+        """Write the row still held back (the last one) with the actuation read at its time.
+        Call after the last AdvanceTo, before ``run_log.close()``; idempotent."""
+        self._write_held(None)

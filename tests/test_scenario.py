@@ -49,6 +49,8 @@ def test_shipped_scenarios_load_with_their_values():
     assert rr.camera.height_m == 0.5
     for s in (default, mb, rr):
         assert build_terrain_map(s).names[:4] == ["patchy_grass", "brick", "sand", "concrete"]
+        # One log row per NMPC update (the logged input is held over each row).
+        assert s.rates.log_period_s <= s.rates.nmpc_period_s
 
 
 def test_yaml_overrides_nested_fields_and_keeps_defaults(tmp_path):

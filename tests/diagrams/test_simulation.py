@@ -110,11 +110,15 @@ def test_ctrl_c_or_an_error_keeps_what_was_logged(tmp_path, monkeypatch, stop):
 
     monkeypatch.setattr(run_module, "Simulator", StoppedSimulator)
     folder = RunFolder(tmp_path / "run")
-    result = run_simulation(short_scenario(10.0), folder, progress=False)
+    scenario = short_scenario(10.0)
+    result = run_simulation(scenario, folder, progress=False)
     s = result.summary
     assert s["interrupted"] is (stop is KeyboardInterrupt)
     assert ("stopped by the test" in s.get("error", "")) is (stop is RuntimeError)
-    assert s["sim_time_s"] == pytest.approx(2.1, abs=0.11)
-    assert len(read_drive_log(folder.drive_log)) == s["log_rows"] == 21
-    assert json.loads(folder.summary.read_text())["log_rows"] == 21
+    period = scenario.rates.log_period_s
+    assert period == pytest.approx(0.05)  # the NMPC's rate: one row per held input
+    assert s["sim_time_s"] == pytest.approx(2.0 + period, abs=1e-6)
+    rows = int(round(2.0 / period)) + 1  # rows at t = 0, period, ..., 2.0 s
+    assert len(read_drive_log(folder.drive_log)) == s["log_rows"] == rows
+    assert json.loads(folder.summary.read_text())["log_rows"] == rows
     assert result.figures["fig5_mu_over_time"]

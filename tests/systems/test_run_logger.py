@@ -44,9 +44,13 @@ def test_rows_frames_and_chunks(tmp_path):
     )
     simulator = Simulator(build(run_log, with_image=True))
     simulator.AdvanceTo(1.0)  # publishes at 0.0, 0.1, ..., 1.0
-    assert len(run_log) == 11
+    assert len(run_log) == 10  # the row of t = 1.0 waits for the input applied from it
     on_disk = read_drive_log(tmp_path / "drive_log.csv")
     assert len(on_disk) == 8  # two chunks of 4 written while running
+    logger = simulator.get_system().GetSubsystemByName("run_logger")
+    logger.finish()
+    logger.finish()  # idempotent
+    assert len(run_log) == 11
     run_log.close()
     df = run_log.to_frame()
     assert len(read_drive_log(tmp_path / "drive_log.csv")) == 11
@@ -67,6 +71,48 @@ def test_in_memory_without_image_and_bad_features():
     run_log = RunLog(None, ["sand"], 3)
     simulator = Simulator(build(run_log, with_image=False))
     simulator.AdvanceTo(0.35)
+    simulator.get_system().GetSubsystemByName("run_logger").finish()
     assert len(run_log) == 4 and set(run_log.to_frame()["image"]) == {""}
     with pytest.raises(ValueError, match="features has 2 entries"):
         run_log.append(1.0, np.zeros(7), np.zeros(2), np.zeros(2), 0, np.ones(3), 0.5, 0)
+
+
+def test_each_row_gets_the_input_applied_from_it():
+    """A controller updating at the log's rate (offset 0, like the Nmpc): its new output at t
+    is held over [t, t + period); the row of t must carry that value, not the one before."""
+    from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
+
+    class Counter(LeafSystem):  # output k on [0.1 k, 0.1 (k + 1)): 1 from t = 0 on
+        def __init__(self) -> None:
+            super().__init__()
+            index = self.DeclareDiscreteState(BasicVector([0.0, 0.0]))
+            self.DeclarePeriodicDiscreteUpdateEvent(0.1, 0.0, self._update)
+            self.DeclareStateOutputPort("actuation", index)
+
+        def _update(self, context, discrete_state):
+            k = context.get_discrete_state_vector().GetAtIndex(0) + 1.0
+            discrete_state.set_value([k, 0.0])
+            return EventStatus.Succeeded()
+
+    run_log = RunLog(None, ["sand"], 3)
+    builder = DiagramBuilder()
+    logger = builder.AddNamedSystem("run_logger", RunLogger(run_log, period_s=0.1))
+    counter = builder.AddSystem(Counter())
+    builder.Connect(counter.get_output_port(), logger.GetInputPort("actuation"))
+    for name, size in (
+        ("state", 7),
+        ("features", 3),
+        ("context_id", 1),
+        ("theta_hat", 3),
+        ("true_mu", 1),
+        ("true_terrain", 1),
+    ):
+        source = builder.AddSystem(ConstantVectorSource(np.ones(size)))
+        builder.Connect(source.get_output_port(), logger.GetInputPort(name))
+    simulator = Simulator(builder.Build())
+    simulator.AdvanceTo(0.5)
+    logger.finish()
+    df = run_log.to_frame()
+    np.testing.assert_allclose(df["t"], [0.0, 0.1, 0.2, 0.3, 0.4, 0.5], atol=1e-12)
+    # Rows 0..4 carry the value applied from them; the last row the value held into it.
+    np.testing.assert_allclose(df["steer_rate"], [1.0, 2.0, 3.0, 4.0, 5.0, 5.0])
