@@ -122,3 +122,22 @@ def test_ctrl_c_or_an_error_keeps_what_was_logged(tmp_path, monkeypatch, stop):
     assert len(read_drive_log(folder.drive_log)) == s["log_rows"] == rows
     assert json.loads(folder.summary.read_text())["log_rows"] == rows
     assert result.figures["fig5_mu_over_time"]
+
+
+def test_every_fitter_setting_is_a_context_fitter_keyword():
+    from pcvfe_drake.systems.context_fitter import ContextFitter
+
+    from pcvfe_drake.params import load_vehicle
+    from pcvfe_drake.scenario import FitterSettings, settings_kwargs
+
+    values = FitterSettings(
+        horizon_steps=8,
+        stride_steps=4,
+        min_speed_mps=1.0,
+        fit_stiffness=False,
+        min_windows=10,
+        buffer_s=30.0,
+    )
+    kwargs = settings_kwargs(values)
+    assert set(kwargs) == {f.name for f in dataclasses.fields(FitterSettings)}
+    ContextFitter(load_vehicle(None), period_s=1.0, sample_period_s=0.01, **kwargs)
