@@ -106,6 +106,7 @@ def MakeSimulation(
             clustering_params(scenario),
             frame_period_s=rates.camera_period_s,
             recluster_period_s=rates.recluster_period_s,
+            frame_offset_s=rates.clustering_frame_offset_s,
         ),
     )
     fitter = builder.AddNamedSystem(

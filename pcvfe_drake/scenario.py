@@ -55,6 +55,11 @@ class Rates:
     input and biases such a fit)."""
     view_period_s: float = 0.1
     """Period of the Meshcat view's updates and of its recording's frames (10 Hz)."""
+    clustering_frame_offset_s: float = 0.001
+    """Offset of the clustering's per-frame assignment after each camera frame [s]. The camera
+    takes its frame at offset 0; an assignment at the same instant would read the previous frame
+    (simultaneous updates see the state before the step), adding a frame period to every
+    latency. 1 ms later it assigns the frame just taken. Must be in [0, camera_period_s)."""
     plant_max_step_s: float = 0.01
     """Integrator step of the continuous plant [s] (the largest step for error-controlled
     schemes)."""
@@ -255,10 +260,19 @@ def scenario_problems(scenario: Scenario) -> list[str]:
         "must be >= 0",
     )
     for f in dataclasses.fields(Rates):
-        if f.name == "integrator":
+        if f.name in ("integrator", "clustering_frame_offset_s"):
             continue
         value = getattr(s.rates, f.name)
         need(_is_number(value) and value > 0, f"rates.{f.name}", value, "must be a period > 0 s")
+    offset = s.rates.clustering_frame_offset_s
+    need(
+        _is_number(offset)
+        and offset >= 0
+        and (not _is_number(s.rates.camera_period_s) or offset < s.rates.camera_period_s),
+        "rates.clustering_frame_offset_s",
+        offset,
+        "must be >= 0 s and shorter than rates.camera_period_s",
+    )
     if _is_number(s.rates.camera_period_s) and _is_number(s.rates.recluster_period_s):
         need(
             s.rates.recluster_period_s >= s.rates.camera_period_s,

@@ -30,11 +30,15 @@ class ContextClustering(LeafSystem):
       size, first/last seen time of every context, vanished ones included).
 
     Rates: a periodic unrestricted update every ``frame_period_s`` (default 1 / frame rate of
-    ``params``, 0.1 s) reads ``features`` and assigns and stores the frame at once; a periodic
-    unrestricted update every ``recluster_period_s`` (default 10 s = 0.1 Hz, first at t = 10 s)
-    re-clusters and keeps ids by centroid persistence (paper Algorithm 1). When both fire at the
-    same time the frame is taken first. The :class:`ContextClusterer` (store, table, random
-    generator) lives in the context's abstract state. A frame with non-finite features gets -1
+    ``params``, 0.1 s), at ``frame_offset_s`` after each period start (default 0), reads
+    ``features`` and assigns and stores the frame at once; a periodic unrestricted update every
+    ``recluster_period_s`` (default 10 s = 0.1 Hz, first at t = 10 s) re-clusters and keeps ids
+    by centroid persistence (paper Algorithm 1). When both fire at the same time the frame is
+    taken first. A camera that updates its image at offset 0 is read one period late by a frame
+    event at offset 0 (simultaneous updates read the state before the step); a small
+    ``frame_offset_s`` (e.g. 1 ms) assigns each frame in the same period it was taken. The
+    :class:`ContextClusterer` (store, table, random generator) lives in the context's abstract
+    state. A frame with non-finite features gets -1
     and is not stored.
     """
 
@@ -45,6 +49,7 @@ class ContextClustering(LeafSystem):
         *,
         frame_period_s: float | None = None,
         recluster_period_s: float = 10.0,
+        frame_offset_s: float = 0.0,
     ) -> None:
         super().__init__()
         if not (isinstance(feature_dim, int | np.integer) and feature_dim >= 1):
@@ -58,7 +63,13 @@ class ContextClustering(LeafSystem):
         ):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number of seconds, got {value!r}")
+        if not (math.isfinite(frame_offset_s) and 0.0 <= frame_offset_s < frame_period_s):
+            raise ValueError(
+                f"frame_offset_s must be in [0, frame_period_s={frame_period_s}) s, "
+                f"got {frame_offset_s!r}"
+            )
         self._feature_dim = int(feature_dim)
+        self._frame_offset_s = float(frame_offset_s)
         self._frame_period_s = float(frame_period_s)
         self._recluster_period_s = float(recluster_period_s)
 
@@ -68,7 +79,9 @@ class ContextClustering(LeafSystem):
         )
         self._id_index = self.DeclareDiscreteState(BasicVector([float(NOISE)]))
         self.DeclarePeriodicUnrestrictedUpdateEvent(
-            period_sec=self._frame_period_s, offset_sec=0.0, update=self._on_frame
+            period_sec=self._frame_period_s,
+            offset_sec=self._frame_offset_s,
+            update=self._on_frame,
         )
         self.DeclarePeriodicUnrestrictedUpdateEvent(
             period_sec=self._recluster_period_s,
@@ -92,6 +105,11 @@ class ContextClustering(LeafSystem):
     def frame_period_s(self) -> float:
         """Period of the per-frame assignment [s]."""
         return self._frame_period_s
+
+    @property
+    def frame_offset_s(self) -> float:
+        """Offset of the per-frame assignment within its period [s]."""
+        return self._frame_offset_s
 
     @property
     def recluster_period_s(self) -> float:

@@ -49,8 +49,10 @@ def test_shipped_scenarios_load_with_their_values():
     assert rr.camera.height_m == 0.5
     for s in (default, mb, rr):
         assert build_terrain_map(s).names[:4] == ["patchy_grass", "brick", "sand", "concrete"]
-        # One log row per NMPC update (the logged input is held over each row).
+        # One log row per NMPC update (the logged input is held over each row); the clustering
+        # assigns each camera frame 1 ms after it is taken, in the same camera period.
         assert s.rates.log_period_s <= s.rates.nmpc_period_s
+        assert 0 < s.rates.clustering_frame_offset_s < s.rates.camera_period_s
 
 
 def test_yaml_overrides_nested_fields_and_keeps_defaults(tmp_path):
@@ -84,6 +86,8 @@ def test_yaml_overrides_nested_fields_and_keeps_defaults(tmp_path):
         ("rates: {nmpc_period_s: -0.05}", "rates.nmpc_period_s=-0.05"),
         ("laps: null", "laps and duration_s are both unset"),
         ("nmpc: {model: pid}", "nmpc.model='pid'"),
+        ("rates: {clustering_frame_offset_s: 0.1}", "rates.clustering_frame_offset_s=0.1"),
+        ("rates: {clustering_frame_offset_s: -0.001}", "rates.clustering_frame_offset_s=-0.001"),
         ("name: [1, 2", "not valid YAML"),
         ("- 1\n- 2", "the document must be a mapping"),
     ],

@@ -100,3 +100,60 @@ def test_simulation_two_terrains_new_id_and_reidentification():
     )
     assert table.active_ids == [0, 1]
     assert table.n_reclusterings == 5
+
+
+class _FrameStamp:
+    """A camera stand-in: a LeafSystem whose output (from state) is the time of its latest
+    frame, updated every 0.1 s at offset 0 like the TextureCamera."""
+
+    @staticmethod
+    def make():
+        from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
+
+        class FrameStamp(LeafSystem):
+            def __init__(self) -> None:
+                super().__init__()
+                index = self.DeclareDiscreteState(BasicVector([-1.0]))
+                self.DeclarePeriodicDiscreteUpdateEvent(0.1, 0.0, self._frame)
+                self.DeclareStateOutputPort("features", index)
+
+            def _frame(self, context, discrete_state):
+                discrete_state.set_value([context.get_time()])
+                return EventStatus.Succeeded()
+
+        return FrameStamp()
+
+
+@pytest.mark.parametrize(("offset_s", "age_s"), [(0.001, 0.001), (0.0, 0.1)])
+def test_frame_offset_assigns_the_frame_of_the_same_period(offset_s, age_s):
+    from pcvfe_drake.clustering import ContextClusterer
+
+    class Recording(ContextClusterer):
+        def __init__(self, params):
+            super().__init__(params)
+            self.seen: list[tuple[float, float]] = []
+
+        def assign(self, z, t_s):
+            self.seen.append((float(t_s), float(z[0])))
+            return super().assign(z, t_s)
+
+    builder = DiagramBuilder()
+    camera = builder.AddSystem(_FrameStamp.make())
+    clustering = builder.AddSystem(ContextClustering(feature_dim=1, frame_offset_s=offset_s))
+    builder.Connect(camera.get_output_port(0), clustering.get_input_port(0))
+    diagram = builder.Build()
+    root = diagram.CreateDefaultContext()
+    params = clustering.params
+    clustering.GetMyMutableContextFromRoot(root).get_mutable_abstract_state(0).set_value(
+        Recording(params)
+    )
+    simulator = Simulator(diagram, root)
+    simulator.AdvanceTo(1.05)
+    seen = np.array(clustering.clusterer(clustering.GetMyContextFromRoot(root)).seen)
+    assert len(seen) == 11
+    np.testing.assert_allclose(seen[:, 0], np.arange(11) * 0.1 + offset_s, atol=1e-9)
+    # Age of the frame at its assignment: 1 ms with the offset, a whole period without it.
+    np.testing.assert_allclose((seen[:, 0] - seen[:, 1])[1:], age_s, atol=1e-9)
+    assert clustering.frame_offset_s == offset_s
+    with pytest.raises(ValueError, match="frame_offset_s"):
+        ContextClustering(feature_dim=1, frame_offset_s=0.1)
