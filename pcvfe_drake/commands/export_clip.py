@@ -93,15 +93,23 @@ def import_export_deps():
 
 
 def load_open_clip(model_name: str, pretrained: str | None, seed: int = 0):
-    """(model in eval mode, tokenizer) from open_clip. ``pretrained=None`` (or "none") builds
-    the architecture with random weights drawn after ``torch.manual_seed(seed)``, so the same
-    seed gives the same weights."""
+    """(model in eval mode, tokenizer) from open_clip.
+
+    The activation follows the pretrained tag: OpenAI's weights (and some others) were trained
+    with QuickGELU, which open_clip's plain model names (``ViT-B-32``) do not use unless told;
+    loading them into a GELU model only warns and gives worse features. ``pretrained=None``
+    (or "none") builds the architecture that ``--pretrained openai`` would export, with random
+    weights drawn after ``torch.manual_seed(seed)`` (the same seed gives the same weights).
+    """
     open_clip, torch = import_export_deps()
     if pretrained is not None and pretrained.lower() in ("none", "random"):
         pretrained = None
+    tag = pretrained if pretrained is not None else "openai"
+    tag_cfg = open_clip.get_pretrained_cfg(model_name, tag) or {}
+    quick_gelu = bool(tag_cfg.get("quick_gelu", False))
     if pretrained is None:
         torch.manual_seed(int(seed))
-    model = open_clip.create_model(model_name, pretrained=pretrained)
+    model = open_clip.create_model(model_name, pretrained=pretrained, force_quick_gelu=quick_gelu)
     model.eval()
     return model, open_clip.get_tokenizer(model_name)
 
