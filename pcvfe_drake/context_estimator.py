@@ -10,7 +10,9 @@ previous estimate; contexts are served round-robin).
 Rules (the "bad input" behaviour):
 
 * samples with non-finite values are not stored (counted in ``rejected_samples``);
-* noise/unknown contexts (id < 0, or non-finite) are not stored and map to the prior theta;
+* noise/unknown contexts (id < 0, or non-finite) are not stored; they map to the estimate of the
+  last known context while the noise has lasted at most ``noise_hold_s`` (a stray noise frame
+  inside a known terrain does not throw the controller back to the prior), then to the prior;
 * a context with fewer than ``min_windows`` usable windows keeps the prior theta and its table
   entry says so (status ``"too_little_data"``);
 * a refit whose solver diverges (non-finite loss or estimate) keeps the last good estimate and
@@ -200,6 +202,8 @@ class LiveFitConfig:
         stiffness_prior_rel: prior standard deviation of the stiffnesses, relative.
         prior_theta: theta for noise/unknown contexts and contexts with too little data
             (default: the vehicle's nominal [mu, C_Sf, C_Sr]).
+        noise_hold_s: how long [s] a noise/unknown context keeps the last known context's
+            theta before falling back to the prior (0: the prior at once).
         min_windows: fewer usable windows than this: keep the prior.
         buffer_s: seconds of data kept per context (at ``sample_period_s``).
         sample_period_s: the data rate [s] (sets the buffer capacity).
@@ -221,6 +225,7 @@ class LiveFitConfig:
     max_windows: int = 512
     max_iterations: int = 5
     max_contexts_per_update: int = 2
+    noise_hold_s: float = 1.0
 
     def __post_init__(self) -> None:
         positive_ints = (
@@ -239,6 +244,8 @@ class LiveFitConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"LiveFitConfig.{name} must be > 0, got {value!r}")
+        if not (math.isfinite(self.noise_hold_s) and self.noise_hold_s >= 0):
+            raise ValueError(f"LiveFitConfig.noise_hold_s must be >= 0, got {self.noise_hold_s!r}")
         if not math.isfinite(self.min_speed_mps):
             raise ValueError(f"LiveFitConfig.min_speed_mps must be finite: {self.min_speed_mps!r}")
         if self.prior_theta is not None:
@@ -271,6 +278,9 @@ class ContextEstimator:
     rejected_samples: int = 0
     noise_samples: int = 0
     current_context: int = -1
+    last_known_context: int = -1
+    last_known_time_s: float = -math.inf
+    last_sample_time_s: float = -math.inf
 
     def __post_init__(self) -> None:
         prior = self.params.theta if self.config.prior_theta is None else self.config.prior_theta
@@ -314,6 +324,10 @@ class ContextEstimator:
         cid = float(np.asarray(context_id, dtype=float).reshape(-1)[0])
         ident = int(round(cid)) if math.isfinite(cid) and cid >= 0 else -1
         self.current_context = ident
+        if math.isfinite(t):
+            self.last_sample_time_s = t
+            if ident >= 0:
+                self.last_known_context, self.last_known_time_s = ident, t
         if not (math.isfinite(t) and np.all(np.isfinite(state)) and np.all(np.isfinite(inputs))):
             self.rejected_samples += 1
             return -1
@@ -331,8 +345,18 @@ class ContextEstimator:
         return ident
 
     def theta_for(self, context_id: int | None = None) -> np.ndarray:
-        """theta in use for ``context_id`` (default: the current one): always finite."""
+        """theta in use for ``context_id`` (default: the current one): always finite.
+
+        For the current context, noise within ``noise_hold_s`` of the last known context keeps
+        that context's theta.
+        """
         ident = self.current_context if context_id is None else int(context_id)
+        if (
+            context_id is None
+            and ident < 0
+            and self.last_sample_time_s - self.last_known_time_s <= self.config.noise_hold_s
+        ):
+            ident = self.last_known_context
         slot = self._slots.get(ident)
         theta = np.array(self._prior if slot is None else slot.estimate.theta)
         return theta if np.all(np.isfinite(theta)) else np.array(self._prior)

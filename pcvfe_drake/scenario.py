@@ -132,6 +132,8 @@ class FitterSettings:
     """Fewer usable windows than this: the context keeps the prior."""
     buffer_s: float | None = None
     """Seconds of data kept per context."""
+    noise_hold_s: float | None = None
+    """Noise this long [s] after a known context keeps its estimate; then the prior."""
 
 
 @dataclass

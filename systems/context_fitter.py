@@ -32,9 +32,10 @@ class ContextFitter(LeafSystem):
     - ``actuation``: 2-vector [steer_rate rad/s, accel m/s^2] applied to the vehicle.
     - ``context_id``: 1-vector, the terrain context (float-valued int; -1 = noise/unknown).
     - ``theta_hat``: 3-vector [mu, C_Sf, C_Sr] of the current context, from state (zero-order
-      hold at the sample rate, no direct feedthrough). Noise/unknown contexts and contexts with
-      too little data get the prior theta (default: the vehicle's nominal values, for the Ford
-      Escort [1.0489, 20.898, 20.898]). Always finite.
+      hold at the sample rate, no direct feedthrough). Contexts with too little data, and
+      noise/unknown contexts lasting longer than ``noise_hold_s`` (default 1 s; shorter noise
+      keeps the last known context's theta), get the prior theta (default: the vehicle's nominal
+      values, for the Ford Escort [1.0489, 20.898, 20.898]). Always finite.
     - ``estimate_table``: abstract :class:`pcvfe_drake.context_estimator.EstimateTable`: per
       context theta, standard deviations, samples, windows, last update time, status and the
       number of discarded (diverged) refits.

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -317,3 +319,20 @@ def test_a_10_hz_log_is_fitted_with_rk4_substeps(params):
     # One 0.1 s RK4 step per sample instead: unstable/inaccurate, far off.
     coarse = fit_gauss_newton(data, params, options=FitOptions(max_step_s=0.1))
     assert coarse.loss > 100 * result.loss
+
+
+def test_short_noise_keeps_the_last_context_estimate_then_falls_back_to_the_prior():
+    params = ford_escort()
+    est = ContextEstimator(params, LiveFitConfig(noise_hold_s=0.5))
+    state = np.array([0.0, 0.0, 0.0, 5.0, 0.0, 0.0, 0.0])
+    est.add_sample(0.0, state, [0.0, 0.0], [3])
+    slot = est._slots[3]
+    slot.estimate = replace(slot.estimate, theta=(0.45, params.C_Sf, params.C_Sr))
+    np.testing.assert_allclose(est.theta_for(), [0.45, params.C_Sf, params.C_Sr])
+    est.add_sample(0.3, state, [0.0, 0.0], [-1])  # 0.3 s of noise: still the context's estimate
+    assert est.theta_for()[0] == 0.45
+    est.add_sample(0.6, state, [0.0, 0.0], [-1])  # 0.6 s: the prior
+    np.testing.assert_allclose(est.theta_for(), est.prior_theta)
+    assert est.theta_for(-1)[0] == params.mu  # an explicit noise id is always the prior
+    with pytest.raises(ValueError, match="noise_hold_s"):
+        LiveFitConfig(noise_hold_s=-1.0)

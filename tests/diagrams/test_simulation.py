@@ -137,6 +137,7 @@ def test_every_fitter_setting_is_a_context_fitter_keyword():
         fit_stiffness=False,
         min_windows=10,
         buffer_s=30.0,
+        noise_hold_s=0.5,
     )
     kwargs = settings_kwargs(values)
     assert set(kwargs) == {f.name for f in dataclasses.fields(FitterSettings)}

@@ -81,7 +81,9 @@ def test_recorded_drive_converges_and_switches_context(params):
         builder.AddSystem(TrajectorySource(PiecewisePolynomial.ZeroOrderHold(times, y.T)))
         for y in (states, inputs, ctx[None, :].T)
     ]
-    fitter = builder.AddNamedSystem("fitter", ContextFitter(params, period_s=1.0))
+    fitter = builder.AddNamedSystem(
+        "fitter", ContextFitter(params, period_s=1.0, noise_hold_s=0.25)
+    )
     for source, name in zip(sources, ("state", "actuation", "context_id"), strict=True):
         builder.Connect(source.get_output_port(), fitter.GetInputPort(name))
     log = LogVectorOutput(fitter.GetOutputPort("theta_hat"), builder, publish_period=0.05)
@@ -102,7 +104,7 @@ def test_recorded_drive_converges_and_switches_context(params):
     assert abs(e2.mu - 0.45) < 0.01 and e2.fits >= 1 and e2.mu_std < 0.01
     assert abs(e5.mu - 0.8) < 0.01 and e5.last_update_s > 3.5
     assert table.noise_samples >= 50
-    # Context -1 at the end: the prior.
+    # Context -1 at the end, for longer than noise_hold_s: the prior.
     np.testing.assert_array_equal(fitter.GetOutputPort("theta_hat").Eval(fc), params.theta)
     data = log.FindLog(root).data()
     assert np.all(np.isfinite(data))
