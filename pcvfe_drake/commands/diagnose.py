@@ -107,9 +107,24 @@ def run(args: argparse.Namespace) -> int:
             )
         print(report["verdict"])
         if "added" in report:
+            added = report["added"]
             print(
-                f"added {', '.join(report['added']['effects'])}: held-out error drop "
-                f"{report['error_drop']:.1%}"
+                f"added {', '.join(added['effects'])}: held-out error drop "
+                f"{report['error_drop']:.1%} (model error {base['heldout_error']:.3g} -> "
+                f"{added['heldout_error']:.3g}, multi-step {base['heldout_multistep_error']:.3g}"
+                f" -> {added['heldout_multistep_error']:.3g}, p={added['p_value']:.2g})"
+            )
+            for name, p in added["params"].items():
+                print(f"  {name:24s} {p['value']:.5g} +- {p['std']:.2g} {p['unit']}")
+            horizon = base["fit_percent_horizon"]
+            after = added["heldout"]["fit_percent_kstep"].get(horizon, {})
+            print(
+                f"  fit % at {horizon} before -> after: "
+                + ", ".join(
+                    f"{k} {v:.1f} -> {after[k]:.1f}"
+                    for k, v in base["fit_percent"].items()
+                    if k in after
+                )
             )
         if args.out:
             print(f"report written to {args.out}", file=sys.stderr)
