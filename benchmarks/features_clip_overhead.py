@@ -310,6 +310,8 @@ def main() -> int:
         "weights when torch, open_clip and onnxscript are installed)",
     )
     args = parser.parse_args()
+    if args.clip is not None and not (args.clip / "clip.json").is_file():
+        parser.error(f"--clip {args.clip}: not a CLIP model folder (no clip.json)")
     n = 40 if args.quick else 200
     rng = np.random.default_rng(0)
     from pcvfe_drake.camera import DownwardCamera
