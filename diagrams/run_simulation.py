@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 from pcvfe_drake.diagrams.simulation import MakeSimulation, course_xy
-from pydrake.geometry import Meshcat
+from pydrake.geometry import Meshcat, MeshcatParams
 from pydrake.systems.analysis import GetIntegrationSchemes, ResetIntegratorFromFlags, Simulator
 
 from pcvfe_drake.course import Course
@@ -68,6 +68,13 @@ class LapProgress:
                 self.travelled_m += float(self.course.unwrap_progress(s)[-1] - s[0])
             self._s_prev = float(s[-1])
         return self.travelled_m / self.course.length
+
+
+def StartLocalMeshcat() -> Meshcat:
+    """A Meshcat server bound to localhost only (create it once, at the top, and pass it in)."""
+    params = MeshcatParams()
+    params.host = "localhost"
+    return Meshcat(params)
 
 
 def _estimate_table(diagram, context) -> list[dict]:

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from pcvfe_drake.params import load_vehicle
-from pcvfe_drake.vehicle import INPUT_NAMES, STATE_NAMES, STATE_UNITS
+from pcvfe_drake.vehicle import STATE_NAMES, STATE_UNITS
 
 LOG_PERIOD_S = 0.02
 CHUNK_S = 1.0
@@ -60,64 +60,26 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.duration) and 0 < args.duration <= MAX_DURATION_S):
         raise ValueError(f"--duration must be in (0, {MAX_DURATION_S:g}] s, got {args.duration}")
-    # The CLI layer may use the systems; the core modules never import pydrake.
-    from pydrake.systems.analysis import Simulator
-    from pydrake.systems.framework import DiagramBuilder
-    from pydrake.systems.primitives import LogVectorOutput, Multiplexer, TrajectorySource
-    from pydrake.trajectories import PiecewisePolynomial
-
-    from pcvfe_drake.drivelog import DriveLogWriter
-    from pcvfe_drake.systems.vehicle_plant import VehiclePlant
+    # The diagram lives in pcvfe_drake.diagrams (imported here, not at module import time, so
+    # that the core package stays free of pydrake).
+    from pcvfe_drake.diagrams.plant_demo import run_plant_demo
     from pcvfe_drake.terrain import default_terrain_map
 
     params = load_vehicle(args.vehicle)
-    terrain_map = default_terrain_map()
-    builder = DiagramBuilder()
-    plant = builder.AddNamedSystem(
-        "plant", VehiclePlant(params, terrain_map, truth=args.truth, x0=START_STATE)
+    result = run_plant_demo(
+        params,
+        default_terrain_map(),
+        open_loop_input,
+        x0=START_STATE,
+        duration_s=args.duration,
+        out_dir=args.out,
+        truth=args.truth,
+        log_period_s=LOG_PERIOD_S,
+        chunk_s=CHUNK_S,
     )
-    times = np.arange(0.0, args.duration + 0.01, 0.01)
-    profile = PiecewisePolynomial.FirstOrderHold(times, open_loop_input(times).T)
-    source = builder.AddNamedSystem("open_loop", TrajectorySource(profile))
-    builder.Connect(source.get_output_port(), plant.get_actuation_input_port())
-    mux = builder.AddNamedSystem("log_mux", Multiplexer([7, 2, 1, 1]))
-    builder.Connect(plant.get_state_output_port(), mux.get_input_port(0))
-    builder.Connect(source.get_output_port(), mux.get_input_port(1))
-    builder.Connect(plant.get_true_mu_output_port(), mux.get_input_port(2))
-    builder.Connect(plant.get_true_terrain_output_port(), mux.get_input_port(3))
-    logger = LogVectorOutput(mux.get_output_port(), builder, publish_period=LOG_PERIOD_S)
-    diagram = builder.Build()
-    diagram.set_name("demo")
-
-    simulator = Simulator(diagram)
-    simulator.Initialize()
-    args.out.mkdir(parents=True, exist_ok=True)
-    log_path = args.out / "drive_log.csv"
-    names = np.array(terrain_map.names + [""], dtype=object)
-    with DriveLogWriter(log_path) as writer:
-        t = 0.0
-        while t < args.duration - 1e-9:
-            t = min(t + CHUNK_S, args.duration)
-            simulator.AdvanceTo(t)
-            log = logger.FindMutableLog(simulator.get_context())
-            data = log.data()
-            if log.num_samples():
-                chunk = {"t": log.sample_times().copy()}
-                for i, name in enumerate((*STATE_NAMES, *INPUT_NAMES)):
-                    chunk[name] = data[i].copy()
-                chunk["mu_true"] = data[9].copy()
-                chunk["terrain"] = names[data[10].astype(int)]
-                writer.append(chunk)
-                log.Clear()
-        rows = writer.rows_written
-
-    context = plant.GetMyContextFromRoot(simulator.get_context())
-    x = plant.get_state_output_port().Eval(context)
-    mu = plant.get_true_mu_output_port().Eval(context)[0]
-    k = int(plant.get_true_terrain_output_port().Eval(context)[0])
     print(f"final state after {args.duration:g} s ({params.name}, {args.truth} truth):")
-    for name, unit, value in zip(STATE_NAMES, STATE_UNITS, x, strict=True):
+    for name, unit, value in zip(STATE_NAMES, STATE_UNITS, result.final_state, strict=True):
         print(f"  {name:8s} {value:12.4f}  [{unit}]")
-    print(f"  terrain  {terrain_map.terrains[k].name} (true mu {mu:g})")
-    print(f"drive log: {log_path} ({rows} rows)")
+    print(f"  terrain  {result.terrain} (true mu {result.true_mu:g})")
+    print(f"drive log: {result.log_path} ({result.rows} rows)")
     return 0

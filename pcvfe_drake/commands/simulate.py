@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     _check_args(args)
     import dataclasses
 
-    from pcvfe_drake.diagrams.run_simulation import RunFolder, run_simulation
+    from pcvfe_drake.diagrams.run_simulation import RunFolder, StartLocalMeshcat, run_simulation
     from pcvfe_drake.diagrams.scenario_io import load_scenario, save_scenario
 
     scenario = load_scenario(args.scenario)
@@ -83,11 +83,7 @@ def run(args: argparse.Namespace) -> int:
 
     meshcat = None
     if args.meshcat:
-        from pydrake.geometry import Meshcat, MeshcatParams
-
-        params = MeshcatParams()
-        params.host = "localhost"
-        meshcat = Meshcat(params)
+        meshcat = StartLocalMeshcat()
         print(f"Meshcat: {meshcat.web_url()} (localhost only)")
 
     folder = RunFolder(out)
