@@ -96,7 +96,11 @@ def MakeSimulation(
     )
     features = builder.AddNamedSystem(
         "features",
-        ClipFeatures(scenario.features.backend, lambda_c=scenario.features.lambda_c),
+        ClipFeatures(
+            scenario.features.backend,
+            lambda_c=scenario.features.lambda_c,
+            threads=scenario.features.clip_threads,
+        ),
     )
     feature_dim = features.GetOutputPort("features").size()
     clustering = builder.AddNamedSystem(

@@ -321,6 +321,8 @@ class ClipFeatureExtractor(FeatureExtractor):
         self.captions: list[str] = cfg["captions"]
         self.text_embeddings = self._read_embeddings(self.folder / self.EMBEDDINGS)
         self._buffer: np.ndarray | None = None
+        self.threads = int(threads)
+        """onnxruntime intra-op threads of the image encoder session."""
         self._session, self._input_name = self._open_session(self.folder / self.ENCODER, threads)
 
     # ------------------------------------------------------------------ loading
@@ -469,13 +471,17 @@ class ClipFeatureExtractor(FeatureExtractor):
 
 
 def make_extractor(
-    backend: str = "descriptor", clip_dir: Path | str | None = None, lambda_c: float = LAMBDA_C
+    backend: str = "descriptor",
+    clip_dir: Path | str | None = None,
+    lambda_c: float = LAMBDA_C,
+    threads: int = 2,
 ) -> FeatureExtractor:
-    """Backend by name: ``"descriptor"`` or ``"clip"`` (needs ``clip_dir``)."""
+    """Backend by name: ``"descriptor"`` or ``"clip"`` (needs ``clip_dir``; ``threads`` is the
+    onnxruntime intra-op thread count, 1 is the safer choice on a loaded 2-core machine)."""
     if backend == "descriptor":
         return DescriptorExtractor(lambda_c=lambda_c)
     if backend == "clip":
         if clip_dir is None:
             raise ValueError("the clip backend needs a model folder (clip_dir)")
-        return ClipFeatureExtractor(clip_dir, lambda_c=lambda_c)
+        return ClipFeatureExtractor(clip_dir, lambda_c=lambda_c, threads=threads)
     raise ValueError(f"unknown feature backend {backend!r}; use 'descriptor' or 'clip'")

@@ -98,6 +98,8 @@ class FeatureSettings:
     backend: str = DESCRIPTOR_BACKEND
     lambda_c: float = 0.25
     """Weight of the mean RGB appended to the similarity vector (paper eq. 4)."""
+    clip_threads: int = 2
+    """onnxruntime threads of the CLIP backend (1 is safer on a loaded 2-core machine)."""
 
 
 @dataclass
@@ -302,6 +304,12 @@ def scenario_problems(scenario: Scenario) -> list[str]:
         "features.lambda_c",
         s.features.lambda_c,
         "must be >= 0",
+    )
+    need(
+        isinstance(s.features.clip_threads, int) and s.features.clip_threads >= 1,
+        "features.clip_threads",
+        s.features.clip_threads,
+        "must be an integer >= 1",
     )
     return problems
 

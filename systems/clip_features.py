@@ -46,12 +46,15 @@ class ClipFeatures(LeafSystem):
         backend: ``"descriptor"`` (default), the path of a CLIP model folder, or a
             :class:`pcvfe_drake.features.FeatureExtractor`.
         lambda_c: weight of the mean RGB (paper: 0.25); ignored for an extractor instance.
+        threads: onnxruntime intra-op threads of the CLIP backend (1 is the safer choice on a
+            loaded 2-core machine); ignored for the descriptor and for an extractor instance.
     """
 
     def __init__(
         self,
         backend: str | Path | FeatureExtractor = DESCRIPTOR,
         lambda_c: float = LAMBDA_C,
+        threads: int = 2,
     ) -> None:
         super().__init__()
         if isinstance(backend, FeatureExtractor):
@@ -59,7 +62,9 @@ class ClipFeatures(LeafSystem):
         elif str(backend) == DESCRIPTOR:
             self._extractor = make_extractor("descriptor", lambda_c=lambda_c)
         else:
-            self._extractor = make_extractor("clip", clip_dir=backend, lambda_c=lambda_c)
+            self._extractor = make_extractor(
+                "clip", clip_dir=backend, lambda_c=lambda_c, threads=threads
+            )
         self._image_port = self.DeclareAbstractInputPort(
             "image", AbstractValue.Make(ImageRgba8U(224, 224))
         )

@@ -88,6 +88,7 @@ def test_yaml_overrides_nested_fields_and_keeps_defaults(tmp_path):
         ("nmpc: {model: pid}", "nmpc.model='pid'"),
         ("rates: {clustering_frame_offset_s: 0.1}", "rates.clustering_frame_offset_s=0.1"),
         ("rates: {clustering_frame_offset_s: -0.001}", "rates.clustering_frame_offset_s=-0.001"),
+        ("features: {clip_threads: 0}", "features.clip_threads=0"),
         ("name: [1, 2", "not valid YAML"),
         ("- 1\n- 2", "the document must be a mapping"),
     ],

@@ -51,6 +51,11 @@ def test_clip_backend_from_folder_matches_core(frames, tmp_path):
     system.GetInputPort("image").FixValue(ctx, to_drake_image(frames[1]))
     z = system.GetOutputPort("features").Eval(ctx)
     np.testing.assert_allclose(z, ClipFeatureExtractor(folder).extract_one(frames[1]), atol=1e-6)
+    single = ClipFeatures(folder, lambda_c=0.25, threads=1)
+    assert single.extractor.threads == 1 and system.extractor.threads == 2
+    ctx1 = single.CreateDefaultContext()
+    single.GetInputPort("image").FixValue(ctx1, to_drake_image(frames[1]))
+    np.testing.assert_allclose(single.GetOutputPort("features").Eval(ctx1), z, atol=1e-6)
     with pytest.raises(FileNotFoundError, match="does not exist"):
         ClipFeatures(tmp_path / "missing")
 
