@@ -506,6 +506,22 @@ def _final_result(
 # Solvers
 
 
+def _start(theta0, params: VehicleParams, data, options: FitOptions, solver: str):
+    """The start shared by both solvers: ``(theta, lower, upper, no_fit)`` with theta0 checked
+    and clipped into the bounds, and ``no_fit`` the result to return when there are too few
+    windows (else None)."""
+    lower, upper = options.bounds(params)
+    theta = np.clip(_check_theta(theta0, params), lower, upper)
+    if data is None or data.n_windows < options.min_windows:
+        return (
+            theta,
+            lower,
+            upper,
+            _no_fit_result(theta, data, options, solver, STATUS_TOO_LITTLE_DATA),
+        )
+    return theta, lower, upper, None
+
+
 def fit_gauss_newton(
     data: WindowDataset,
     params: VehicleParams,
@@ -523,11 +539,9 @@ def fit_gauss_newton(
     """
     options = FitOptions() if options is None else options
     start_time = time.perf_counter()
-    theta0 = _check_theta(theta0, params)
-    lower, upper = options.bounds(params)
-    theta = np.clip(theta0, lower, upper)
-    if data is None or data.n_windows < options.min_windows:
-        return _no_fit_result(theta, data, options, "gauss_newton", STATUS_TOO_LITTLE_DATA)
+    theta, lower, upper, no_fit = _start(theta0, params, data, options, "gauss_newton")
+    if no_fit is not None:
+        return no_fit
     free = options.free_index
     weights = options.weights
     prior_mean, precision = options.prior(params)
@@ -729,11 +743,9 @@ def fit_adam(
     def elapsed():
         return time.perf_counter() - start_time, time.process_time() - start_cpu
 
-    theta = _check_theta(theta0, params)
-    lower, upper = options.bounds(params)
-    theta = np.clip(theta, lower, upper)
-    if data is None or data.n_windows < options.min_windows:
-        return _no_fit_result(theta, data, options, "adam", STATUS_TOO_LITTLE_DATA)
+    theta, lower, upper, no_fit = _start(theta0, params, data, options, "adam")
+    if no_fit is not None:
+        return no_fit
     free = options.free_index
     weights = options.weights
     prior_mean, precision = options.prior(params)
