@@ -23,9 +23,9 @@ import time
 
 import numpy as np
 
-from pcvfe_drake.camera import CameraConfig, DownwardCamera
-from pcvfe_drake.course import load_course
-from pcvfe_drake.terrain import default_terrain_map
+from pcvfe_drake.control.course import load_course
+from pcvfe_drake.perception.camera import CameraConfig, DownwardCamera
+from pcvfe_drake.perception.terrain import default_terrain_map
 
 BUDGET_MS = 2.0
 

@@ -36,9 +36,9 @@ import tracemalloc
 import numpy as np
 from sklearn.metrics import adjusted_rand_score
 
-from pcvfe_drake.clustering import ClusteringParams, ContextClusterer, full_hdbscan_labels
-from pcvfe_drake.feature_streams import synthetic_feature_stream
-from pcvfe_drake.metrics import adjusted_rand
+from pcvfe_drake.contexts.clustering import ClusteringParams, ContextClusterer, full_hdbscan_labels
+from pcvfe_drake.contexts.feature_streams import synthetic_feature_stream
+from pcvfe_drake.contexts.metrics import adjusted_rand
 
 
 def _peak_bytes(fn) -> tuple[object, int]:
@@ -186,11 +186,11 @@ def main() -> int:
 
 def _default_course(laps: float, params: ClusteringParams) -> dict:
     """Online clustering of descriptor features along the default course (see module doc)."""
-    from pcvfe_drake.camera import DownwardCamera
-    from pcvfe_drake.course import load_course
-    from pcvfe_drake.features import make_extractor
-    from pcvfe_drake.metrics import context_metrics
-    from pcvfe_drake.terrain import default_terrain_map
+    from pcvfe_drake.contexts.metrics import context_metrics
+    from pcvfe_drake.control.course import load_course
+    from pcvfe_drake.perception.camera import DownwardCamera
+    from pcvfe_drake.perception.features import make_extractor
+    from pcvfe_drake.perception.terrain import default_terrain_map
 
     course = load_course(None)
     terrain_map = default_terrain_map()

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from pcvfe_drake.features import (
+from pcvfe_drake.perception.features import (
     CAPTIONS,
     CLIP_MEAN,
     CLIP_STD,
@@ -198,7 +198,7 @@ def verify_against_torch(model, tokenizer, folder: Path, images: list[np.ndarray
     import open_clip
     import torch
 
-    from pcvfe_drake.features import prompts
+    from pcvfe_drake.perception.features import prompts
 
     ext = ClipFeatureExtractor(folder, threads=2)
     transform = open_clip.image_transform(
@@ -314,8 +314,8 @@ def main() -> int:
         parser.error(f"--clip {args.clip}: not a CLIP model folder (no clip.json)")
     n = 40 if args.quick else 200
     rng = np.random.default_rng(0)
-    from pcvfe_drake.camera import DownwardCamera
-    from pcvfe_drake.terrain import default_terrain_map
+    from pcvfe_drake.perception.camera import DownwardCamera
+    from pcvfe_drake.perception.terrain import default_terrain_map
 
     cam = DownwardCamera(default_terrain_map())
     xy = rng.uniform([-60, -40], [60, 40], size=(n, 2))

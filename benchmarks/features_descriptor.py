@@ -23,10 +23,10 @@ import numpy as np
 from scipy import ndimage
 from skimage import color, filters, transform
 
-from pcvfe_drake.camera import CameraConfig, DownwardCamera
-from pcvfe_drake.features import DescriptorExtractor
-from pcvfe_drake.terrain import Terrain, TerrainMap
-from pcvfe_drake.texture_library import TextureSet
+from pcvfe_drake.perception.camera import CameraConfig, DownwardCamera
+from pcvfe_drake.perception.features import DescriptorExtractor
+from pcvfe_drake.perception.terrain import Terrain, TerrainMap
+from pcvfe_drake.perception.texture_library import TextureSet
 
 BUDGET_MS = 5.0
 

@@ -7,7 +7,8 @@ patchy grass (mu 0.3), sand (0.45), concrete (0.6) and brick (0.8), Ford Escort,
   noise-free and with the documented measurement noise (``MeasurementNoise``; ``--seeds`` noise
   draws per terrain).
 * MB truth: the same input sequences drive CommonRoad's multi-body model
-  (``pcvfe_drake.mb_truth.MbTruth``, RK4 with 1 ms substeps) with friction scaled per terrain in
+  (``pcvfe_drake.vehicle.mb_truth.MbTruth``, RK4 with 1 ms substeps) with friction scaled per
+  terrain in
   both of its modes: ``peak_and_stiffness`` (peak factors and slip stiffnesses scaled with mu, the
   ST model's parametrisation) and ``peak`` (only the peak factors; small-slip stiffness fixed).
   The fit uses the ST model, so its error here is model error; no threshold applies.
@@ -26,12 +27,12 @@ import time
 
 import numpy as np
 
-from pcvfe_drake.fit_dataset import build_windows
-from pcvfe_drake.fitting import fit_gauss_newton
-from pcvfe_drake.mb_truth import MbTruth
-from pcvfe_drake.params import ford_escort
-from pcvfe_drake.synthetic_drive import MeasurementNoise, s_curve_drive
-from pcvfe_drake.vehicle import STATE_NAMES
+from pcvfe_drake.estimation.fit_dataset import build_windows
+from pcvfe_drake.estimation.fitting import fit_gauss_newton
+from pcvfe_drake.estimation.synthetic_drive import MeasurementNoise, s_curve_drive
+from pcvfe_drake.vehicle.mb_truth import MbTruth
+from pcvfe_drake.vehicle.params import ford_escort
+from pcvfe_drake.vehicle.single_track import STATE_NAMES
 
 TERRAINS = {"patchy_grass": 0.3, "sand": 0.45, "concrete": 0.6, "brick": 0.8}
 

@@ -1,7 +1,8 @@
 """Closed-loop laps of the tracking NMPC with the true friction given.
 
 Runs the Ford Escort on the ``slalom`` course on each uniform terrain (mu 0.3, 0.45, 0.6, 0.8)
-and on the default four-terrain map (``pcvfe_drake.terrain.default_terrain_map``), the KMPC
+and on the default four-terrain map (``pcvfe_drake.perception.terrain.default_terrain_map``), the
+KMPC
 baseline on the four-terrain map, and the RoboRacer on ``slalom_small``; the truth is the ST model
 (RK4 at 10 ms). With ``--mb`` also CommonRoad's multi-body model (saturating Pacejka tires) on the
 four-terrain map: at the course's 5 m/s, with the speed cap raised to 12 m/s, and (informative,
@@ -25,9 +26,9 @@ import time
 
 import numpy as np
 
-from pcvfe_drake.course import load_course
-from pcvfe_drake.nmpc import NmpcConfig, NmpcController, simulate_closed_loop, start_state
-from pcvfe_drake.params import ford_escort, roboracer
+from pcvfe_drake.control.course import load_course
+from pcvfe_drake.control.nmpc import NmpcConfig, NmpcController, simulate_closed_loop, start_state
+from pcvfe_drake.vehicle.params import ford_escort, roboracer
 
 RMS_LIMIT_M = 0.3
 
@@ -36,7 +37,7 @@ class MbTruthPlant:
     """CommonRoad's multi-body model as a closed-loop truth (RK4 substeps of 1 ms)."""
 
     def __init__(self, vehicle: str = "ford_escort") -> None:
-        from pcvfe_drake.mb_truth import MbTruth, st_state
+        from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
 
         self.mb = MbTruth(vehicle)
         self._st_state = st_state
@@ -121,7 +122,7 @@ def main(argv=None) -> int:
     mus = (0.3, 0.8) if args.quick else (0.3, 0.45, 0.6, 0.8)
     for mu in mus:
         results.append(run(f"NMPC uniform mu={mu}", slalom, ford, cfg, lambda xy, mu=mu: mu, laps))
-    from pcvfe_drake.terrain import default_terrain_map
+    from pcvfe_drake.perception.terrain import default_terrain_map
 
     terrain = default_terrain_map()
 

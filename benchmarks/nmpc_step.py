@@ -27,9 +27,9 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from pcvfe_drake.course import load_course
-from pcvfe_drake.nmpc import NmpcConfig, NmpcController, StTruth, dense_qp, start_state
-from pcvfe_drake.params import ford_escort
+from pcvfe_drake.control.course import load_course
+from pcvfe_drake.control.nmpc import NmpcConfig, NmpcController, StTruth, dense_qp, start_state
+from pcvfe_drake.vehicle.params import ford_escort
 
 
 def stats(values) -> dict:

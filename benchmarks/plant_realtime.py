@@ -22,15 +22,15 @@ import os
 import time
 
 import numpy as np
-from pcvfe_drake.systems.vehicle_plant import VehiclePlant
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
-from pcvfe_drake.mb_truth import MbTruth
-from pcvfe_drake.params import ford_escort
-from pcvfe_drake.terrain import default_terrain_map
-from pcvfe_drake.vehicle import st_dynamics
+from pcvfe_drake.perception.terrain import default_terrain_map
+from pcvfe_drake.systems.vehicle_plant import VehiclePlant
+from pcvfe_drake.vehicle.mb_truth import MbTruth
+from pcvfe_drake.vehicle.params import ford_escort
+from pcvfe_drake.vehicle.single_track import st_dynamics
 
 X0 = np.array([0.0, -45.0, 0.06, 10.0, 0.0, 0.0, 0.0])
 U = np.array([0.0, 0.0])

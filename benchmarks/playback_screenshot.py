@@ -76,9 +76,10 @@ def empty_meshcat_html(path: Path) -> Path:
 
 def simulate_playback(folder: Path, duration_s: float) -> Path:
     """Run the default scenario briefly with Meshcat; returns its playback.html."""
+    from pydrake.geometry import Meshcat, MeshcatParams
+
     from pcvfe_drake.diagrams.run_simulation import RunFolder, run_simulation
     from pcvfe_drake.diagrams.scenario_io import load_scenario
-    from pydrake.geometry import Meshcat, MeshcatParams
 
     params = MeshcatParams()
     params.host = "localhost"

@@ -23,17 +23,17 @@ import platform
 import time
 
 import numpy as np
-from pcvfe_drake.diagrams.run_simulation import run_simulation
-from pcvfe_drake.diagrams.scenario_io import load_scenario
-from pcvfe_drake.diagrams.station import initial_state
-from pcvfe_drake.systems.vehicle_plant import VehiclePlant
 from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
-from pcvfe_drake.course import load_course
-from pcvfe_drake.params import load_vehicle
-from pcvfe_drake.scenario import build_terrain_map
+from pcvfe_drake.control.course import load_course
+from pcvfe_drake.diagrams.run_simulation import run_simulation
+from pcvfe_drake.diagrams.scenario_io import load_scenario
+from pcvfe_drake.diagrams.station import initial_state
+from pcvfe_drake.runs.scenario import build_terrain_map
+from pcvfe_drake.systems.vehicle_plant import VehiclePlant
+from pcvfe_drake.vehicle.params import load_vehicle
 
 
 def plant_only_rtf(scenario, duration_s: float) -> float:

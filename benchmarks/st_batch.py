@@ -21,8 +21,8 @@ import numpy as np
 from vehiclemodels.parameters_vehicle1 import parameters_vehicle1
 from vehiclemodels.vehicle_dynamics_st import vehicle_dynamics_st
 
-from pcvfe_drake.params import VehicleParams
-from pcvfe_drake.vehicle import st_dynamics, st_jacobians
+from pcvfe_drake.vehicle.params import VehicleParams
+from pcvfe_drake.vehicle.single_track import st_dynamics, st_jacobians
 
 
 def random_batch(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

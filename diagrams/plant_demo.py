@@ -11,16 +11,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from pcvfe_drake.systems.vehicle_plant import VehiclePlant
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, Multiplexer, TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
-from pcvfe_drake.drivelog import DriveLogWriter
-from pcvfe_drake.params import VehicleParams
-from pcvfe_drake.terrain import TerrainMap
-from pcvfe_drake.vehicle import INPUT_NAMES, NU, NX, STATE_NAMES
+from pcvfe_drake.perception.terrain import TerrainMap
+from pcvfe_drake.runs.drivelog import DriveLogWriter
+from pcvfe_drake.systems.vehicle_plant import VehiclePlant
+from pcvfe_drake.vehicle.params import VehicleParams
+from pcvfe_drake.vehicle.single_track import INPUT_NAMES, NU, NX, STATE_NAMES
 
 
 @dataclass

@@ -16,15 +16,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pcvfe_drake.diagrams.simulation import MakeSimulation, course_xy
 from pydrake.geometry import Meshcat, MeshcatParams
 from pydrake.systems.analysis import GetIntegrationSchemes, ResetIntegratorFromFlags, Simulator
 
-from pcvfe_drake.course import Course
-from pcvfe_drake.figures import write_figures
-from pcvfe_drake.runlog import feature_columns
-from pcvfe_drake.scenario import Scenario, excluded_terrains
-from pcvfe_drake.summary import summarize_run
+from pcvfe_drake.control.course import Course
+from pcvfe_drake.diagrams.simulation import MakeSimulation, course_xy
+from pcvfe_drake.runs.figures import write_figures
+from pcvfe_drake.runs.runlog import feature_columns
+from pcvfe_drake.runs.scenario import Scenario, excluded_terrains
+from pcvfe_drake.runs.summary import summarize_run
 
 
 class RunFolder:
@@ -79,7 +79,7 @@ def StartLocalMeshcat() -> Meshcat:
 
 def _estimate_table(diagram, context) -> list[dict]:
     """The fitter's final per-context estimates (id, mu, mu_std, samples) from its
-    ``estimate_table`` output (``pcvfe_drake.context_estimator.EstimateTable``)."""
+    ``estimate_table`` output (``pcvfe_drake.estimation.context_estimator.EstimateTable``)."""
     fitter = diagram.GetSubsystemByName("fitter")
     table = fitter.GetOutputPort("estimate_table").Eval(fitter.GetMyContextFromRoot(context))
     return [

@@ -1,6 +1,7 @@
-"""Loading scenario YAML files into ``pcvfe_drake.scenario.Scenario`` with ``yaml_load_typed``.
+"""Loading scenario YAML files into ``pcvfe_drake.runs.scenario.Scenario`` with ``yaml_load_typed``.
 
-The dataclasses live in the core (``pcvfe_drake/scenario.py``, no pydrake); the loader lives here
+The dataclasses live in the core (``pcvfe_drake/runs/scenario.py``, no pydrake); the loader lives
+here
 because it uses ``pydrake.common.yaml``. Before handing the text to ``yaml_load_typed`` the loader
 walks the YAML against the dataclass schema so that a malformed file gets an error naming the file
 and the dotted field (``clustering.min_cluster_size_s``), not only the leaf name.
@@ -16,8 +17,8 @@ from pathlib import Path
 import yaml
 from pydrake.common.yaml import yaml_load_typed
 
-from pcvfe_drake.params import PRESETS
-from pcvfe_drake.scenario import Scenario, resolve_scenario_path
+from pcvfe_drake.runs.scenario import Scenario, resolve_scenario_path
+from pcvfe_drake.vehicle.params import PRESETS
 
 
 def _schema_problems(schema, data, prefix: str) -> list[str]:

@@ -18,24 +18,24 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from pydrake.geometry import Meshcat
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import LogVectorOutput
+
+from pcvfe_drake.contexts.clustering import ClusteringParams
+from pcvfe_drake.control.course import Course, load_course
+from pcvfe_drake.control.nmpc import NmpcConfig
 from pcvfe_drake.diagrams.station import MakeVehicleStation
+from pcvfe_drake.perception.terrain import TerrainMap
+from pcvfe_drake.runs.runlog import RunLog
+from pcvfe_drake.runs.scenario import Scenario, build_terrain_map, settings_kwargs
 from pcvfe_drake.systems.clip_features import ClipFeatures
 from pcvfe_drake.systems.context_clustering import ContextClustering
 from pcvfe_drake.systems.context_fitter import ContextFitter
 from pcvfe_drake.systems.meshcat_view import MeshcatView
 from pcvfe_drake.systems.nmpc import Nmpc
 from pcvfe_drake.systems.run_logger import RunLogger
-from pydrake.geometry import Meshcat
-from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import LogVectorOutput
-
-from pcvfe_drake.clustering import ClusteringParams
-from pcvfe_drake.course import Course, load_course
-from pcvfe_drake.nmpc import NmpcConfig
-from pcvfe_drake.params import VehicleParams, load_vehicle
-from pcvfe_drake.runlog import RunLog
-from pcvfe_drake.scenario import Scenario, build_terrain_map, settings_kwargs
-from pcvfe_drake.terrain import TerrainMap
+from pcvfe_drake.vehicle.params import VehicleParams, load_vehicle
 
 
 @dataclass

@@ -22,16 +22,16 @@ The hardware station will not have the sim-only ports (``SIM_ONLY_OUTPUTS``).
 from __future__ import annotations
 
 import numpy as np
-from pcvfe_drake.systems.texture_camera import TextureCamera
-from pcvfe_drake.systems.vehicle_plant import VehiclePlant
 from pydrake.geometry import Meshcat
 from pydrake.systems.framework import Diagram, DiagramBuilder
 
-from pcvfe_drake.camera import CameraConfig
-from pcvfe_drake.course import Course, load_course
-from pcvfe_drake.params import VehicleParams, load_vehicle
-from pcvfe_drake.scenario import Scenario, build_terrain_map, settings_kwargs
-from pcvfe_drake.terrain import TerrainMap
+from pcvfe_drake.control.course import Course, load_course
+from pcvfe_drake.perception.camera import CameraConfig
+from pcvfe_drake.perception.terrain import TerrainMap
+from pcvfe_drake.runs.scenario import Scenario, build_terrain_map, settings_kwargs
+from pcvfe_drake.systems.texture_camera import TextureCamera
+from pcvfe_drake.systems.vehicle_plant import VehiclePlant
+from pcvfe_drake.vehicle.params import VehicleParams, load_vehicle
 
 STATION_INPUTS = ("actuation",)
 """Input ports of every station variant."""

@@ -9,7 +9,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, Context, LeafSystem
 from pydrake.systems.sensors import ImageRgba8U
 
-from pcvfe_drake.features import (
+from pcvfe_drake.perception.features import (
     LAMBDA_C,
     BlankImageError,
     FeatureExtractor,
@@ -44,7 +44,7 @@ class ClipFeatures(LeafSystem):
 
     Args:
         backend: ``"descriptor"`` (default), the path of a CLIP model folder, or a
-            :class:`pcvfe_drake.features.FeatureExtractor`.
+            :class:`pcvfe_drake.perception.features.FeatureExtractor`.
         lambda_c: weight of the mean RGB (paper: 0.25); ignored for an extractor instance.
         threads: onnxruntime intra-op threads of the CLIP backend (1 is the safer choice on a
             loaded 2-core machine); ignored for the descriptor and for an extractor instance.

@@ -8,7 +8,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, Context, EventStatus, LeafSystem, State
 
-from pcvfe_drake.clustering import NOISE, ClusteringParams, ClusterTable, ContextClusterer
+from pcvfe_drake.contexts.clustering import NOISE, ClusteringParams, ClusterTable, ContextClusterer
 
 
 class ContextClustering(LeafSystem):
@@ -26,7 +26,8 @@ class ContextClustering(LeafSystem):
     - ``features``: vector of ``feature_dim`` numbers, z(t) from ClipFeatures (any backend).
     - ``context_id``: 1-element vector, the current context id (an integer; -1 = noise or a
       terrain not seen before). From state: a zero-order hold at the frame rate, no feedthrough.
-    - ``cluster_table``: abstract :class:`pcvfe_drake.clustering.ClusterTable` (id, centroid,
+    - ``cluster_table``: abstract :class:`pcvfe_drake.contexts.clustering.ClusterTable` (id,
+    centroid,
       size, first/last seen time of every context, vanished ones included).
 
     Rates: a periodic unrestricted update every ``frame_period_s`` (default 1 / frame rate of

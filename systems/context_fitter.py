@@ -9,9 +9,9 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, Context, EventStatus, LeafSystem, State
 
-from pcvfe_drake.context_estimator import ContextEstimator, EstimateTable, LiveFitConfig
-from pcvfe_drake.params import VehicleParams
-from pcvfe_drake.vehicle import NTHETA, NU, NX
+from pcvfe_drake.estimation.context_estimator import ContextEstimator, EstimateTable, LiveFitConfig
+from pcvfe_drake.vehicle.params import VehicleParams
+from pcvfe_drake.vehicle.single_track import NTHETA, NU, NX
 
 
 class ContextFitter(LeafSystem):
@@ -36,7 +36,8 @@ class ContextFitter(LeafSystem):
       noise/unknown contexts lasting longer than ``noise_hold_s`` (default 1 s; shorter noise
       keeps the last known context's theta), get the prior theta (default: the vehicle's nominal
       values, for the Ford Escort [1.0489, 20.898, 20.898]). Always finite.
-    - ``estimate_table``: abstract :class:`pcvfe_drake.context_estimator.EstimateTable`: per
+    - ``estimate_table``: abstract :class:`pcvfe_drake.estimation.context_estimator.EstimateTable`:
+    per
       context theta, standard deviations, samples, windows, last update time, status and the
       number of discarded (diverged) refits.
 
@@ -44,7 +45,7 @@ class ContextFitter(LeafSystem):
     appends (t, state, actuation) to the buffer of the current context and sets ``theta_hat``;
     a periodic unrestricted update every ``period_s`` (default 1 s = 1 Hz, first at
     t = ``period_s``) refits contexts that gained data, bounded per update (see
-    :class:`pcvfe_drake.context_estimator.LiveFitConfig`: ``max_contexts_per_update``,
+    :class:`pcvfe_drake.estimation.context_estimator.LiveFitConfig`: ``max_contexts_per_update``,
     ``max_windows``, ``max_iterations``). When both fire at once the sample is taken first. The
     :class:`ContextEstimator` (buffers, estimates) lives in the context's abstract state.
     """

@@ -12,9 +12,9 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.perception import BaseField, Fields, PointCloud
 from pydrake.systems.framework import LeafSystem
 
-from pcvfe_drake.palette import context_rgb, context_rgb_array
-from pcvfe_drake.terrain import TerrainMap
-from pcvfe_drake.vehicle import NX, PSI, SX, SY
+from pcvfe_drake.perception.terrain import TerrainMap
+from pcvfe_drake.runs.palette import context_rgb, context_rgb_array
+from pcvfe_drake.vehicle.single_track import NX, PSI, SX, SY
 
 ROOT = "/pcvfe"
 

@@ -9,10 +9,10 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-from pcvfe_drake.course import Course, load_course
-from pcvfe_drake.nmpc import NmpcConfig, NmpcController, NmpcDiagnostics, NmpcMemory
-from pcvfe_drake.params import VehicleParams, ford_escort
-from pcvfe_drake.vehicle import NTHETA, NU, NX
+from pcvfe_drake.control.course import Course, load_course
+from pcvfe_drake.control.nmpc import NmpcConfig, NmpcController, NmpcDiagnostics, NmpcMemory
+from pcvfe_drake.vehicle.params import VehicleParams, ford_escort
+from pcvfe_drake.vehicle.single_track import NTHETA, NU, NX
 
 
 class Nmpc(LeafSystem):
@@ -29,18 +29,18 @@ class Nmpc(LeafSystem):
         - diagnostics
 
     Ports:
-        state: input (7), the measured ST state (``pcvfe_drake.vehicle.STATE_NAMES``).
+        state: input (7), the measured ST state (``pcvfe_drake.vehicle.single_track.STATE_NAMES``).
         theta_hat: input (3), ``[mu, C_Sf, C_Sr]`` the controller believes; not read (and may be
             left unconnected) when ``fixed_theta`` is given. Invalid values (non-finite, mu <= 0)
             fall back to the vehicle's nominal theta, noted in the diagnostics.
         actuation: output (2) ``[steer_rate rad/s, accel m/s^2]``, held from discrete state
             between updates (zero before the first); no direct feedthrough.
-        diagnostics: output (abstract :class:`pcvfe_drake.nmpc.NmpcDiagnostics`) of the last
+        diagnostics: output (abstract :class:`pcvfe_drake.control.nmpc.NmpcDiagnostics`) of the last
             update: mode, OSQP status, update and solve times, fallback counters, tracking
             errors.
 
     Rate: one periodic unrestricted update every ``config.dt_s`` (default 0.05 s, 20 Hz; offset
-    0) runs one real-time iteration of :class:`pcvfe_drake.nmpc.NmpcController`. The
+    0) runs one real-time iteration of :class:`pcvfe_drake.control.nmpc.NmpcController`. The
     controller's memory (last plan, warm start, counters) is abstract state of the context; the
     OSQP workspace is a cache inside the system, so use one Nmpc per simulated vehicle.
 

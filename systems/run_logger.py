@@ -7,12 +7,12 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 from pydrake.systems.sensors import ImageRgba8U
 
-from pcvfe_drake.runlog import RunLog
-from pcvfe_drake.vehicle import NTHETA, NU, NX
+from pcvfe_drake.runs.runlog import RunLog
+from pcvfe_drake.vehicle.single_track import NTHETA, NU, NX
 
 
 class RunLogger(LeafSystem):
-    """Appends one row per period to a :class:`pcvfe_drake.runlog.RunLog`.
+    """Appends one row per period to a :class:`pcvfe_drake.runs.runlog.RunLog`.
 
     .. pydrake_system::
 

@@ -9,10 +9,10 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import Context, EventStatus, LeafSystem, State
 from pydrake.systems.sensors import ImageRgba8U
 
-from pcvfe_drake.camera import CameraConfig, DownwardCamera
-from pcvfe_drake.terrain import TerrainMap
-from pcvfe_drake.texture_library import TextureSet
-from pcvfe_drake.vehicle import NX
+from pcvfe_drake.perception.camera import CameraConfig, DownwardCamera
+from pcvfe_drake.perception.terrain import TerrainMap
+from pcvfe_drake.perception.texture_library import TextureSet
+from pcvfe_drake.vehicle.single_track import NX
 
 
 def to_drake_image(rgb: np.ndarray) -> ImageRgba8U:
@@ -44,7 +44,8 @@ class TextureCamera(LeafSystem):
             alpha 255), from state: the latest frame, held between frames (no feedthrough).
 
     Rate: a periodic unrestricted update every ``period_s`` (default 0.1 s = 10 Hz, offset 0)
-    renders a frame with :class:`pcvfe_drake.camera.DownwardCamera` and stores it in abstract
+    renders a frame with :class:`pcvfe_drake.perception.camera.DownwardCamera` and stores it in
+    abstract
     state; an initialization event renders the first frame, so the output is valid from t = 0.
     The random effects of frame k (taken at t = k * period_s) use
     ``numpy.random.default_rng([seed, k])``: a run is reproducible from its seed and no random

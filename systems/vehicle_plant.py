@@ -7,9 +7,9 @@ import math
 import numpy as np
 from pydrake.systems.framework import BasicVector, LeafSystem
 
-from pcvfe_drake.mb_truth import MbTruth, st_state
-from pcvfe_drake.params import VehicleParams, ford_escort
-from pcvfe_drake.vehicle import INPUT_NAMES, NX, STATE_NAMES, st_dynamics
+from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
+from pcvfe_drake.vehicle.params import VehicleParams, ford_escort
+from pcvfe_drake.vehicle.single_track import INPUT_NAMES, NX, STATE_NAMES, st_dynamics
 
 TRUTH_MODELS = ("st", "mb")
 
@@ -31,8 +31,9 @@ class VehiclePlant(LeafSystem):
         actuation: input (2) ``[steer_rate rad/s, accel m/s^2]``; a non-finite value raises a
             ``ValueError`` naming the port, the value and the time.
         state: output (7) ``[sx m, sy m, delta rad, v m/s, psi rad, psi_dot rad/s, beta rad]``
-            (ST order, ``pcvfe_drake.vehicle.STATE_NAMES``); for the MB truth, ``v`` and ``beta``
-            come from the body velocities (``pcvfe_drake.mb_truth.st_state``). No direct
+            (ST order, ``pcvfe_drake.vehicle.single_track.STATE_NAMES``); for the MB truth, ``v``
+            and ``beta``
+            come from the body velocities (``pcvfe_drake.vehicle.mb_truth.st_state``). No direct
             feedthrough.
         true_mu: output (1), **simulation only**: the true friction coefficient under the centre
             of gravity (the terrain map's mu there; ``params.mu`` without a map).
@@ -40,7 +41,8 @@ class VehiclePlant(LeafSystem):
             gravity in ``terrain_map.terrains``; -1 without a map.
 
     Truth models:
-        ``"st"``: ``pcvfe_drake.vehicle.st_dynamics`` with theta = [mu under the car, C_Sf,
+        ``"st"``: ``pcvfe_drake.vehicle.single_track.st_dynamics`` with theta = [mu under the car,
+        C_Sf,
         C_Sr]; continuous state (7); any Drake integrator works (the default error-controlled
         RK3 is the fast choice).
         ``"mb"``: ``vehiclemodels.vehicle_dynamics_mb`` through :class:`MbTruth`, tire friction
@@ -70,12 +72,13 @@ class VehiclePlant(LeafSystem):
 
     Args:
         params: vehicle parameters (default: Ford Escort).
-        terrain_map: a ``pcvfe_drake.terrain.TerrainMap``; None uses ``params.mu`` everywhere.
+        terrain_map: a ``pcvfe_drake.perception.terrain.TerrainMap``; None uses ``params.mu``
+        everywhere.
         truth: ``"st"`` or ``"mb"``.
         x0: default initial ST state (7) of new contexts; default at rest at the origin, heading
             along +x. :meth:`set_initial_state` sets it in a given context.
         mb_vehicle: CommonRoad vehicle name for the MB truth (default ``params.name``).
-        friction_scaling: MB tire friction mapping, see ``pcvfe_drake.mb_truth``.
+        friction_scaling: MB tire friction mapping, see ``pcvfe_drake.vehicle.mb_truth``.
         mb_integration: ``"continuous"`` or ``"discrete"`` (MB only).
         mb_period_s: period of the MB discrete update [s] (``"discrete"`` only).
         mb_method: ``"rk4"`` or ``"lsoda"``, the integrator inside a discrete MB update.

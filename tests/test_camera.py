@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from pcvfe_drake.camera import CameraConfig, DownwardCamera
-from pcvfe_drake.terrain import Terrain, TerrainMap, default_terrain_map
-from pcvfe_drake.texture_library import TextureSet
+from pcvfe_drake.perception.camera import CameraConfig, DownwardCamera
+from pcvfe_drake.perception.terrain import Terrain, TerrainMap, default_terrain_map
+from pcvfe_drake.perception.texture_library import TextureSet
 
 BLUE, RED = (20, 40, 220), (220, 30, 30)
 

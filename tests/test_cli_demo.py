@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pcvfe_drake.cli import main
-from pcvfe_drake.drivelog import read_drive_log
+from pcvfe_drake.runs.drivelog import read_drive_log
 
 
 def test_demo_writes_a_valid_log(tmp_path, capsys):

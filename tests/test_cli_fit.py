@@ -9,8 +9,8 @@ import pandas as pd
 import pytest
 
 from pcvfe_drake.cli import main
-from pcvfe_drake.params import ford_escort
-from pcvfe_drake.synthetic_drive import drive_frame, s_curve_drive
+from pcvfe_drake.estimation.synthetic_drive import drive_frame, s_curve_drive
+from pcvfe_drake.vehicle.params import ford_escort
 
 
 @pytest.fixture(scope="module")

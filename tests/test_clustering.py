@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 from sklearn.metrics import adjusted_rand_score
 
-from pcvfe_drake.clustering import (
+from pcvfe_drake.contexts.clustering import (
     NOISE,
     ClusteringParams,
     ContextClusterer,
     full_hdbscan_labels,
     match_centroids,
 )
-from pcvfe_drake.feature_streams import OUTLIER, TRANSITION, synthetic_feature_stream
-from pcvfe_drake.metrics import adjusted_rand, context_metrics
+from pcvfe_drake.contexts.feature_streams import OUTLIER, TRANSITION, synthetic_feature_stream
+from pcvfe_drake.contexts.metrics import adjusted_rand, context_metrics
 
 LATE = 4  # label of the terrain that appears from the second lap on
 

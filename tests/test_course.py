@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from pcvfe_drake.course import (
+from pcvfe_drake.control.course import (
     CourseSpec,
     Segment,
     build_course,
@@ -14,7 +14,7 @@ from pcvfe_drake.course import (
     load_course_spec,
     speed_profile,
 )
-from pcvfe_drake.params import G_MPS2
+from pcvfe_drake.vehicle.params import G_MPS2
 
 
 def circle(radius=10.0, spacing=0.05):
@@ -55,7 +55,7 @@ def test_shipped_courses_listed_and_slalom_is_the_papers_layout():
 
 
 def test_each_terrain_gets_40_s_and_the_lap_is_the_papers_length():
-    from pcvfe_drake.terrain import default_terrain_map
+    from pcvfe_drake.perception.terrain import default_terrain_map
 
     c = load_course("slalom")
     terrain = default_terrain_map()

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pcvfe_drake.drivelog import (
+from pcvfe_drake.runs.drivelog import (
     REQUIRED_COLUMNS,
     DriveLogError,
     DriveLogWriter,
@@ -16,8 +16,8 @@ from pcvfe_drake.drivelog import (
     validate_drive_log,
     write_drive_log,
 )
-from pcvfe_drake.params import ford_escort
-from pcvfe_drake.vehicle import rk4_step
+from pcvfe_drake.vehicle.params import ford_escort
+from pcvfe_drake.vehicle.single_track import rk4_step
 
 
 def simulated_log(n: int = 400, dt: float = 0.02) -> pd.DataFrame:

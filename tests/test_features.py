@@ -6,8 +6,8 @@ import pytest
 from onnx import TensorProto, helper, numpy_helper
 from PIL import Image
 
-from pcvfe_drake.camera import CameraConfig, DownwardCamera
-from pcvfe_drake.features import (
+from pcvfe_drake.perception.camera import CameraConfig, DownwardCamera
+from pcvfe_drake.perception.features import (
     CAPTIONS,
     CLIP_MEAN,
     CLIP_STD,
@@ -16,8 +16,8 @@ from pcvfe_drake.features import (
     make_extractor,
     prompts,
 )
-from pcvfe_drake.terrain import Terrain, TerrainMap
-from pcvfe_drake.texture_library import TextureSet
+from pcvfe_drake.perception.terrain import Terrain, TerrainMap
+from pcvfe_drake.perception.texture_library import TextureSet
 
 S, D, HIDDEN = 32, 24, 40
 

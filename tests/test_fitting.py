@@ -7,9 +7,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from pcvfe_drake.context_estimator import ContextEstimator, LiveFitConfig
-from pcvfe_drake.fit_dataset import SKIP_REASONS, build_windows, windows_from_log
-from pcvfe_drake.fitting import (
+from pcvfe_drake.estimation.context_estimator import ContextEstimator, LiveFitConfig
+from pcvfe_drake.estimation.fit_dataset import SKIP_REASONS, build_windows, windows_from_log
+from pcvfe_drake.estimation.fitting import (
     STATUS_DIVERGED,
     STATUS_TOO_LITTLE_DATA,
     FitOptions,
@@ -21,9 +21,9 @@ from pcvfe_drake.fitting import (
     window_loss,
     window_loss_and_gradient,
 )
-from pcvfe_drake.params import ford_escort
-from pcvfe_drake.synthetic_drive import MeasurementNoise, drive_frame, s_curve_drive
-from pcvfe_drake.vehicle import V
+from pcvfe_drake.estimation.synthetic_drive import MeasurementNoise, drive_frame, s_curve_drive
+from pcvfe_drake.vehicle.params import ford_escort
+from pcvfe_drake.vehicle.single_track import V
 
 TERRAIN_MU = (0.3, 0.45, 0.6, 0.8)  # patchy grass, sand, concrete, brick
 

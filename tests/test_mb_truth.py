@@ -11,9 +11,9 @@ from vehiclemodels.init_mb import init_mb
 from vehiclemodels.parameters_vehicle1 import parameters_vehicle1
 from vehiclemodels.vehicle_dynamics_mb import vehicle_dynamics_mb
 
-from pcvfe_drake.mb_truth import NX_MB, MbTruth, st_state
-from pcvfe_drake.params import ford_escort
-from pcvfe_drake.vehicle import rollout
+from pcvfe_drake.vehicle.mb_truth import NX_MB, MbTruth, st_state
+from pcvfe_drake.vehicle.params import ford_escort
+from pcvfe_drake.vehicle.single_track import rollout
 
 FZ_N = 3000.0
 

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from pcvfe_drake.metrics import (
+from pcvfe_drake.contexts.metrics import (
     adjusted_rand,
     context_metrics,
     first_id_times,

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from pcvfe_drake.course import load_course
-from pcvfe_drake.nmpc import (
+from pcvfe_drake.control.course import load_course
+from pcvfe_drake.control.nmpc import (
     NmpcConfig,
     NmpcController,
     dense_qp,
@@ -17,8 +17,8 @@ from pcvfe_drake.nmpc import (
     simulate_closed_loop,
     start_state,
 )
-from pcvfe_drake.params import ford_escort
-from pcvfe_drake.vehicle import DELTA, PSI, SX, SY, V, st_jacobians
+from pcvfe_drake.vehicle.params import ford_escort
+from pcvfe_drake.vehicle.single_track import DELTA, PSI, SX, SY, V, st_jacobians
 
 
 @pytest.fixture(scope="module")
@@ -138,7 +138,7 @@ def test_first_solution_satisfies_the_linearised_dynamics(course, params):
     assert np.all(plan_u[:, 0] <= params.delta_dot_max + 1e-6)
     assert np.all(plan_u[:, 0] >= params.delta_dot_min - 1e-6)
     # The planned first step agrees with the nonlinear model over one step.
-    from pcvfe_drake.vehicle import rk4_step
+    from pcvfe_drake.vehicle.single_track import rk4_step
 
     nxt = x
     for _ in range(10):

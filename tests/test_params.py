@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from vehiclemodels.parameters_vehicle1 import parameters_vehicle1
 
-from pcvfe_drake.params import (
+from pcvfe_drake.vehicle.params import (
     PRESETS,
     VehicleParams,
     ford_escort,

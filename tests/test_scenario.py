@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from pcvfe_drake.scenario import (
+from pcvfe_drake.runs.scenario import (
     DEFAULT_SCENARIO,
     Scenario,
     build_terrain_map,
@@ -20,8 +20,9 @@ from pcvfe_drake.scenario import (
 
 def test_core_scenario_module_does_not_import_pydrake():
     code = (
-        "import sys, pcvfe_drake.scenario, pcvfe_drake.summary, pcvfe_drake.figures, "
-        "pcvfe_drake.runlog, pcvfe_drake.commands.simulate, pcvfe_drake.cli; "
+        "import sys, pcvfe_drake.runs.scenario, pcvfe_drake.runs.summary, "
+        "pcvfe_drake.runs.figures, "
+        "pcvfe_drake.runs.runlog, pcvfe_drake.commands.simulate, pcvfe_drake.cli; "
         "pcvfe_drake.cli.build_parser(); "
         "print('pydrake' in sys.modules)"
     )

@@ -9,9 +9,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pcvfe_drake.course import load_course
-from pcvfe_drake.figures import context_runs, write_figures
-from pcvfe_drake.summary import sample_weights, summarize_run, summary_table
+from pcvfe_drake.control.course import load_course
+from pcvfe_drake.runs.figures import context_runs, write_figures
+from pcvfe_drake.runs.summary import sample_weights, summarize_run, summary_table
 
 TERRAIN_MU = {"a": 0.3, "b": 0.8, "c": 0.45, "strip": 0.5}
 DT = 0.1

@@ -2,8 +2,13 @@ import numpy as np
 import pytest
 from matplotlib.path import Path
 
-from pcvfe_drake.terrain import Terrain, TerrainMap, default_terrain_map, default_terrains
-from pcvfe_drake.texture_library import TextureSet
+from pcvfe_drake.perception.terrain import (
+    Terrain,
+    TerrainMap,
+    default_terrain_map,
+    default_terrains,
+)
+from pcvfe_drake.perception.texture_library import TextureSet
 
 
 @pytest.fixture(scope="module")
@@ -76,7 +81,7 @@ def test_a_lap_of_a_course_crosses_every_quadrant_for_a_quarter(default_map):
 def test_default_map_strips_are_the_cells_whose_centre_is_inside_the_strip_polygon(default_map):
     # Exact point-in-polygon (matplotlib) of each wavy strip's polygon at raster cell centres,
     # against the labels of the default map (gravel painted over dry soil where they cross).
-    from pcvfe_drake.terrain import _strip_edges
+    from pcvfe_drake.perception.terrain import _strip_edges
 
     res = default_map.resolution_m
     rng = np.random.default_rng(7)

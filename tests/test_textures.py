@@ -3,8 +3,8 @@ import importlib.util
 import numpy as np
 import pytest
 
-from pcvfe_drake.terrain import default_terrains
-from pcvfe_drake.texture_library import TextureSet, read_index, textures_dir
+from pcvfe_drake.perception.terrain import default_terrains
+from pcvfe_drake.perception.texture_library import TextureSet, read_index, textures_dir
 
 
 def load_script():

@@ -7,8 +7,8 @@ from vehiclemodels.parameters_vehicle2 import parameters_vehicle2
 from vehiclemodels.parameters_vehicle3 import parameters_vehicle3
 from vehiclemodels.vehicle_dynamics_st import vehicle_dynamics_st
 
-from pcvfe_drake import vehicle as st
-from pcvfe_drake.params import VehicleParams, ford_escort
+from pcvfe_drake.vehicle import single_track as st
+from pcvfe_drake.vehicle.params import VehicleParams, ford_escort
 
 CR_PARAMS = {
     "vehicle1": parameters_vehicle1,

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from pcvfe_drake.cli import main
-from pcvfe_drake.drivelog import write_drive_log
+from pcvfe_drake.runs.drivelog import write_drive_log
 from pcvfe_drake.workbench import synth
 
 

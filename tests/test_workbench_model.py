@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from pcvfe_drake.params import ford_escort
-from pcvfe_drake.vehicle import rollout
+from pcvfe_drake.vehicle.params import ford_escort
+from pcvfe_drake.vehicle.single_track import rollout
 from pcvfe_drake.workbench import (
     Effect,
     EffectParam,
@@ -47,7 +47,7 @@ def test_baseline_equals_the_vehicle_rollout(clean):
 
 
 def test_applied_inputs_equal_vehicle_constraints():
-    from pcvfe_drake.vehicle import constrain_inputs
+    from pcvfe_drake.vehicle.single_track import constrain_inputs
 
     vp = ford_escort()
     rng = np.random.default_rng(1)

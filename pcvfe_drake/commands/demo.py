@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pcvfe_drake.params import load_vehicle
-from pcvfe_drake.vehicle import STATE_NAMES, STATE_UNITS
+from pcvfe_drake.vehicle.params import load_vehicle
+from pcvfe_drake.vehicle.single_track import STATE_NAMES, STATE_UNITS
 
 LOG_PERIOD_S = 0.02
 CHUNK_S = 1.0
@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     # The diagram lives in pcvfe_drake.diagrams (imported here, not at module import time, so
     # that the core package stays free of pydrake).
     from pcvfe_drake.diagrams.plant_demo import run_plant_demo
-    from pcvfe_drake.terrain import default_terrain_map
+    from pcvfe_drake.perception.terrain import default_terrain_map
 
     params = load_vehicle(args.vehicle)
     result = run_plant_demo(

@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from pcvfe_drake.params import load_vehicle
+from pcvfe_drake.vehicle.params import load_vehicle
 from pcvfe_drake.workbench.data import load
 from pcvfe_drake.workbench.effects import get_effect, known_effects
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pcvfe_drake.features import CAPTIONS, CLIP_MEAN, CLIP_STD, PROMPT_TEMPLATE
+from pcvfe_drake.perception.features import CAPTIONS, CLIP_MEAN, CLIP_STD, PROMPT_TEMPLATE
 
 INSTALL_HINT = (
     "pcvfe export-clip needs torch and open_clip (and onnxscript, for torch's ONNX exporter), "
@@ -211,7 +211,7 @@ def check_export(model, folder: Path, batch: int = 3, seed: int = 0) -> float:
     fails here)."""
     import torch
 
-    from pcvfe_drake.features import ClipFeatureExtractor
+    from pcvfe_drake.perception.features import ClipFeatureExtractor
 
     extractor = ClipFeatureExtractor(folder)
     s = extractor.image_size

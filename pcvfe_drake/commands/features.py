@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pcvfe_drake.features import LAMBDA_C, ClipFeatureExtractor, make_extractor
-from pcvfe_drake.texture_library import load_rgb
+from pcvfe_drake.perception.features import LAMBDA_C, ClipFeatureExtractor, make_extractor
+from pcvfe_drake.perception.texture_library import load_rgb
 
 
 def register(subparsers) -> None:

@@ -7,16 +7,21 @@ import json
 import math
 from pathlib import Path
 
-from pcvfe_drake.drivelog import read_drive_log
-from pcvfe_drake.fit_dataset import (
+from pcvfe_drake.estimation.fit_dataset import (
     DEFAULT_HORIZON,
     DEFAULT_STRIDE,
     DEFAULT_V_MIN_MPS,
     DEFAULT_X0_SMOOTHING_S,
     windows_from_log,
 )
-from pcvfe_drake.fitting import JOINT_PRIOR_REL_SIGMA, FitOptions, fit_contexts, joint_options
-from pcvfe_drake.params import THETA_NAMES, load_vehicle
+from pcvfe_drake.estimation.fitting import (
+    JOINT_PRIOR_REL_SIGMA,
+    FitOptions,
+    fit_contexts,
+    joint_options,
+)
+from pcvfe_drake.runs.drivelog import read_drive_log
+from pcvfe_drake.vehicle.params import THETA_NAMES, load_vehicle
 
 
 def register(subparsers) -> None:

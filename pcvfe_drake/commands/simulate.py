@@ -12,7 +12,7 @@ import time
 from datetime import datetime
 from pathlib import Path
 
-from pcvfe_drake.scenario import DEFAULT_SCENARIO, shipped_scenarios
+from pcvfe_drake.runs.scenario import DEFAULT_SCENARIO, shipped_scenarios
 
 CHUNK_S = 1.0
 """Simulated time advanced per progress-bar step [s]."""
@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
     result = run_simulation(
         scenario, folder, meshcat=meshcat, progress=not args.no_progress, chunk_s=CHUNK_S
     )
-    from pcvfe_drake.summary import summary_table
+    from pcvfe_drake.runs.summary import summary_table
 
     print()
     print(summary_table(result.summary))

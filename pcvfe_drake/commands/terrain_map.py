@@ -8,7 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pcvfe_drake.terrain import default_terrain_map
+from pcvfe_drake.perception.terrain import default_terrain_map
 
 
 def register(subparsers) -> None:

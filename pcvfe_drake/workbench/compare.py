@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pcvfe_drake.vehicle import NX, STATE_NAMES
+from pcvfe_drake.vehicle.single_track import NX, STATE_NAMES
 from pcvfe_drake.workbench.data import MIN_SPEED_MPS, DriveData, block_ids, heldout_blocks
 from pcvfe_drake.workbench.estimate import FIT_STATES
 from pcvfe_drake.workbench.model import WorkbenchModel

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pcvfe_drake.drivelog import REQUIRED_COLUMNS, read_drive_log, validate_drive_log
-from pcvfe_drake.vehicle import STATE_NAMES
+from pcvfe_drake.runs.drivelog import REQUIRED_COLUMNS, read_drive_log, validate_drive_log
+from pcvfe_drake.vehicle.single_track import STATE_NAMES
 
 MIN_DURATION_S = 20.0
 """Shortest log the workbench accepts [s]: it needs training and held-out blocks of windows."""

@@ -81,7 +81,7 @@ class StepContext:
         states: this effect's own states (N, n_states) (empty when it has none).
         steer: constrained steering rate [rad/s] (N,).
         accel: constrained acceleration command [m/s^2] (N,) (after ``accel`` hooks).
-        vehicle: the nominal :class:`~pcvfe_drake.params.VehicleParams`.
+        vehicle: the nominal :class:`~pcvfe_drake.vehicle.params.VehicleParams`.
     """
 
     x: np.ndarray

@@ -9,7 +9,8 @@ Sensitivities: central finite differences in the parameters, computed in *one* v
 rollout (the 2P + 1 parameter vectors are stacked along the batch axis with the windows), with
 steps of 1e-4 x each parameter's typical scale. The effect hooks are arbitrary user code, so
 finite differences keep every effect differentiable without hand-written Jacobians; the ST part
-agrees with ``pcvfe_drake.vehicle``'s exact Jacobians to the accuracy of central differences.
+agrees with ``pcvfe_drake.vehicle.single_track``'s exact Jacobians to the accuracy of central
+differences.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pcvfe_drake.vehicle import BETA, DELTA, PSI, PSI_DOT, V
+from pcvfe_drake.vehicle.single_track import BETA, DELTA, PSI, PSI_DOT, V
 from pcvfe_drake.workbench.data import DriveData
 from pcvfe_drake.workbench.model import WorkbenchModel
 

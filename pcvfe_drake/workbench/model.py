@@ -3,7 +3,7 @@
 Right-hand side, evaluated for N batch rows at once (``z`` = the 7 ST states in CommonRoad order
 followed by the effects' own states)::
 
-    1. CommonRoad's input constraints (as ``pcvfe_drake.vehicle.constrain_inputs``)
+    1. CommonRoad's input constraints (as ``pcvfe_drake.vehicle.single_track.constrain_inputs``)
     2. accel hooks            (e.g. motor_power_limit)            -> applied command a
     3. wheel_angle hooks      (steering_lag, then steering_offset) -> road-wheel angle delta_w
     4. axle loads             Fz_f = m (g lr - a h) / L,  Fz_r = m (g lf + a h) / L
@@ -14,7 +14,8 @@ followed by the effects' own states)::
     8. longitudinal hooks     v' = a + sum(extra accelerations)   (drag, rolling_resistance, grade)
     9. state_rates hooks      the effects' own states (steering_lag)
 
-With no effects this is exactly CommonRoad's dynamic ST model (``pcvfe_drake.vehicle``'s model
+With no effects this is exactly CommonRoad's dynamic ST model
+(``pcvfe_drake.vehicle.single_track``'s model
 for v >= 0.5 m/s); the workbench only uses windows with v >= 1 m/s. Input hooks (input_delay)
 rewrite a window's input sequence before the rollout.
 
@@ -28,8 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pcvfe_drake.params import THETA_NAMES, VehicleParams, load_vehicle
-from pcvfe_drake.vehicle import BETA, DELTA, NX, PSI, PSI_DOT, V, wrap_angle
+from pcvfe_drake.vehicle.params import THETA_NAMES, VehicleParams, load_vehicle
+from pcvfe_drake.vehicle.single_track import BETA, DELTA, NX, PSI, PSI_DOT, V, wrap_angle
 from pcvfe_drake.workbench.data import DriveData
 from pcvfe_drake.workbench.effects import Effect, StepContext, get_effect
 
@@ -60,7 +61,8 @@ class ParamInfo:
 
 
 def applied_inputs(x: np.ndarray, u: np.ndarray, vp: VehicleParams):
-    """CommonRoad's input constraints (as ``pcvfe_drake.vehicle.constrain_inputs``, which also
+    """CommonRoad's input constraints (as ``pcvfe_drake.vehicle.single_track.constrain_inputs``,
+    which also
     returns derivatives) in the lean form the rollouts need: (steer_rate, accel), each (N,)."""
     delta, v = x[:, DELTA], x[:, V]
     steer = np.clip(u[:, 0], vp.delta_dot_min, vp.delta_dot_max)

@@ -28,8 +28,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
-from pcvfe_drake.params import VehicleParams
-from pcvfe_drake.vehicle import STATE_NAMES
+from pcvfe_drake.vehicle.params import VehicleParams
+from pcvfe_drake.vehicle.single_track import STATE_NAMES
 from pcvfe_drake.workbench.compare import evaluate, public
 from pcvfe_drake.workbench.data import DriveData, window_starts
 from pcvfe_drake.workbench.effects import get_effect, known_effects

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pcvfe_drake.vehicle import STATE_NAMES
+from pcvfe_drake.vehicle.single_track import STATE_NAMES
 from pcvfe_drake.workbench.compare import public
 from pcvfe_drake.workbench.data import DriveData
 from pcvfe_drake.workbench.ranking import DiagnoseConfig, Workbench

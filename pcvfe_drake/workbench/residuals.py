@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pcvfe_drake.vehicle import INPUT_NAMES, STATE_NAMES, wrap_angle
+from pcvfe_drake.vehicle.single_track import INPUT_NAMES, STATE_NAMES, wrap_angle
 from pcvfe_drake.workbench.data import DriveData, window_starts
 from pcvfe_drake.workbench.estimate import FIT_STATES
 from pcvfe_drake.workbench.model import WorkbenchModel

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from pcvfe_drake.params import VehicleParams, load_vehicle
+from pcvfe_drake.vehicle.params import VehicleParams, load_vehicle
 from pcvfe_drake.workbench.effects import RHO_AIR_KGPM3
 
 
@@ -320,10 +320,11 @@ def simulate_multibody(
     mu: float | None = None,
     v0_mps: float = 10.0,
 ) -> pd.DataFrame:
-    """A drive log of CommonRoad's multi-body model (``pcvfe_drake.mb_truth.MbTruth``: Pacejka
+    """A drive log of CommonRoad's multi-body model (``pcvfe_drake.vehicle.mb_truth.MbTruth``:
+    Pacejka
     tires with combined slip, load transfer, suspension, wheel spin) under the same driving
     program, integrated with LSODA between samples."""
-    from pcvfe_drake.mb_truth import MbTruth, st_state
+    from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
 
     vp = load_vehicle(vehicle)
     truth = MbTruth(vehicle)

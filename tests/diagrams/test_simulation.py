@@ -6,6 +6,8 @@ import dataclasses
 import json
 
 import pytest
+from pydrake.geometry import Meshcat, MeshcatParams
+
 from pcvfe_drake.diagrams import run_simulation as run_module
 from pcvfe_drake.diagrams.run_simulation import RunFolder, run_simulation
 from pcvfe_drake.diagrams.scenario_io import load_scenario
@@ -16,10 +18,8 @@ from pcvfe_drake.diagrams.station import (
     STATION_OUTPUTS,
     MakeVehicleStation,
 )
-from pydrake.geometry import Meshcat, MeshcatParams
-
-from pcvfe_drake.drivelog import read_drive_log
-from pcvfe_drake.scenario import ClusteringSettings
+from pcvfe_drake.runs.drivelog import read_drive_log
+from pcvfe_drake.runs.scenario import ClusteringSettings
 
 
 def short_scenario(duration_s: float):
@@ -125,10 +125,9 @@ def test_ctrl_c_or_an_error_keeps_what_was_logged(tmp_path, monkeypatch, stop):
 
 
 def test_every_fitter_setting_is_a_context_fitter_keyword():
+    from pcvfe_drake.runs.scenario import FitterSettings, settings_kwargs
     from pcvfe_drake.systems.context_fitter import ContextFitter
-
-    from pcvfe_drake.params import load_vehicle
-    from pcvfe_drake.scenario import FitterSettings, settings_kwargs
+    from pcvfe_drake.vehicle.params import load_vehicle
 
     values = FitterSettings(
         horizon_steps=8,

@@ -5,16 +5,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pcvfe_drake.systems.clip_features import ClipFeatures
-from pcvfe_drake.systems.texture_camera import TextureCamera, to_drake_image
 from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
-from pcvfe_drake.camera import DownwardCamera
-from pcvfe_drake.features import ClipFeatureExtractor, DescriptorExtractor
-from pcvfe_drake.terrain import default_terrain_map
+from pcvfe_drake.perception.camera import DownwardCamera
+from pcvfe_drake.perception.features import ClipFeatureExtractor, DescriptorExtractor
+from pcvfe_drake.perception.terrain import default_terrain_map
+from pcvfe_drake.systems.clip_features import ClipFeatures
+from pcvfe_drake.systems.texture_camera import TextureCamera, to_drake_image
 
 
 def load_tiny_clip_helpers():

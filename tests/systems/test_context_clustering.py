@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from pcvfe_drake.systems.context_clustering import ContextClustering
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
-from pcvfe_drake.clustering import ClusteringParams, ClusterTable
-from pcvfe_drake.feature_streams import synthetic_feature_stream
+from pcvfe_drake.contexts.clustering import ClusteringParams, ClusterTable
+from pcvfe_drake.contexts.feature_streams import synthetic_feature_stream
+from pcvfe_drake.systems.context_clustering import ContextClustering
 
 
 def test_ports_and_defaults():
@@ -126,7 +126,7 @@ class _FrameStamp:
 
 @pytest.mark.parametrize(("offset_s", "age_s"), [(0.001, 0.001), (0.0, 0.1)])
 def test_frame_offset_assigns_the_frame_of_the_same_period(offset_s, age_s):
-    from pcvfe_drake.clustering import ContextClusterer
+    from pcvfe_drake.contexts.clustering import ContextClusterer
 
     class Recording(ContextClusterer):
         def __init__(self, params):

@@ -4,15 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from pcvfe_drake.systems.context_fitter import ContextFitter
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
-from pcvfe_drake.context_estimator import EstimateTable
-from pcvfe_drake.params import ford_escort
-from pcvfe_drake.synthetic_drive import s_curve_drive
+from pcvfe_drake.estimation.context_estimator import EstimateTable
+from pcvfe_drake.estimation.synthetic_drive import s_curve_drive
+from pcvfe_drake.systems.context_fitter import ContextFitter
+from pcvfe_drake.vehicle.params import ford_escort
 
 
 @pytest.fixture(scope="module")

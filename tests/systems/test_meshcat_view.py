@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from pcvfe_drake.systems.meshcat_view import MeshcatView
 from pydrake.geometry import Meshcat, MeshcatParams
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
-from pcvfe_drake.terrain import Terrain, TerrainMap
+from pcvfe_drake.perception.terrain import Terrain, TerrainMap
+from pcvfe_drake.systems.meshcat_view import MeshcatView
 
 
 @pytest.fixture(scope="module")

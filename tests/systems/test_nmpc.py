@@ -2,10 +2,10 @@
 
 import numpy as np
 import pytest
-from pcvfe_drake.systems.nmpc import Nmpc
 from pydrake.systems.analysis import Simulator
 
-from pcvfe_drake.nmpc import NmpcConfig, NmpcDiagnostics, NmpcMemory, start_state
+from pcvfe_drake.control.nmpc import NmpcConfig, NmpcDiagnostics, NmpcMemory, start_state
+from pcvfe_drake.systems.nmpc import Nmpc
 
 
 @pytest.fixture(scope="module")
@@ -66,9 +66,10 @@ def test_fixed_theta_ignores_the_unconnected_input():
 
 
 def test_closed_loop_with_the_vehicle_plant_tracks():
-    from pcvfe_drake.systems.vehicle_plant import VehiclePlant
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import ConstantVectorSource
+
+    from pcvfe_drake.systems.vehicle_plant import VehiclePlant
 
     ctrl = Nmpc("slalom", config=NmpcConfig())
     course, params = ctrl.controller.course, ctrl.params

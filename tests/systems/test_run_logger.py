@@ -4,15 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from pcvfe_drake.systems.run_logger import RunLogger
-from pcvfe_drake.systems.texture_camera import to_drake_image
 from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource, ConstantVectorSource
 
-from pcvfe_drake.drivelog import read_drive_log
-from pcvfe_drake.runlog import RunLog
+from pcvfe_drake.runs.drivelog import read_drive_log
+from pcvfe_drake.runs.runlog import RunLog
+from pcvfe_drake.systems.run_logger import RunLogger
+from pcvfe_drake.systems.texture_camera import to_drake_image
 
 
 def build(run_log: RunLog, with_image: bool):

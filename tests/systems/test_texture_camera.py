@@ -2,11 +2,11 @@
 
 import numpy as np
 import pytest
-from pcvfe_drake.systems.texture_camera import TextureCamera
 from pydrake.systems.analysis import Simulator
 
-from pcvfe_drake.camera import CameraConfig
-from pcvfe_drake.terrain import default_terrain_map
+from pcvfe_drake.perception.camera import CameraConfig
+from pcvfe_drake.perception.terrain import default_terrain_map
+from pcvfe_drake.systems.texture_camera import TextureCamera
 
 
 @pytest.fixture(scope="module")

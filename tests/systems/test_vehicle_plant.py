@@ -6,17 +6,17 @@ import copy
 
 import numpy as np
 import pytest
-from pcvfe_drake.systems.vehicle_plant import VehiclePlant
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 from vehiclemodels.parameters_vehicle1 import parameters_vehicle1
 from vehiclemodels.vehicle_dynamics_mb import vehicle_dynamics_mb
 
-from pcvfe_drake.mb_truth import MbTruth, st_state
-from pcvfe_drake.params import ford_escort, roboracer
-from pcvfe_drake.terrain import default_terrain_map
-from pcvfe_drake.vehicle import rollout, st_dynamics
+from pcvfe_drake.perception.terrain import default_terrain_map
+from pcvfe_drake.systems.vehicle_plant import VehiclePlant
+from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
+from pcvfe_drake.vehicle.params import ford_escort, roboracer
+from pcvfe_drake.vehicle.single_track import rollout, st_dynamics
 
 # A point well inside each quadrant of the default map, with its terrain's mu.
 SPOTS = {"patchy_grass": (30.0, 30.0), "brick": (-30.0, 30.0), "sand": (-30.0, -30.0)}

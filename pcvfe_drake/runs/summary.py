@@ -1,6 +1,6 @@
 """The summary of a closed-loop PC-VFE run, computed from its run log (plain arrays, no pydrake).
 
-The run log is the drive log of the run (``pcvfe_drake.drivelog`` format) with the run's extra
+The run log is the drive log of the run (``pcvfe_drake.runs.drivelog`` format) with the run's extra
 columns: ``terrain`` (true terrain name), ``mu_true``, ``context`` (reported context id, -1 =
 noise), ``mu_hat`` (the friction the controller was given), and optionally ``C_Sf_hat``,
 ``C_Sr_hat``, feature columns ``f_00``... and ``image``. :func:`summarize_run` turns it into the
@@ -12,7 +12,7 @@ dict written as ``summary.json``:
 - ``catastrophic_failures``: number of events where the car left the course by more than its
   half width, spun (|beta| > ``SPIN_BETA_RAD`` or heading error > 90 deg) or had a non-finite
   state; ``max_abs_lateral_error_m``, ``lateral_error_rms_m``.
-- Context discovery (``pcvfe_drake.metrics``; transition-strip terrains excluded): ``ari``,
+- Context discovery (``pcvfe_drake.contexts.metrics``; transition-strip terrains excluded): ``ari``,
   ``contexts_discovered``, ``true_terrains_visited``, ``noise_fraction``,
   ``reidentification_latency_s`` (one entry per re-entry of a terrain that already had an id),
   ``new_terrain_latency_s`` (per terrain, time to its first id).
@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pcvfe_drake import metrics
+from pcvfe_drake.contexts import metrics
 
 SPIN_BETA_RAD = 0.6
 """Side-slip angle beyond which the car counts as spinning (about 34 deg)."""
@@ -76,7 +76,7 @@ def _rising_edges(flag: np.ndarray) -> int:
 def course_tracking(log: pd.DataFrame, course) -> dict[str, Any]:
     """Lap count, lap time and failure events of the driven path against ``course``.
 
-    ``course`` is a ``pcvfe_drake.course.Course`` (or None: lap and tracking entries are None).
+    ``course`` is a ``pcvfe_drake.control.course.Course`` (or None: lap and tracking entries are None).
     """
     t = log["t"].to_numpy(float)
     xy = log[["sx", "sy"]].to_numpy(float)

@@ -291,7 +291,7 @@ class TerrainMap:
         """Top-down RGB image (H, W, 3) uint8 of the whole map, north up, ``px_per_m`` pixels per
         metre. ``flat=True`` paints each terrain in its texture's mean colour instead of the
         tiled texture. ``textures``: a ``TextureSet`` (default: the packaged textures)."""
-        from pcvfe_drake.ground_render import GroundRenderer
+        from pcvfe_drake.perception.ground_render import GroundRenderer
 
         if not (np.isfinite(px_per_m) and px_per_m > 0):
             raise ValueError(f"px_per_m must be positive, got {px_per_m!r}")

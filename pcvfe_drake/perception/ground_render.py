@@ -12,8 +12,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from pcvfe_drake.terrain import UNKNOWN, TerrainMap
-from pcvfe_drake.texture_library import TextureSet, default_textures
+from pcvfe_drake.perception.terrain import UNKNOWN, TerrainMap
+from pcvfe_drake.perception.texture_library import TextureSet, default_textures
 
 
 def _compose(outer: np.ndarray, inner: np.ndarray) -> np.ndarray:

@@ -31,22 +31,22 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from pcvfe_drake.fit_dataset import (
+from pcvfe_drake.estimation.fit_dataset import (
     DEFAULT_HORIZON,
     DEFAULT_STRIDE,
     DEFAULT_V_MIN_MPS,
     DEFAULT_X0_SMOOTHING_S,
     build_windows,
 )
-from pcvfe_drake.fitting import (
+from pcvfe_drake.estimation.fitting import (
     STATUS_DIVERGED,
     FitOptions,
     FitResult,
     fit_gauss_newton,
     joint_options,
 )
-from pcvfe_drake.params import THETA_NAMES, VehicleParams
-from pcvfe_drake.vehicle import NU, NX
+from pcvfe_drake.vehicle.params import THETA_NAMES, VehicleParams
+from pcvfe_drake.vehicle.single_track import NU, NX
 
 _ROW = 1 + NX + NU  # t, state, input
 
@@ -196,7 +196,7 @@ class LiveFitConfig:
 
     Attributes:
         horizon_steps, stride_steps, min_speed_mps, x0_smoothing_s: window building
-            (``pcvfe_drake.fit_dataset.build_windows``).
+            (``pcvfe_drake.estimation.fit_dataset.build_windows``).
         fit_stiffness: fit C_Sf, C_Sr too, with Gaussian priors of ``stiffness_prior_rel``
             times their nominal values (default: mu only).
         stiffness_prior_rel: prior standard deviation of the stiffnesses, relative.

@@ -77,7 +77,8 @@ def _vehicle3():
 
 
 MB_VEHICLES = {"ford_escort": _vehicle1, "bmw_320i": _vehicle2, "vw_vanagon": _vehicle3}
-"""Vehicles with a full CommonRoad parameter set (names as in ``pcvfe_drake.params.PRESETS``)."""
+"""Vehicles with a full CommonRoad parameter set (names as in
+``pcvfe_drake.vehicle.params.PRESETS``)."""
 
 
 def commonroad_parameters(vehicle: str = "ford_escort"):

@@ -2,7 +2,8 @@
 
 Loss
 ----
-For a window (``pcvfe_drake.fit_dataset``) the ST model is rolled out from the measured initial
+For a window (``pcvfe_drake.estimation.fit_dataset``) the ST model is rolled out from the measured
+initial
 state (5b) with the recorded inputs (5c, RK4 at the log step) and compared with the measured
 states at steps 1..H. The residual of state j at step k is
 
@@ -25,7 +26,8 @@ Solvers
 -------
 * :func:`fit_gauss_newton` (default): a bounded Levenberg-Marquardt (Gauss-Newton with
   Marquardt damping and projection onto the bounds, an active set at the bounds) using the exact
-  rollout sensitivities ``dX/dtheta`` of ``pcvfe_drake.vehicle.rollout``; warm-started from the
+  rollout sensitivities ``dX/dtheta`` of ``pcvfe_drake.vehicle.single_track.rollout``; warm-started
+  from the
   given theta (e.g. the previous estimate).
 * :func:`fit_adam`: the paper's optimiser: Adam, learning rate 0.01, batch 1024, gradients through
   the rollout (exact, from the same sensitivities), projected onto the bounds.
@@ -51,9 +53,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pcvfe_drake.fit_dataset import SKIP_REASONS, WindowDataset, WindowSplit
-from pcvfe_drake.params import THETA_NAMES, VehicleParams
-from pcvfe_drake.vehicle import NTHETA, PSI, rollout, wrap_angle
+from pcvfe_drake.estimation.fit_dataset import SKIP_REASONS, WindowDataset, WindowSplit
+from pcvfe_drake.vehicle.params import THETA_NAMES, VehicleParams
+from pcvfe_drake.vehicle.single_track import NTHETA, PSI, rollout, wrap_angle
 
 DEFAULT_STATE_SCALES = (0.02, 0.02, 0.002, 0.05, math.radians(0.5), 0.01, 0.005)
 """Residual scales per state [sx m, sy m, delta rad, v m/s, psi rad, psi_dot rad/s, beta rad]:

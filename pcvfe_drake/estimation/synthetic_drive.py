@@ -1,6 +1,7 @@
 """Synthetic drives with a planted friction truth, for testing and benchmarking the fitter.
 
-``s_curve_drive`` drives the ST model (``pcvfe_drake.vehicle.rk4_step``) through an S-curve
+``s_curve_drive`` drives the ST model (``pcvfe_drake.vehicle.single_track.rk4_step``) through an
+S-curve
 course: sinusoidal steering (the steering angle follows ``delta_amp * sin(2 pi f t)``, commanded
 as a steering rate) at a cruise speed held by a proportional speed controller with a small
 sinusoidal speed variation. Several drives (e.g. one per terrain) are simulated as one batch.
@@ -28,8 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from pcvfe_drake.params import VehicleParams
-from pcvfe_drake.vehicle import DELTA, NX, PSI, STATE_NAMES, V, rk4_step
+from pcvfe_drake.vehicle.params import VehicleParams
+from pcvfe_drake.vehicle.single_track import DELTA, NX, PSI, STATE_NAMES, V, rk4_step
 
 
 @dataclass(frozen=True)
@@ -131,7 +132,7 @@ def s_curve_drive(
 def drive_frame(
     t: np.ndarray, states: np.ndarray, inputs: np.ndarray, **extra_columns
 ) -> pd.DataFrame:
-    """A drive-log table (``pcvfe_drake.drivelog`` columns) from arrays of one drive."""
+    """A drive-log table (``pcvfe_drake.runs.drivelog`` columns) from arrays of one drive."""
     data = {"t": np.asarray(t, dtype=float)}
     for j, name in enumerate(STATE_NAMES):
         data[name] = states[:, j]

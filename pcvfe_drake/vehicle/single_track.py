@@ -39,7 +39,7 @@ import math
 
 import numpy as np
 
-from pcvfe_drake.params import VehicleParams
+from pcvfe_drake.vehicle.params import VehicleParams
 
 SX, SY, DELTA, V, PSI, PSI_DOT, BETA = range(7)
 STATE_NAMES = ("sx", "sy", "delta", "v", "psi", "psi_dot", "beta")

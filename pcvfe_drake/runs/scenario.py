@@ -28,7 +28,7 @@ TRUTH_MODELS = ("st", "mb")
 DESCRIPTOR_BACKEND = "descriptor"
 """Feature backend name of the non-learned texture descriptor (any other value is a CLIP folder)."""
 
-SCENARIO_DIR = Path(__file__).resolve().parent / "data" / "scenarios"
+SCENARIO_DIR = Path(__file__).resolve().parents[1] / "data" / "scenarios"
 """Folder of the shipped scenario files."""
 
 DEFAULT_SCENARIO = "paper_sim"
@@ -72,7 +72,7 @@ class Rates:
 
 @dataclass
 class CameraSettings:
-    """Downward texture camera (``pcvfe_drake.camera.CameraConfig``; None: the camera's default).
+    """Downward texture camera (``pcvfe_drake.perception.camera.CameraConfig``; None: the camera's default).
 
     The scenario defaults switch the realistic effects on: motion blur from a 2 ms exposure,
     per-frame exposure changes and sensor noise, all seeded from the scenario's seed.
@@ -104,7 +104,7 @@ class FeatureSettings:
 
 @dataclass
 class ClusteringSettings:
-    """Context clustering (``pcvfe_drake.clustering.ClusteringParams``; None: its default).
+    """Context clustering (``pcvfe_drake.contexts.clustering.ClusteringParams``; None: its default).
 
     Durations are seconds of driving at the camera rate (converted to frame counts there).
     """
@@ -120,7 +120,7 @@ class ClusteringSettings:
 
 @dataclass
 class FitterSettings:
-    """Context fitter (``pcvfe_drake.context_estimator.LiveFitConfig``; None: its default)."""
+    """Context fitter (``pcvfe_drake.estimation.context_estimator.LiveFitConfig``; None: its default)."""
 
     horizon_steps: int | None = None
     """Rollout window length H in samples (paper eq. 5b-5c)."""
@@ -140,7 +140,7 @@ class FitterSettings:
 
 @dataclass
 class NmpcSettings:
-    """Friction-aware NMPC (``pcvfe_drake.nmpc.NmpcConfig``; None: its default)."""
+    """Friction-aware NMPC (``pcvfe_drake.control.nmpc.NmpcConfig``; None: its default)."""
 
     horizon_s: float | None = None
     """Prediction horizon [s] (steps = horizon_s / rates.nmpc_period_s)."""
@@ -355,7 +355,7 @@ TRANSITION_TERRAINS = ("gravel", "dry_soil")
 
 def build_terrain_map(scenario: Scenario):
     """The scenario's ``TerrainMap``; unknown layout names raise ValueError listing the known."""
-    from pcvfe_drake.terrain import default_terrain_map
+    from pcvfe_drake.perception.terrain import default_terrain_map
 
     layout = scenario.terrain_layout
     if layout not in TERRAIN_LAYOUTS:

@@ -2,7 +2,7 @@
 
 A :class:`RunLog` receives one sample at a time (from the ``RunLogger`` LeafSystem's periodic
 publish), keeps every row in memory for the summary, and appends chunks of ``chunk_rows`` rows to
-a CSV drive log through :class:`pcvfe_drake.drivelog.DriveLogWriter`, which flushes each chunk:
+a CSV drive log through :class:`pcvfe_drake.runs.drivelog.DriveLogWriter`, which flushes each chunk:
 a run interrupted at any point keeps everything up to its last chunk (call :meth:`close` to
 write the rest).
 
@@ -21,8 +21,8 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from pcvfe_drake.drivelog import DriveLogError, DriveLogWriter
-from pcvfe_drake.vehicle import INPUT_NAMES, NX, STATE_NAMES
+from pcvfe_drake.runs.drivelog import DriveLogError, DriveLogWriter
+from pcvfe_drake.vehicle.single_track import INPUT_NAMES, NX, STATE_NAMES
 
 ESTIMATE_COLUMNS = ("mu_hat", "C_Sf_hat", "C_Sr_hat")
 

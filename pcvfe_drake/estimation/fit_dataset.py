@@ -18,7 +18,8 @@ Rejected windows are counted under the first reason that applies, in the order a
 Initial-state smoothing (a documented departure from eq. 5b): with noisy measurements, starting
 the rollout from the measured state is an errors-in-variables problem. The noise in the initial
 yaw rate and side slip decays at a rate that grows with mu, so the fit prefers a larger mu to
-shed it faster: with the noise model of ``pcvfe_drake.synthetic_drive`` and H = 10 this biases mu
+shed it faster: with the noise model of ``pcvfe_drake.estimation.synthetic_drive`` and H = 10 this
+biases mu
 by +0.01 to +0.02. By default the initial steering angle, yaw rate and side slip of a window are
 therefore the mean of the ``2 m + 1`` samples centred on the start, with
 ``m = round(x0_smoothing_s / dt)`` (default 0.03 s: m = 3, 7 samples at 100 Hz; m = 0 at 10 Hz),
@@ -26,7 +27,8 @@ where those samples are finite, evenly spaced and in the same context (else the 
 is used). This removes the bias to within the scatter (measured: |mean error| <= 0.003) and costs
 at most ~0.002 on noise-free S-curve data. ``x0_smoothing_s=0`` gives eq. 5b exactly.
 
-State order is the project's (``pcvfe_drake.vehicle``): [sx, sy, delta, v, psi, psi_dot, beta];
+State order is the project's (``pcvfe_drake.vehicle.single_track``): [sx, sy, delta, v, psi,
+psi_dot, beta];
 inputs are [steer_rate, accel].
 """
 
@@ -38,7 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from pcvfe_drake.vehicle import BETA, DELTA, NU, NX, PSI_DOT, STATE_NAMES, V
+from pcvfe_drake.vehicle.single_track import BETA, DELTA, NU, NX, PSI_DOT, STATE_NAMES, V
 
 SKIP_REASONS = ("non_finite", "time_gap", "context_change", "no_context", "low_speed")
 """Reasons a candidate window is skipped, in the order they are checked."""
@@ -344,7 +346,7 @@ def windows_from_log(
     x0_smoothing_s: float = DEFAULT_X0_SMOOTHING_S,
     default_label: Hashable = "all",
 ) -> WindowSplit:
-    """Fitting windows from a drive log (the format of ``pcvfe_drake.drivelog``).
+    """Fitting windows from a drive log (the format of ``pcvfe_drake.runs.drivelog``).
 
     Args:
         log: table with columns t, sx, sy, delta, v, psi, psi_dot, beta, steer_rate, accel.

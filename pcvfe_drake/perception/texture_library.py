@@ -34,7 +34,7 @@ def textures_dir() -> Path:
     candidates: list[Path] = []
     if os.environ.get(ENV_VAR):
         candidates.append(Path(os.environ[ENV_VAR]))
-    package_dir = Path(__file__).resolve().parent
+    package_dir = Path(__file__).resolve().parents[1]
     candidates += [package_dir / "textures", package_dir.parent / "textures"]
     for folder in candidates:
         if (folder / INDEX_FILE).is_file():

@@ -4,7 +4,8 @@ Camera model: a pinhole camera at ``height_m`` above flat ground looking straigh
 pixels, field of view ``fov_deg`` across the image width. It sits ``forward_offset_m`` ahead of
 the car's reference point along the heading. Image axes: the top of the image points in the
 heading direction, the right of the image to the car's right. The ground under the view is drawn
-by :class:`pcvfe_drake.ground_render.GroundRenderer` (one affine warp per visible terrain), so
+by :class:`pcvfe_drake.perception.ground_render.GroundRenderer` (one affine warp per visible
+terrain), so
 region boundaries are visible when the view straddles them.
 
 Optional effects (all off by default; randomness only from the ``rng`` passed to ``render``):
@@ -23,10 +24,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from pcvfe_drake.ground_render import GroundRenderer
-from pcvfe_drake.terrain import TerrainMap
-from pcvfe_drake.texture_library import TextureSet
-from pcvfe_drake.vehicle import PSI, SX, SY, V
+from pcvfe_drake.perception.ground_render import GroundRenderer
+from pcvfe_drake.perception.terrain import TerrainMap
+from pcvfe_drake.perception.texture_library import TextureSet
+from pcvfe_drake.vehicle.single_track import PSI, SX, SY, V
 
 _NOISE_FIELD_SEED = 20240607  # fixed seed of the precomputed unit-variance noise field
 

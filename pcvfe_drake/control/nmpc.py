@@ -2,7 +2,8 @@
 
 Formulation (one controller update, period ``dt_s``; see ``docs/nmpc.md``)
 --------------------------------------------------------------------------
-States are **world-frame ST states** (``pcvfe_drake.vehicle`` order) predicted over ``horizon``
+States are **world-frame ST states** (``pcvfe_drake.vehicle.single_track`` order) predicted over
+``horizon``
 steps of ``dt_s`` (default 40 x 0.05 s = 2 s). Each update is one real-time iteration (RTI) of
 sequential quadratic programming in multiple-shooting form:
 
@@ -62,9 +63,9 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from pcvfe_drake.course import Course, SpeedProfile, speed_profile
-from pcvfe_drake.params import VehicleParams
-from pcvfe_drake.vehicle import (
+from pcvfe_drake.control.course import Course, SpeedProfile, speed_profile
+from pcvfe_drake.vehicle.params import VehicleParams
+from pcvfe_drake.vehicle.single_track import (
     BETA,
     DELTA,
     NU,

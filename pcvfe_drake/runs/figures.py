@@ -8,7 +8,7 @@
 - :func:`figure_reidentification` (Fig. 7): a zoom on one re-identification: entry into the known
   terrain, the moment its id is reported, and the latency between them.
 
-Inputs are the run log columns described in ``pcvfe_drake.summary`` plus the summary dict.
+Inputs are the run log columns described in ``pcvfe_drake.runs.summary`` plus the summary dict.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
-from pcvfe_drake.palette import context_rgb  # noqa: E402
+from pcvfe_drake.runs.palette import context_rgb  # noqa: E402
 
 ESTIMATE_COLOR = "tab:orange"
 TRUTH_COLOR = "tab:blue"

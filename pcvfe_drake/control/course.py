@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pcvfe_drake.params import G_MPS2
+from pcvfe_drake.vehicle.params import G_MPS2
 
 SEGMENT_KINDS = ("straight", "arc", "scurve")
 

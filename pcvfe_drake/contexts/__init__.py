@@ -1,0 +1,1 @@
+"""Terrain contexts: clustering with persistent ids, feature streams and clustering metrics."""

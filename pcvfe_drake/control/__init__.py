@@ -1,0 +1,1 @@
+"""Control: the course and the friction-aware NMPC."""

@@ -1,0 +1,1 @@
+"""Estimation: fit datasets, the friction fitter, the per-context estimator, synthetic drives."""

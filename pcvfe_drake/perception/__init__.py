@@ -1,0 +1,1 @@
+"""Perception: terrain map, textures, ground rendering, the downward camera and features."""

@@ -1,0 +1,1 @@
+"""Runs: scenarios, drive logs, the run log, summary and figures."""
