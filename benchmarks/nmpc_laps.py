@@ -26,8 +26,9 @@ import time
 
 import numpy as np
 
-from pcvfe_drake.control.course import load_course
-from pcvfe_drake.control.nmpc import NmpcConfig, NmpcController, simulate_closed_loop, start_state
+from pcvfe_drake.control.closed_loop import simulate_closed_loop
+from pcvfe_drake.control.course import initial_state, load_course
+from pcvfe_drake.control.nmpc import NmpcConfig, NmpcController
 from pcvfe_drake.vehicle.params import ford_escort, roboracer
 
 RMS_LIMIT_M = 0.3
@@ -66,7 +67,7 @@ def run(
 ):
     ctrl = NmpcController(course, params, config)
     prof = ctrl.profile(float(mu_at(np.array(course.sample(0.0)[:2]))))
-    x0 = start_state(course, params, float(prof.speed_at(0.0)))
+    x0 = initial_state(course, params, float(prof.speed_at(0.0)))
     t0 = time.perf_counter()
     res = simulate_closed_loop(
         ctrl,

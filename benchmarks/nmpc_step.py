@@ -7,7 +7,7 @@ default horizon (40 x 0.05 s). At every update, on the same measured state and t
   written into the fixed CSC patterns, ``osqp.update`` + warm start + solve (the real update,
   whose result drives the car);
 - ``naive_dense``: the same linearisation, then the QP built densely term by term
-  (``nmpc.dense_qp``), converted to CSC, and a fresh ``osqp.OSQP().setup`` + solve (same
+  (``reference_qp.dense_qp``), converted to CSC, and a fresh ``osqp.OSQP().setup`` + solve (same
   settings, no warm start) every step.
 
 Both wall-clock (``perf_counter``) and thread CPU time (``thread_time``) are reported; on a
@@ -27,8 +27,10 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from pcvfe_drake.control.course import load_course
-from pcvfe_drake.control.nmpc import NmpcConfig, NmpcController, StTruth, dense_qp, start_state
+from pcvfe_drake.control.closed_loop import StTruth
+from pcvfe_drake.control.course import initial_state, load_course
+from pcvfe_drake.control.nmpc import NmpcConfig, NmpcController
+from pcvfe_drake.control.reference_qp import dense_qp
 from pcvfe_drake.vehicle.params import ford_escort
 
 
@@ -57,7 +59,7 @@ def main(argv=None) -> int:
     ctrl = NmpcController(course, params, NmpcConfig())
     theta = np.array([0.6, params.C_Sf, params.C_Sr])
     plant = StTruth(params)
-    x = plant.reset(start_state(course, params, 5.0))
+    x = plant.reset(initial_state(course, params, 5.0))
     every = int(round(ctrl.config.dt_s / 0.01))
 
     rows = {"rti_sparse": ([], []), "naive_dense": ([], []), "linearize": ([], [])}

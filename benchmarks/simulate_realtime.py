@@ -27,10 +27,9 @@ from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
-from pcvfe_drake.control.course import load_course
+from pcvfe_drake.control.course import initial_state, load_course
 from pcvfe_drake.diagrams.run_simulation import run_simulation
 from pcvfe_drake.diagrams.scenario_io import load_scenario
-from pcvfe_drake.diagrams.station import initial_state
 from pcvfe_drake.runs.scenario import build_terrain_map
 from pcvfe_drake.systems.vehicle_plant import VehiclePlant
 from pcvfe_drake.vehicle.params import load_vehicle

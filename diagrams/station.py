@@ -21,17 +21,16 @@ The hardware station will not have the sim-only ports (``SIM_ONLY_OUTPUTS``).
 
 from __future__ import annotations
 
-import numpy as np
 from pydrake.geometry import Meshcat
 from pydrake.systems.framework import Diagram, DiagramBuilder
 
-from pcvfe_drake.control.course import Course, load_course
+from pcvfe_drake.control.course import Course, initial_state, load_course
 from pcvfe_drake.perception.camera import CameraConfig
 from pcvfe_drake.perception.terrain import TerrainMap
 from pcvfe_drake.runs.scenario import Scenario, build_terrain_map, settings_kwargs
 from pcvfe_drake.systems.texture_camera import TextureCamera
 from pcvfe_drake.systems.vehicle_plant import VehiclePlant
-from pcvfe_drake.vehicle.params import VehicleParams, load_vehicle
+from pcvfe_drake.vehicle.params import load_vehicle
 
 STATION_INPUTS = ("actuation",)
 """Input ports of every station variant."""
@@ -39,15 +38,6 @@ STATION_OUTPUTS = ("state", "image")
 """Output ports of every station variant."""
 SIM_ONLY_OUTPUTS = ("true_mu", "true_terrain")
 """Outputs of the simulated station only (ground truth a real car does not have)."""
-
-
-def initial_state(
-    course: Course, params: VehicleParams, speed_mps: float, start_s_m: float = 0.0
-) -> np.ndarray:
-    """ST state on the course at arc length ``start_s_m`` (wrapped) at ``speed_mps``, in steady
-    kinematic cornering."""
-    s0 = np.array([course.wrap_s(start_s_m)], dtype=float)
-    return course.state_on_path(s0, speed_mps, params.L, params.lr)[0]
 
 
 def camera_config(scenario: Scenario) -> CameraConfig:

@@ -6,17 +6,11 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from pcvfe_drake.control.course import load_course
-from pcvfe_drake.control.nmpc import (
-    NmpcConfig,
-    NmpcController,
-    dense_qp,
-    discretize,
-    expm_batched,
-    ks_jacobians,
-    simulate_closed_loop,
-    start_state,
-)
+from pcvfe_drake.control.closed_loop import simulate_closed_loop
+from pcvfe_drake.control.course import initial_state, load_course
+from pcvfe_drake.control.nmpc import NmpcConfig, NmpcController
+from pcvfe_drake.control.prediction_model import discretize, expm_batched, ks_jacobians
+from pcvfe_drake.control.reference_qp import dense_qp
 from pcvfe_drake.vehicle.params import ford_escort
 from pcvfe_drake.vehicle.single_track import DELTA, PSI, SX, SY, V, st_jacobians
 
@@ -35,7 +29,7 @@ CFG = NmpcConfig()  # no wall-clock limit by default: deterministic on a busy ma
 
 
 def offset_start(course, params, s_m=20.0, lateral_m=0.0, speed=5.0):
-    x = start_state(course, params, speed, s_m)
+    x = initial_state(course, params, speed, s_m)
     h = course.sample(s_m)[2]
     x[SX] += -np.sin(h) * lateral_m
     x[SY] += np.cos(h) * lateral_m
@@ -200,7 +194,7 @@ def test_wall_clock_limit_triggers_the_fallback(course, params):
 
 def test_low_friction_belief_slows_the_car_down(course, params):
     ctrl = NmpcController(course, params, CFG)
-    x = start_state(course, params, 5.0, 0.0)  # entering a 12 m S-curve arc
+    x = initial_state(course, params, 5.0, 0.0)  # entering a 12 m S-curve arc
     u = ctrl.update(x, [0.1, params.C_Sf, params.C_Sr])
     assert ctrl.last_diagnostics.v_ref_mps < 3.0
     assert u[1] < -0.3
@@ -240,7 +234,7 @@ def test_config_validation(params):
 def test_starts_from_standstill_within_the_friction_limit(course, params):
     # Linearisation at v = 0 is clamped; the friction polygon caps the launch acceleration.
     ctrl = NmpcController(course, params, CFG)
-    x0 = start_state(course, params, 0.0, 100.0)
+    x0 = initial_state(course, params, 0.0, 100.0)
     res = simulate_closed_loop(ctrl, x0, 2.0, mu_at=lambda xy: 0.45)
     assert res.failure == "" and res.metrics(course)["fallbacks"] == 0
     assert res.x[-1, V] > 3.0

@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pcvfe_drake.vehicle.params import G_MPS2
+from pcvfe_drake.vehicle.params import G_MPS2, VehicleParams
 
 SEGMENT_KINDS = ("straight", "arc", "scurve")
 
@@ -316,6 +316,15 @@ class Course:
         delta = np.arctan(wheelbase * k)
         beta = np.arctan(lr / wheelbase * np.tan(delta))
         return np.column_stack([x, y, delta, v, h - beta, v * k, beta])
+
+
+def initial_state(
+    course: Course, params: VehicleParams, speed_mps: float, start_s_m: float = 0.0
+) -> np.ndarray:
+    """ST state (7,) on the course at arc length ``start_s_m`` [m] (wrapped) at ``speed_mps``
+    [m/s], in steady kinematic cornering (the station's start and the closed loops' start)."""
+    s0 = np.array([course.wrap_s(start_s_m)], dtype=float)
+    return course.state_on_path(s0, speed_mps, params.L, params.lr)[0]
 
 
 def _wrap(a):

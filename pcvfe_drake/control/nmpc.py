@@ -47,16 +47,18 @@ KMPC baseline: ``NmpcConfig(model="ks")`` predicts with a kinematic single-track
 slip; ``psi_dot`` and ``beta`` relax to their kinematic values with ``ks_relax_s``) from the same
 code; combine it with a fixed theta to ignore the friction estimate.
 
-This module is pydrake-free; ``pcvfe_drake.systems.nmpc.Nmpc`` wraps it as a LeafSystem.
+Modules: this one holds the controller (memory, diagnostics, linearisation, QP values, update
+and fallback); ``nmpc_config`` its settings, ``prediction_model`` the KS model and the exact
+discretisation, ``qp_layout`` the QP's index bookkeeping and fixed sparsity. For tests and
+benchmarks only: ``reference_qp`` (a dense build of the same QP) and ``closed_loop`` (a
+Drake-free closed loop). All pydrake-free; ``pcvfe_drake.systems.nmpc.Nmpc`` wraps the
+controller as a LeafSystem.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
-from collections import Counter
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -64,6 +66,9 @@ import osqp
 import scipy.sparse as sp
 
 from pcvfe_drake.control.course import Course, SpeedProfile, speed_profile
+from pcvfe_drake.control.nmpc_config import MODELS, NmpcConfig
+from pcvfe_drake.control.prediction_model import discretize, ks_jacobians
+from pcvfe_drake.control.qp_layout import QpLayout, SparsityPattern
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import (
     BETA,
@@ -75,137 +80,23 @@ from pcvfe_drake.vehicle.single_track import (
     SX,
     SY,
     V,
-    constrain_inputs,
-    rk4_step,
     st_jacobians,
     wrap_angle,
 )
 
-MODELS = ("st", "ks")
+__all__ = [
+    "MODELS",
+    "Linearization",
+    "NmpcConfig",
+    "NmpcController",
+    "NmpcDiagnostics",
+    "NmpcMemory",
+]
+
 _ACCEPTED = ("solved", "solved inaccurate")
 _MU_RANGE = (0.05, 2.0)
 _NO_TIME_LIMIT = 1e10  # OSQP's own default: no wall-clock limit
 _PROJ = ("s", "lateral_error", "heading_error", "x", "y", "heading", "curvature")
-
-
-@dataclass(frozen=True)
-class NmpcConfig:
-    """Settings of the tracking NMPC (SI units; scales are Bryson-rule tolerances: the weight of
-    a term is 1 / scale^2; ``None`` derives a scale from the vehicle, see :meth:`resolved`).
-
-    Attributes:
-        horizon: prediction steps N.
-        dt_s: step and controller period [s].
-        model: prediction model, ``"st"`` (single track with theta_hat) or ``"ks"`` (kinematic,
-            the KMPC baseline).
-        lateral_scale_m: lateral error tolerance [m] (None: 0.08 * wheelbase).
-        course_angle_scale_rad: course-angle error tolerance [rad].
-        speed_scale_mps: speed error tolerance [m/s] (None: 0.35 * sqrt(wheelbase)).
-        yaw_rate_scale_radps: yaw-rate error tolerance [rad/s] vs v_ref * kappa (None: off).
-        steer_rate_scale_radps: steering-rate tolerance [rad/s] (None: the vehicle's limit).
-        accel_scale_mps2: acceleration tolerance [m/s^2].
-        steer_rate_change_scale_radps: change of steering rate per step [rad/s] (None: 0.25 *
-            the vehicle's steering-rate limit).
-        accel_change_scale_mps2: change of acceleration per step [m/s^2].
-        terminal_factor: weight multiplier of the last stage's state terms.
-        speed_margin: reference speed <= speed_margin * sqrt(mu_hat g / |kappa|).
-        long_fraction: acceleration/braking limit of the speed profile, fraction of mu_hat g.
-        max_speed_mps: cap on the reference speed (None or 0: the course's planned speed).
-        friction_margin: radius of the QP's friction polygon, fraction of mu_hat g.
-        corridor_fraction: soft corridor half-width, fraction of the course half-width.
-        slack_linear, slack_quadratic: penalties on the slacks (per unit, per unit^2).
-        v_lin_min_mps: the linearisation speed is clamped to at least this [m/s].
-        ks_relax_s: relaxation time of psi_dot and beta to their kinematic values (KMPC) [s].
-        max_iter, eps_abs, eps_rel: OSQP settings; ``max_iter`` is the deterministic budget of
-            one update (an unsolved QP after it triggers the fallback).
-        time_limit_s: optional wall-clock limit of one OSQP solve [s] (e.g. 0.04 on hardware at
-            20 Hz). None (default) keeps simulations deterministic: a wall-clock limit makes
-            the result depend on the machine's load.
-        fallback_shift_steps: how many steps of a stale plan the fallback may use.
-        brake_fraction: braking deceleration of the fallback, fraction of mu_hat g.
-        cold_start_distance_m: a plan whose first state is farther than this from the measured
-            position is discarded (cold start).
-    """
-
-    horizon: int = 40
-    dt_s: float = 0.05
-    model: str = "st"
-    lateral_scale_m: float | None = None
-    course_angle_scale_rad: float = 0.06
-    speed_scale_mps: float | None = None
-    yaw_rate_scale_radps: float | None = None
-    steer_rate_scale_radps: float | None = None
-    accel_scale_mps2: float = 3.0
-    steer_rate_change_scale_radps: float | None = None
-    accel_change_scale_mps2: float = 0.5
-    terminal_factor: float = 5.0
-    speed_margin: float = 0.8
-    long_fraction: float = 0.5
-    max_speed_mps: float | None = None
-    friction_margin: float = 0.9
-    corridor_fraction: float = 0.5
-    slack_linear: float = 100.0
-    slack_quadratic: float = 1000.0
-    v_lin_min_mps: float = 1.0
-    ks_relax_s: float = 0.1
-    max_iter: int = 1000
-    eps_abs: float = 1e-3
-    eps_rel: float = 1e-3
-    time_limit_s: float | None = None
-    fallback_shift_steps: int = 20
-    brake_fraction: float = 0.5
-    cold_start_distance_m: float = 2.0
-
-    def resolved(self, params: VehicleParams) -> NmpcConfig:
-        """A copy with every ``None`` scale derived from the vehicle (validated)."""
-        wb = params.L
-        rate = max(abs(params.delta_dot_min), abs(params.delta_dot_max))
-        cfg = dataclasses.replace(
-            self,
-            lateral_scale_m=self.lateral_scale_m or 0.08 * wb,
-            speed_scale_mps=self.speed_scale_mps or 0.35 * math.sqrt(wb),
-            steer_rate_scale_radps=self.steer_rate_scale_radps or rate,
-            steer_rate_change_scale_radps=self.steer_rate_change_scale_radps or 0.25 * rate,
-        )
-        cfg.validate()
-        return cfg
-
-    def validate(self) -> None:
-        def need(ok, name, rule):
-            if not ok:
-                raise ValueError(f"NmpcConfig.{name}={getattr(self, name)!r} must be {rule}")
-
-        need(int(self.horizon) >= 2, "horizon", ">= 2")
-        need(self.dt_s > 0, "dt_s", "> 0")
-        need(self.model in MODELS, "model", f"one of {MODELS}")
-        for name in (
-            "course_angle_scale_rad",
-            "accel_scale_mps2",
-            "accel_change_scale_mps2",
-            "terminal_factor",
-            "friction_margin",
-            "corridor_fraction",
-            "v_lin_min_mps",
-            "ks_relax_s",
-            "brake_fraction",
-            "cold_start_distance_m",
-        ):
-            need(getattr(self, name) > 0, name, "> 0")
-        for name in (
-            "lateral_scale_m",
-            "speed_scale_mps",
-            "steer_rate_scale_radps",
-            "steer_rate_change_scale_radps",
-            "yaw_rate_scale_radps",
-            "time_limit_s",
-        ):
-            value = getattr(self, name)
-            need(value is None or value > 0, name, "> 0 or None")
-        need(0 < self.speed_margin <= 1, "speed_margin", "in (0, 1]")
-        need(0 < self.long_fraction <= 1, "long_fraction", "in (0, 1]")
-        need(self.slack_linear >= 0 and self.slack_quadratic > 0, "slack_quadratic", "> 0")
-        need(int(self.max_iter) >= 1, "max_iter", ">= 1")
-        need(int(self.fallback_shift_steps) >= 0, "fallback_shift_steps", ">= 0")
 
 
 @dataclass(frozen=True)
@@ -251,185 +142,6 @@ class NmpcDiagnostics:
     heading_error_rad: float = float("nan")
     v_ref_mps: float = float("nan")
     mu_hat: float = float("nan")
-
-
-# ---------------------------------------------------------------------------- prediction models
-def ks_jacobians(x: np.ndarray, u: np.ndarray, params: VehicleParams, relax_s: float):
-    """Kinematic single-track model on the 7-entry ST state, batched: ``(f, A, B)``.
-
-    sx' = v cos(psi + beta_k), sy' = v sin(psi + beta_k), delta' = steer, v' = accel,
-    psi' = v cos(beta_k) tan(delta) / L, with beta_k = atan(lr tan(delta) / L); the states
-    psi_dot and beta relax to psi'_k and beta_k with time constant ``relax_s`` [s]. Inputs pass
-    through CommonRoad's constraints (``vehicle.constrain_inputs``).
-    """
-    n = x.shape[0]
-    wb = params.L
-    u_eff, d_steer, d_acc_du1, d_acc_dv = constrain_inputs(x, u, params)
-    delta, v, psi, r, beta = x[:, DELTA], x[:, V], x[:, PSI], x[:, PSI_DOT], x[:, BETA]
-    c = params.lr / wb
-    t = np.tan(delta)
-    sec2 = 1.0 + t * t
-    q = 1.0 + c * c * t * t
-    beta_k = np.arctan(c * t)
-    dbeta_k = c * sec2 / q
-    gk = t / np.sqrt(q)
-    dgk = q**-1.5 * sec2
-    yaw_k = v * gk / wb
-    cs, sn = np.cos(psi + beta_k), np.sin(psi + beta_k)
-    inv = 1.0 / relax_s
-    f = np.empty((n, NX))
-    f[:, SX] = v * cs
-    f[:, SY] = v * sn
-    f[:, DELTA] = u_eff[:, 0]
-    f[:, V] = u_eff[:, 1]
-    f[:, PSI] = yaw_k
-    f[:, PSI_DOT] = (yaw_k - r) * inv
-    f[:, BETA] = (beta_k - beta) * inv
-    A = np.zeros((n, NX, NX))
-    B = np.zeros((n, NX, NU))
-    A[:, SX, V] = cs
-    A[:, SY, V] = sn
-    A[:, SX, PSI] = -v * sn
-    A[:, SY, PSI] = v * cs
-    A[:, SX, DELTA] = -v * sn * dbeta_k
-    A[:, SY, DELTA] = v * cs * dbeta_k
-    A[:, V, V] = d_acc_dv
-    A[:, PSI, V] = gk / wb
-    A[:, PSI, DELTA] = v * dgk / wb
-    A[:, PSI_DOT, V] = gk / wb * inv
-    A[:, PSI_DOT, DELTA] = v * dgk / wb * inv
-    A[:, PSI_DOT, PSI_DOT] = -inv
-    A[:, BETA, DELTA] = dbeta_k * inv
-    A[:, BETA, BETA] = -inv
-    B[:, DELTA, 0] = d_steer
-    B[:, V, 1] = d_acc_du1
-    return f, A, B
-
-
-def expm_batched(m: np.ndarray) -> np.ndarray:
-    """Matrix exponentials of a batch of square matrices (B, n, n).
-
-    Scaling and squaring with a degree-12 Taylor polynomial (Horner form): the batch is scaled
-    by 2^-s so that every 1-norm is <= 0.5 (truncation error below 2e-14 relative), then squared
-    s times. Vectorised over the batch (scipy's expm loops over it in Python).
-    """
-    norm = float(np.abs(m).sum(axis=-2).max()) if m.size else 0.0
-    s = max(0, int(math.ceil(math.log2(norm / 0.5)))) if norm > 0.5 else 0
-    a = m / 2.0**s
-    eye = np.eye(m.shape[-1])
-    e = eye + a / 12.0
-    for k in range(11, 0, -1):
-        e = eye + (a @ e) / k
-    for _ in range(s):
-        e = e @ e
-    return e
-
-
-def discretize(f: np.ndarray, A: np.ndarray, B: np.ndarray, dt: float):
-    """Exact zero-order-hold discretisation of ``dx' = A dx + B du + f`` over ``dt``, batched.
-
-    Returns ``(Ad, Bd, g)`` with ``dx(dt) = Ad dx(0) + Bd du + g`` (shapes (N,7,7), (N,7,2),
-    (N,7)), from one batched matrix exponential of ``[[A, B, f], [0, 0, 0]] dt``.
-    """
-    n = f.shape[0]
-    m = np.zeros((n, NX + NU + 1, NX + NU + 1))
-    m[:, :NX, :NX] = A * dt
-    m[:, :NX, NX : NX + NU] = B * dt
-    m[:, :NX, -1] = f * dt
-    e = expm_batched(m)
-    return e[:, :NX, :NX], e[:, :NX, NX : NX + NU], e[:, :NX, -1]
-
-
-# ---------------------------------------------------------------------------- QP layout
-class QpLayout:
-    """Index bookkeeping of the QP: variables ``dz = [dx_0..dx_N, du_0..du_{N-1}, s_fric_0..
-    s_fric_{N-1}, s_lat_1..s_lat_N]`` and constraint rows ``[init (7), dynamics (7N), inputs (2N),
-    steering angle (N), friction (8N), corridor (2N), slack >= 0 (2N)]``."""
-
-    N_FRICTION_SIDES = 8
-
-    def __init__(self, horizon: int) -> None:
-        n = int(horizon)
-        self.N = n
-        self.n_x = NX * (n + 1)
-        self.n_u = NU * n
-        self.off_u = self.n_x
-        self.off_sf = self.n_x + self.n_u
-        self.off_sl = self.off_sf + n
-        self.nz = self.off_sl + n
-        self.r_init = 0
-        self.r_dyn = NX
-        self.r_in = self.r_dyn + NX * n
-        self.r_del = self.r_in + NU * n
-        self.r_fr = self.r_del + n
-        self.r_lat = self.r_fr + self.N_FRICTION_SIDES * n
-        self.r_sl = self.r_lat + 2 * n
-        self.m = self.r_sl + 2 * n
-        angles = np.arange(self.N_FRICTION_SIDES) * (2 * np.pi / self.N_FRICTION_SIDES)
-        self.fr_cos = np.cos(angles)
-        self.fr_sin = np.sin(angles)
-
-    def ix(self, k, i):
-        return NX * np.asarray(k) + np.asarray(i)
-
-    def iu(self, k, j):
-        return self.off_u + NU * np.asarray(k) + np.asarray(j)
-
-    def shift_rows(self) -> np.ndarray:
-        """For warm starts: the row of the next stage of each row (the last stage keeps its own)."""
-        n = self.N
-        src = np.arange(self.m)
-
-        def shift(first: int, per_stage: int, stages: int) -> None:
-            rows = first + np.arange(stages * per_stage).reshape(stages, per_stage)
-            src[rows[:-1]] = rows[1:]
-
-        shift(self.r_dyn, NX, n)
-        shift(self.r_in, NU, n)
-        shift(self.r_del, 1, n)
-        shift(self.r_fr, self.N_FRICTION_SIDES, n)
-        shift(self.r_lat, 2, n)
-        shift(self.r_sl, 1, n)
-        shift(self.r_sl + n, 1, n)
-        return src
-
-
-class _Pattern:
-    """Fixed sparsity: blocks of (row, col) entries in a fixed order, and the permutation from
-    that order to CSC data order. ``csc(values)`` builds the matrix once; ``data(values)`` gives
-    the CSC data vector of new values in the same pattern."""
-
-    def __init__(self, shape: tuple[int, int]) -> None:
-        self.shape = shape
-        self._rows: list[np.ndarray] = []
-        self._cols: list[np.ndarray] = []
-        self.blocks: dict[str, slice] = {}
-        self.size = 0
-
-    def add(self, name: str, rows, cols) -> None:
-        rows, cols = np.broadcast_arrays(np.asarray(rows), np.asarray(cols))
-        self._rows.append(rows.ravel())
-        self._cols.append(cols.ravel())
-        self.blocks[name] = slice(self.size, self.size + rows.size)
-        self.size += rows.size
-
-    def finish(self) -> None:
-        rows = np.concatenate(self._rows)
-        cols = np.concatenate(self._cols)
-        key = cols.astype(np.int64) * self.shape[0] + rows
-        if np.unique(key).size != key.size:
-            raise RuntimeError("QP pattern has duplicate entries")
-        order = np.argsort(key, kind="stable")  # CSC order: by column, then row
-        self.perm = order
-        self.indices = rows[order].astype(np.int32)
-        counts = np.bincount(cols, minlength=self.shape[1])
-        self.indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
-
-    def data(self, values: np.ndarray) -> np.ndarray:
-        return values[self.perm]
-
-    def csc(self, values: np.ndarray) -> sp.csc_matrix:
-        return sp.csc_matrix((self.data(values), self.indices, self.indptr), shape=self.shape)
 
 
 @dataclass
@@ -506,7 +218,7 @@ class NmpcController:
         k1 = np.arange(1, n + 1)  # state stages with costs
         k0 = np.arange(n)  # input stages
         # --- P (upper triangle)
-        P = _Pattern((lay.nz, lay.nz))
+        P = SparsityPattern((lay.nz, lay.nz))
         P.add("lat_xx", lay.ix(k1, SX), lay.ix(k1, SX))
         P.add("lat_xy", lay.ix(k1, SX), lay.ix(k1, SY))
         P.add("lat_yy", lay.ix(k1, SY), lay.ix(k1, SY))
@@ -538,7 +250,7 @@ class NmpcController:
         self._p_template = pv
 
         # --- A
-        A = _Pattern((lay.m, lay.nz))
+        A = SparsityPattern((lay.m, lay.nz))
         i7 = np.arange(NX)
         A.add("init", lay.r_init + i7, lay.ix(0, i7))
         kk, ii, jj = np.meshgrid(k0, i7, i7, indexing="ij")
@@ -911,253 +623,3 @@ class NmpcController:
     def reset(self) -> None:
         self.memory = NmpcMemory()
         self.last_diagnostics = NmpcDiagnostics()
-
-
-# ---------------------------------------------------------------------------- dense reference
-def dense_qp(ctrl: NmpcController, lin: Linearization):
-    """Straightforward dense build of the same QP (full symmetric P), term by term in loops.
-
-    The reference for tests and the naive baseline of ``benchmarks/nmpc_step.py``.
-    """
-    lay, n = ctrl.layout, ctrl.N
-    cfg, p = ctrl.config, ctrl.params
-    nz, m = lay.nz, lay.m
-    P = np.zeros((nz, nz))
-    q = np.zeros(nz)
-    A = np.zeros((m, nz))
-    lo = np.zeros(m)
-    hi = np.zeros(m)
-
-    def add_square(weight, coeffs: dict, offset: float):
-        # weight * (sum_i c_i z_i + offset)^2 -> 1/2 z' P z + q' z
-        idx = np.array(list(coeffs.keys()))
-        c = np.array(list(coeffs.values()))
-        P[np.ix_(idx, idx)] += 2 * weight * np.outer(c, c)
-        q[idx] += 2 * weight * offset * c
-
-    for k in range(1, n + 1):
-        j = k - 1
-        xb = lin.x_bar[k]
-        nrm = lin.normal[j]
-        add_square(ctrl.w_lat[j], {lay.ix(k, SX): nrm[0], lay.ix(k, SY): nrm[1]}, lin.e_lat[j])
-        add_square(ctrl.w_course[j], {lay.ix(k, PSI): 1.0, lay.ix(k, BETA): 1.0}, lin.e_course[j])
-        add_square(ctrl.w_speed[j], {lay.ix(k, V): 1.0}, xb[V] - lin.v_ref[j])
-        add_square(ctrl.w_yaw[j], {lay.ix(k, PSI_DOT): 1.0}, xb[PSI_DOT] - lin.yaw_ref[j])
-    for k in range(n):
-        for i in range(NU):
-            add_square(ctrl.w_u[i], {lay.iu(k, i): 1.0}, lin.u_bar[k, i])
-            if k == 0:
-                add_square(ctrl.w_du[i], {lay.iu(0, i): 1.0}, lin.u_bar[0, i] - lin.u_prev[i])
-            else:
-                add_square(
-                    ctrl.w_du[i],
-                    {lay.iu(k, i): 1.0, lay.iu(k - 1, i): -1.0},
-                    lin.u_bar[k, i] - lin.u_bar[k - 1, i],
-                )
-    for v in range(lay.off_sf, nz):
-        P[v, v] += 2 * cfg.slack_quadratic
-        q[v] += cfg.slack_linear
-
-    row = 0
-    for i in range(NX):
-        A[row, lay.ix(0, i)] = 1.0
-        row += 1
-    for k in range(n):
-        for i in range(NX):
-            for jj in range(NX):
-                A[row, lay.ix(k, jj)] = lin.Ad[k, i, jj]
-            for jj in range(NU):
-                A[row, lay.iu(k, jj)] = lin.Bd[k, i, jj]
-            A[row, lay.ix(k + 1, i)] = -1.0
-            lo[row] = hi[row] = -lin.defect[k, i]
-            row += 1
-    for k in range(n):
-        for i in range(NU):
-            A[row, lay.iu(k, i)] = 1.0
-            lo[row] = lin.u_lo[k, i] - lin.u_bar[k, i]
-            hi[row] = lin.u_hi[k, i] - lin.u_bar[k, i]
-            row += 1
-    for k in range(1, n + 1):
-        A[row, lay.ix(k, DELTA)] = 1.0
-        lo[row] = p.delta_min - lin.x_bar[k, DELTA]
-        hi[row] = p.delta_max - lin.x_bar[k, DELTA]
-        row += 1
-    for k in range(n):
-        vb, rb, ab = lin.x_bar[k, V], lin.x_bar[k, PSI_DOT], lin.u_bar[k, 1]
-        for c, s in zip(lay.fr_cos, lay.fr_sin, strict=True):
-            A[row, lay.iu(k, 1)] = c
-            A[row, lay.ix(k, V)] = s * rb
-            A[row, lay.ix(k, PSI_DOT)] = s * vb
-            A[row, lay.off_sf + k] = -1.0
-            lo[row] = -np.inf
-            hi[row] = lin.friction_radius - (c * ab + s * vb * rb)
-            row += 1
-    for k in range(1, n + 1):
-        nrm = lin.normal[k - 1]
-        for sign in (-1.0, 1.0):
-            A[row, lay.ix(k, SX)] = nrm[0]
-            A[row, lay.ix(k, SY)] = nrm[1]
-            A[row, lay.off_sl + k - 1] = sign
-            if sign < 0:
-                lo[row], hi[row] = -np.inf, lin.corridor - lin.e_lat[k - 1]
-            else:
-                lo[row], hi[row] = -lin.corridor - lin.e_lat[k - 1], np.inf
-            row += 1
-    for v in range(lay.off_sf, nz):
-        A[row, v] = 1.0
-        lo[row], hi[row] = 0.0, np.inf
-        row += 1
-    return P, q, A, lo, hi
-
-
-# ---------------------------------------------------------------------------- closed loop
-@dataclass
-class ClosedLoopResult:
-    """Log of a closed-loop run: times (T,), states (T, 7), inputs (T, 2), true mu (T,),
-    course projection (s, lateral and course-angle errors), progress [m], the failure reason
-    (empty if none) and the controller diagnostics of each update."""
-
-    t: np.ndarray
-    x: np.ndarray
-    u: np.ndarray
-    mu: np.ndarray
-    s: np.ndarray
-    lateral_error: np.ndarray
-    course_error: np.ndarray
-    progress: np.ndarray
-    failure: str
-    diagnostics: list
-
-    def metrics(self, course: Course) -> dict:
-        """Laps, lateral RMS/max [m], course-angle RMS [rad], speed, fallbacks (count and
-        reasons), update times [ms]."""
-        times = np.array([d.update_time_s for d in self.diagnostics])
-        dist = float(self.progress[-1] - self.progress[0]) if self.progress.size else 0.0
-        return {
-            "duration_s": float(self.t[-1]) if self.t.size else 0.0,
-            "distance_m": dist,
-            "laps": dist / course.length,
-            "lateral_rms_m": float(np.sqrt(np.mean(self.lateral_error**2))),
-            "lateral_max_m": float(np.max(np.abs(self.lateral_error))),
-            "course_angle_rms_rad": float(np.sqrt(np.mean(self.course_error**2))),
-            "mean_speed_mps": float(np.mean(self.x[:, V])),
-            "max_abs_beta_rad": float(np.max(np.abs(self.x[:, BETA]))),
-            "fallbacks": int(self.diagnostics[-1].fallback_count) if self.diagnostics else 0,
-            "fallback_reasons": dict(
-                Counter(d.status for d in self.diagnostics if d.mode != "qp").most_common()
-            ),
-            "update_ms_median": float(np.median(times) * 1e3) if times.size else float("nan"),
-            "update_ms_p95": float(np.percentile(times, 95) * 1e3) if times.size else float("nan"),
-            "failure": self.failure,
-        }
-
-
-def failure_reason(course: Course, lateral_error: float, course_error: float, beta: float) -> str:
-    """Why a state counts as failed ("" if it does not): off the course (|lateral error| >
-    ``course.half_width``), or spinning (|course-angle error| > 60 deg or |beta| > 30 deg)."""
-    if abs(lateral_error) > course.half_width:
-        return f"left the course: lateral error {lateral_error:.2f} m"
-    if abs(course_error) > math.radians(60) or abs(beta) > math.radians(30):
-        return f"spinning: course-angle error {course_error:.2f} rad, beta {beta:.2f} rad"
-    return ""
-
-
-class StTruth:
-    """The ST model as a closed-loop truth: RK4 steps with theta = [mu, C_Sf, C_Sr]."""
-
-    def __init__(self, params: VehicleParams) -> None:
-        self.params = params
-        self.x = np.zeros(NX)
-
-    def reset(self, x0: np.ndarray) -> np.ndarray:
-        self.x = np.asarray(x0, dtype=float).copy()
-        return self.x.copy()
-
-    def step(self, u: np.ndarray, mu: float, dt: float) -> np.ndarray:
-        """Advance by ``dt`` [s] with ``u`` held on friction ``mu``; returns the ST state."""
-        theta = np.array([mu, self.params.C_Sf, self.params.C_Sr])
-        self.x = rk4_step(self.x, u, self.params, dt, theta=theta)
-        return self.x.copy()
-
-
-def simulate_closed_loop(
-    controller: NmpcController,
-    x0,
-    duration_s: float,
-    *,
-    mu_at: Callable[[np.ndarray], float] | None = None,
-    theta_hat: Callable[[float, np.ndarray], np.ndarray] | None = None,
-    truth=None,
-    dt_sim_s: float = 0.01,
-    stop_on_failure: bool = True,
-    stop_after_laps: float | None = None,
-) -> ClosedLoopResult:
-    """Drive a truth model with the controller at its period (zero-order hold).
-
-    ``truth`` has ``reset(x0) -> x`` and ``step(u, mu, dt) -> x`` returning ST states (default
-    :class:`StTruth`: RK4 of the ST model every ``dt_sim_s``). ``mu_at(xy)`` gives the true
-    friction under the vehicle (default: the vehicle's mu). ``theta_hat(t, x)`` gives the
-    controller's belief (default: [true mu, C_Sf, C_Sr], i.e. the true mu is given).
-    """
-    ctrl = controller
-    p = ctrl.params
-    course = ctrl.course
-    period = ctrl.config.dt_s
-    every = max(1, int(round(period / dt_sim_s)))
-    steps = int(round(duration_s / dt_sim_s))
-    plant = truth if truth is not None else StTruth(p)
-    x = plant.reset(np.asarray(x0, dtype=float))
-    mu_fn = mu_at if mu_at is not None else (lambda xy: p.mu)
-    ts, xs, us, mus, diags = [], [], [], [], []
-    s_prev = None
-    s_log, lat_log, ce_log = [], [], []
-    failure = ""
-    u = np.zeros(NU)
-    progress = 0.0
-    for i in range(steps + 1):
-        t = i * dt_sim_s
-        mu_true = float(mu_fn(x[:2]))
-        theta_true = np.array([mu_true, p.C_Sf, p.C_Sr])
-        pr = course.project(x[:2], heading=x[PSI] + x[BETA])
-        if s_prev is not None:
-            d = float(pr.s) - s_prev
-            progress += d - course.length * round(d / course.length)
-        s_prev = float(pr.s)
-        ts.append(t)
-        xs.append(x.copy())
-        mus.append(mu_true)
-        s_log.append(float(pr.s))
-        lat_log.append(float(pr.lateral_error))
-        ce_log.append(float(pr.heading_error))
-        reason = failure_reason(course, pr.lateral_error, pr.heading_error, x[BETA])
-        if reason and not failure:
-            failure = f"t={t:.2f} s: {reason}"
-        if i % every == 0:
-            th = theta_true if theta_hat is None else theta_hat(t, x)
-            u = ctrl.update(x, th)
-            diags.append(ctrl.last_diagnostics)
-        us.append(u.copy())
-        if (failure and stop_on_failure) or i == steps:
-            break
-        if stop_after_laps is not None and progress >= stop_after_laps * course.length:
-            break
-        x = plant.step(u, mu_true, dt_sim_s)
-    s_arr = np.array(s_log)
-    return ClosedLoopResult(
-        t=np.array(ts),
-        x=np.array(xs),
-        u=np.array(us),
-        mu=np.array(mus),
-        s=s_arr,
-        lateral_error=np.array(lat_log),
-        course_error=np.array(ce_log),
-        progress=course.unwrap_progress(s_arr),
-        failure=failure,
-        diagnostics=diags,
-    )
-
-
-def start_state(course: Course, params: VehicleParams, speed_mps: float, s_m: float = 0.0):
-    """An ST state on the course at arc length ``s_m`` driving at ``speed_mps`` (steady kinematic
-    cornering)."""
-    return course.state_on_path(np.array([s_m]), speed_mps, params.L, params.lr)[0]

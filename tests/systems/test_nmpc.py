@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-from pcvfe_drake.control.nmpc import NmpcConfig, NmpcDiagnostics, NmpcMemory, start_state
+from pcvfe_drake.control.course import initial_state
+from pcvfe_drake.control.nmpc import NmpcConfig, NmpcDiagnostics, NmpcMemory
 from pcvfe_drake.systems.nmpc import Nmpc
 
 
@@ -26,7 +27,7 @@ def test_ports_and_no_direct_feedthrough(nmpc):
 
 def test_output_held_between_updates_and_diagnostics(nmpc):
     ctx = nmpc.CreateDefaultContext()
-    x0 = start_state(nmpc.controller.course, nmpc.params, 5.0, 30.0)
+    x0 = initial_state(nmpc.controller.course, nmpc.params, 5.0, 30.0)
     x0[0] += 0.5  # off the path, so the controller has work to do
     nmpc.GetInputPort("state").FixValue(ctx, x0)
     nmpc.GetInputPort("theta_hat").FixValue(ctx, [0.45, nmpc.params.C_Sf, nmpc.params.C_Sr])
@@ -56,7 +57,7 @@ def test_fixed_theta_ignores_the_unconnected_input():
     )
     ctx = sys_.CreateDefaultContext()
     sys_.GetInputPort("state").FixValue(
-        ctx, start_state(sys_.controller.course, sys_.params, 5.0, 0.0)
+        ctx, initial_state(sys_.controller.course, sys_.params, 5.0, 0.0)
     )
     Simulator(sys_, ctx).AdvanceTo(0.0)
     diag = sys_.GetOutputPort("diagnostics").Eval(ctx)
@@ -73,7 +74,7 @@ def test_closed_loop_with_the_vehicle_plant_tracks():
 
     ctrl = Nmpc("slalom", config=NmpcConfig())
     course, params = ctrl.controller.course, ctrl.params
-    x0 = start_state(course, params, 5.0, 100.0)
+    x0 = initial_state(course, params, 5.0, 100.0)
     x0[1] += 0.5  # start half a metre off the path
     builder = DiagramBuilder()
     plant = builder.AddNamedSystem("plant", VehiclePlant(params, x0=x0))
