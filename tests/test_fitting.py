@@ -9,18 +9,15 @@ import pytest
 
 from pcvfe_drake.estimation.context_estimator import ContextEstimator, LiveFitConfig
 from pcvfe_drake.estimation.fit_dataset import SKIP_REASONS, build_windows, windows_from_log
-from pcvfe_drake.estimation.fitting import (
+from pcvfe_drake.estimation.fit_loss import window_loss, window_loss_and_gradient
+from pcvfe_drake.estimation.fit_options import (
     STATUS_DIVERGED,
     STATUS_TOO_LITTLE_DATA,
     FitOptions,
     FitResult,
-    fit_adam,
-    fit_contexts,
-    fit_gauss_newton,
     joint_options,
-    window_loss,
-    window_loss_and_gradient,
 )
+from pcvfe_drake.estimation.fitting import fit_adam, fit_contexts, fit_gauss_newton
 from pcvfe_drake.estimation.synthetic_drive import MeasurementNoise, drive_frame, s_curve_drive
 from pcvfe_drake.vehicle.params import ford_escort
 from pcvfe_drake.vehicle.single_track import V

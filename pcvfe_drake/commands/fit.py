@@ -14,12 +14,8 @@ from pcvfe_drake.estimation.fit_dataset import (
     DEFAULT_X0_SMOOTHING_S,
     windows_from_log,
 )
-from pcvfe_drake.estimation.fitting import (
-    JOINT_PRIOR_REL_SIGMA,
-    FitOptions,
-    fit_contexts,
-    joint_options,
-)
+from pcvfe_drake.estimation.fit_options import JOINT_PRIOR_REL_SIGMA, FitOptions, joint_options
+from pcvfe_drake.estimation.fitting import fit_contexts
 from pcvfe_drake.runs.drivelog import read_drive_log
 from pcvfe_drake.vehicle.params import THETA_NAMES, load_vehicle
 

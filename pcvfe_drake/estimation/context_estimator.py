@@ -38,13 +38,13 @@ from pcvfe_drake.estimation.fit_dataset import (
     DEFAULT_X0_SMOOTHING_S,
     build_windows,
 )
-from pcvfe_drake.estimation.fitting import (
+from pcvfe_drake.estimation.fit_options import (
     STATUS_DIVERGED,
     FitOptions,
     FitResult,
-    fit_gauss_newton,
     joint_options,
 )
+from pcvfe_drake.estimation.fitting import fit_gauss_newton
 from pcvfe_drake.vehicle.params import THETA_NAMES, VehicleParams
 from pcvfe_drake.vehicle.single_track import NU, NX
 
