@@ -27,8 +27,11 @@ cost:
   context.
 
 Parameters are given in physical terms where they have one (seconds of driving at the camera
-rate); see ``docs/clustering.md``. Core module: numpy, scipy, scikit-learn (and its dependency
-threadpoolctl), no pydrake.
+rate); see ``docs/clustering.md``. Modules: this one (the clusterer: store, re-clustering,
+assignment), ``clustering_params`` (settings), ``cluster_table`` (the table and Algorithm 1),
+``density_gate`` (HDBSCAN, neighbour distances, outlier gates); the public names of all four are
+importable from here. Core: numpy, scipy, scikit-learn (and its dependency threadpoolctl), no
+pydrake.
 """
 
 from __future__ import annotations
@@ -36,344 +39,31 @@ from __future__ import annotations
 import copy
 import math
 import time
-import warnings
-from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import connected_components
-from sklearn.cluster import HDBSCAN
 from threadpoolctl import threadpool_limits
 
-NOISE = -1
-"""Context id of frames that belong to no context (noise or unseen terrain)."""
+from pcvfe_drake.contexts.cluster_table import ClusterRecord, ClusterTable, match_centroids
+from pcvfe_drake.contexts.clustering_params import NOISE, ClusteringParams
+from pcvfe_drake.contexts.density_gate import (
+    GateIndex,
+    detach_small_groups,
+    fit_hdbscan,
+    full_hdbscan_labels,
+    hdbscan_labels,
+)
 
-
-@dataclass(frozen=True)
-class ClusteringParams:
-    """Settings of :class:`ContextClusterer`.
-
-    Attributes:
-        frame_rate_hz: camera (feature) rate [Hz]; converts the durations below to frame counts.
-        min_cluster_duration_s: seconds of driving on one terrain before it can form a context
-            (HDBSCAN ``min_cluster_size`` = this times the rate). Default 5 s = 50 frames at 10 Hz:
-            a terrain crossed for 20 s per lap becomes a context at the first re-clustering after
-            5 s on it, while a transition strip (a few metres at ~8 m/s, < 1 s) never does.
-        min_samples_duration_s: seconds of frames in a frame's neighbourhood for it to count as
-            dense (HDBSCAN ``min_samples``); default 1 s = 10 frames.
-        noise_memory_s: seconds of unclustered frames kept (newest first) so that a new terrain
-            accumulates until it forms a context; default 60 s (capped at a third of
-            ``max_stored``).
-        max_stored: budget of stored vectors (all contexts' reservoirs plus the noise window);
-            bounds memory and the re-clustering time (HDBSCAN cost grows like its square).
-        min_reservoir_durations: each context keeps at least this many times
-            ``min_cluster_size`` frames, even when many contexts share ``max_stored``.
-        gate_neighbours: k of the outlier gate: a frame joins the context of its nearest stored
-            member only if its k-th nearest member of that context is within the gate.
-        gate_quantile: quantile of the members' own (leave-one-out) k-th-neighbour distances
-            that sets the gate of a context.
-        gate_scale: margin on that quantile (gate = gate_scale * quantile).
-        persistence_epsilon: Algorithm 1 threshold in feature units; None (default) means
-            ``persistence_scale`` times the previous cluster's RMS radius, which adapts to the
-            feature backend (CLIP or descriptor vectors have different scales).
-        persistence_scale: see ``persistence_epsilon``.
-        seed: seed of the reservoir sampling.
-    """
-
-    frame_rate_hz: float = 10.0
-    min_cluster_duration_s: float = 5.0
-    min_samples_duration_s: float = 5.0
-    noise_memory_s: float = 60.0
-    max_stored: int = 2000
-    min_reservoir_durations: float = 2.0
-    gate_neighbours: int = 3
-    gate_quantile: float = 0.99
-    gate_scale: float = 1.25
-    persistence_epsilon: float | None = None
-    persistence_scale: float = 1.5
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        positive = (
-            "frame_rate_hz",
-            "min_cluster_duration_s",
-            "min_samples_duration_s",
-            "noise_memory_s",
-            "min_reservoir_durations",
-            "gate_scale",
-            "persistence_scale",
-        )
-        for name in positive:
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-                raise ValueError(
-                    f"ClusteringParams.{name} must be a positive number, got {value!r}"
-                )
-        if not (isinstance(self.gate_neighbours, int) and self.gate_neighbours >= 1):
-            raise ValueError(
-                "ClusteringParams.gate_neighbours must be an int >= 1, got "
-                f"{self.gate_neighbours!r}"
-            )
-        if not 0.0 < self.gate_quantile <= 1.0:
-            raise ValueError(
-                f"ClusteringParams.gate_quantile must be in (0, 1], got {self.gate_quantile!r}"
-            )
-        if self.persistence_epsilon is not None and not (
-            math.isfinite(self.persistence_epsilon) and self.persistence_epsilon > 0
-        ):
-            raise ValueError(
-                "ClusteringParams.persistence_epsilon must be None or a positive number, got "
-                f"{self.persistence_epsilon!r}"
-            )
-        if self.min_cluster_size < 2:
-            raise ValueError(
-                "ClusteringParams: min_cluster_duration_s * frame_rate_hz must give at least 2 "
-                f"frames, got {self.min_cluster_duration_s!r} s * {self.frame_rate_hz!r} Hz"
-            )
-        if self.max_stored < self.noise_capacity + self.min_reservoir:
-            raise ValueError(
-                f"ClusteringParams.max_stored={self.max_stored!r} is smaller than the noise window "
-                f"({self.noise_capacity} frames) plus one context reservoir ({self.min_reservoir})"
-            )
-
-    @property
-    def min_cluster_size(self) -> int:
-        """HDBSCAN ``min_cluster_size`` [frames]."""
-        return max(2, round(self.min_cluster_duration_s * self.frame_rate_hz))
-
-    @property
-    def min_samples(self) -> int:
-        """HDBSCAN ``min_samples`` [frames]."""
-        return max(1, round(self.min_samples_duration_s * self.frame_rate_hz))
-
-    @property
-    def noise_capacity(self) -> int:
-        """Frames of the noise window (``noise_memory_s``, at most a third of ``max_stored``)."""
-        window = min(round(self.noise_memory_s * self.frame_rate_hz), self.max_stored // 3)
-        return max(self.min_cluster_size, window)
-
-    @property
-    def min_reservoir(self) -> int:
-        """Smallest per-context reservoir [frames]."""
-        return max(2, round(self.min_reservoir_durations * self.min_cluster_size))
-
-
-@dataclass
-class ClusterRecord:
-    """One context in the table.
-
-    Attributes:
-        context_id: persistent id (>= 0).
-        centroid: weighted mean of its frames' feature vectors (same units as z).
-        size: number of frames it stands for (assigned online or at re-clustering).
-        first_seen_s: time of its earliest frame [s].
-        last_seen_s: time of its latest frame [s].
-        active: found by the latest re-clustering (vanished contexts stay with active=False).
-        radius: RMS distance of its frames to the centroid (feature units).
-    """
-
-    context_id: int
-    centroid: np.ndarray
-    size: float
-    first_seen_s: float
-    last_seen_s: float
-    active: bool = True
-    radius: float = 0.0
-
-
-@dataclass
-class ClusterTable:
-    """All contexts discovered so far (active and vanished), ordered by id.
-
-    Attributes:
-        records: one :class:`ClusterRecord` per id.
-        recluster_time_s: sim time of the latest re-clustering [s] (nan before the first).
-        n_reclusterings: number of re-clusterings so far.
-        n_stored: vectors in the bounded store.
-    """
-
-    records: list[ClusterRecord] = field(default_factory=list)
-    recluster_time_s: float = math.nan
-    n_reclusterings: int = 0
-    n_stored: int = 0
-
-    @property
-    def ids(self) -> list[int]:
-        """Ids of all contexts, active or not."""
-        return [r.context_id for r in self.records]
-
-    @property
-    def active_ids(self) -> list[int]:
-        """Ids found by the latest re-clustering."""
-        return [r.context_id for r in self.records if r.active]
-
-    def record(self, context_id: int) -> ClusterRecord:
-        """The record of ``context_id``; KeyError naming the id if unknown."""
-        for r in self.records:
-            if r.context_id == context_id:
-                return r
-        raise KeyError(f"context_id {context_id!r} is not in the cluster table (ids {self.ids})")
-
-
-def match_centroids(
-    previous: np.ndarray,
-    epsilons: np.ndarray,
-    current: np.ndarray,
-) -> np.ndarray:
-    """Paper Algorithm 1 (centroid-based context persistence) with a one-to-one rule.
-
-    Args:
-        previous: (J, d) previous centroids.
-        epsilons: (J,) match threshold of each previous centroid (feature units).
-        current: (K, d) new centroids.
-
-    Returns:
-        (K,) int: index j of the previous centroid each new centroid inherits its id from, or -1
-        for a new centroid that gets a fresh id. Each previous centroid is matched to its nearest
-        new centroid if closer than its epsilon (as in Algorithm 1); when two previous centroids
-        claim the same new one, the closer pair wins (pairs are taken by increasing distance).
-    """
-    previous = np.atleast_2d(np.asarray(previous, dtype=float))
-    current = np.atleast_2d(np.asarray(current, dtype=float))
-    result = np.full(current.shape[0], -1, dtype=int)
-    if previous.shape[0] == 0 or current.shape[0] == 0:
-        return result
-    dist = np.sqrt(((previous[:, None, :] - current[None, :, :]) ** 2).sum(-1))
-    nearest = dist.argmin(axis=1)
-    nearest_d = dist[np.arange(previous.shape[0]), nearest]
-    for j in np.argsort(nearest_d, kind="stable"):
-        k = nearest[j]
-        if nearest_d[j] < epsilons[j] and result[k] < 0:
-            result[k] = j
-    return result
-
-
-def hdbscan_labels(x: np.ndarray, min_cluster_size: int, min_samples: int) -> np.ndarray:
-    """HDBSCAN labels of ``x`` (N, d) as the clusterer uses them (-1 = noise).
-
-    scikit-learn's HDBSCAN with ``allow_single_cluster=False``. ``allow_single_cluster=True`` is
-    not used: when terrains are joined by transition frames it returns the whole data as one
-    cluster, and on one terrain alone it keeps only the densest ``min_cluster_size`` points.
-    The one-terrain case (beginning of a drive: no cluster found although the data holds at least
-    ``min_cluster_size`` frames) is handled by :meth:`ContextClusterer.recluster`.
-    """
-    x = np.asarray(x, dtype=float)
-    if x.shape[0] < max(min_cluster_size, min_samples + 1, 2):
-        return np.full(x.shape[0], NOISE, dtype=int)
-    return _fit_hdbscan(x, min_cluster_size, min_samples, allow_single_cluster=False)
-
-
-def _fit_hdbscan(
-    x: np.ndarray, min_cluster_size: int, min_samples: int, *, allow_single_cluster: bool
-) -> np.ndarray:
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", FutureWarning)
-        model = HDBSCAN(
-            min_cluster_size=min_cluster_size,
-            min_samples=min_samples,
-            allow_single_cluster=allow_single_cluster,
-            copy=True,
-        )
-        return model.fit_predict(x).astype(int)
-
-
-def _kth_member_distances(members: np.ndarray, k: int) -> np.ndarray:
-    """Leave-one-out distance of each row of ``members`` (M, d) to its k-th nearest other row."""
-    m = members.shape[0]
-    k = min(k, m - 1)
-    if k < 1:
-        return np.zeros(m)
-    sq = (members * members).sum(1)
-    out = np.empty(m)
-    block = 1024
-    for s in range(0, m, block):
-        d2 = sq[s : s + block, None] - 2.0 * members[s : s + block] @ members.T + sq[None, :]
-        d2[np.arange(d2.shape[0]), np.arange(s, s + d2.shape[0])] = np.inf
-        out[s : s + block] = np.partition(d2, k - 1, axis=1)[:, k - 1]
-    return np.sqrt(np.maximum(out, 0.0))
-
-
-def _gate_radius(kth: np.ndarray, params: ClusteringParams, scale_sq: float) -> float:
-    """Gate of a context from its members' k-th-neighbour distances (with a rounding floor)."""
-    gate = params.gate_scale * float(np.quantile(kth, params.gate_quantile)) if kth.size else 0.0
-    return max(gate, 1e-6 * (1.0 + math.sqrt(scale_sq)))
-
-
-def detach_small_groups(
-    x: np.ndarray, labels: np.ndarray, weights: np.ndarray, params: ClusteringParams
-) -> np.ndarray:
-    """Labels with the members of each cluster that are not connected to its body set to noise.
-
-    HDBSCAN counts a group of fewer than ``min_cluster_size`` points that splits off a selected
-    cluster as members of that cluster: the first frames of a new terrain next to a known one
-    join the known context, and the outlier gate would then pass the new terrain's frames. Within
-    each cluster, members are linked when closer than the cluster's gate; linked groups that
-    stand for fewer than ``min_cluster_size`` frames (sum of weights) become noise.
-    """
-    out = labels.copy()
-    for k in np.unique(labels[labels >= 0]):
-        idx = np.flatnonzero(labels == k)
-        members = x[idx]
-        sq = (members * members).sum(1)
-        d2 = np.maximum(sq[:, None] - 2.0 * members @ members.T + sq[None, :], 0.0)
-        kk = min(params.gate_neighbours, idx.size - 1)
-        if kk < 1:
-            continue
-        np.fill_diagonal(d2, np.inf)
-        kth = np.sqrt(np.partition(d2, kk - 1, axis=1)[:, kk - 1])
-        gate = _gate_radius(kth, params, float(sq.max()))
-        n_comp, comp = connected_components(csr_matrix(d2 <= gate * gate), directed=False)
-        if n_comp == 1:
-            continue
-        mass = np.bincount(comp, weights=weights[idx], minlength=n_comp)
-        small = mass[comp] < params.min_cluster_size
-        out[idx[small]] = NOISE
-    return out
-
-
-class _GateIndex:
-    """Members of each context and their outlier gates; labels vectors by gated k-NN.
-
-    A vector takes the context of its nearest member if its distance to the k-th nearest member
-    of that context is at most the gate: ``gate_scale`` times the ``gate_quantile`` of the
-    members' own leave-one-out k-th-neighbour distances. The k-th neighbour (not the first) makes
-    the gate a density test, like HDBSCAN's core distance: a transition frame that happens to lie
-    near one stray member is still noise.
-    """
-
-    def __init__(self, x: np.ndarray, ids: np.ndarray, params: ClusteringParams) -> None:
-        order = np.argsort(ids, kind="stable")
-        self.x = np.ascontiguousarray(x[order], dtype=float)
-        self.ids = np.asarray(ids, dtype=int)[order]
-        self.sq = (self.x * self.x).sum(1)
-        self.k = params.gate_neighbours
-        self.bounds: dict[int, tuple[int, int]] = {}
-        self.gate_sq: dict[int, float] = {}
-        for cid in np.unique(self.ids):
-            s, e = np.searchsorted(self.ids, [cid, cid + 1])
-            kth = _kth_member_distances(self.x[s:e], self.k)
-            gate = _gate_radius(kth, params, float(self.sq[s:e].max()))
-            self.bounds[int(cid)] = (int(s), int(e))
-            self.gate_sq[int(cid)] = gate * gate
-
-    @property
-    def empty(self) -> bool:
-        return self.ids.size == 0
-
-    def labels(self, z: np.ndarray) -> np.ndarray:
-        """Gated context ids of the rows of ``z`` (B, d); -1 where the gate rejects."""
-        out = np.full(z.shape[0], NOISE, dtype=int)
-        if self.empty or z.shape[0] == 0:
-            return out
-        d2 = self.sq[None, :] - 2.0 * (z @ self.x.T) + (z * z).sum(1)[:, None]
-        cand = self.ids[d2.argmin(1)]
-        for cid in np.unique(cand):
-            rows = np.flatnonzero(cand == cid)
-            s, e = self.bounds[int(cid)]
-            kk = min(self.k, e - s)
-            kth = np.partition(d2[rows, s:e], kk - 1, axis=1)[:, kk - 1]
-            out[rows] = np.where(kth <= self.gate_sq[int(cid)], cid, NOISE)
-        return out
+__all__ = [
+    "NOISE",
+    "ClusterRecord",
+    "ClusterTable",
+    "ClusteringParams",
+    "ContextClusterer",
+    "detach_small_groups",
+    "full_hdbscan_labels",
+    "hdbscan_labels",
+    "match_centroids",
+]
 
 
 class ContextClusterer:
@@ -412,7 +102,7 @@ class ContextClusterer:
         self._last_recluster_duration_s = 0.0
         self._n_frames = 0
         # Assignment index: stored members of the active contexts and their gates.
-        self._index = _GateIndex(np.zeros((0, 1)), np.zeros(0, dtype=int), self.params)
+        self._index = GateIndex(np.zeros((0, 1)), np.zeros(0, dtype=int), self.params)
 
     # ----------------------------------------------------------------------------------------
     # Properties
@@ -644,12 +334,12 @@ class ContextClusterer:
         of a next terrain) stay noise.
         """
         p = self.params
-        labels = _fit_hdbscan(x, p.min_cluster_size, p.min_samples, allow_single_cluster=True)
+        labels = fit_hdbscan(x, p.min_cluster_size, p.min_samples, allow_single_cluster=True)
         if labels.max(initial=NOISE) != 0:
             return labels
         for _ in range(10):
             members = labels == 0
-            grown = _GateIndex(x[members], labels[members], p).labels(x)
+            grown = GateIndex(x[members], labels[members], p).labels(x)
             grown[members] = 0
             if np.array_equal(grown, labels):
                 break
@@ -694,19 +384,9 @@ class ContextClusterer:
     def _rebuild_index(self) -> None:
         """Exemplars (stored members of active contexts) and per-context gates."""
         members = self._used & (self._label >= 0)
-        self._index = _GateIndex(self._x[members], self._label[members], self.params)
+        self._index = GateIndex(self._x[members], self._label[members], self.params)
 
     def _finish_recluster(self, t_s: float, start: float) -> None:
         self._recluster_time_s = float(t_s)
         self._n_reclusterings += 1
         self._last_recluster_duration_s = time.perf_counter() - start
-
-
-def full_hdbscan_labels(x: np.ndarray, params: ClusteringParams | None = None) -> np.ndarray:
-    """Reference labels: HDBSCAN over all of ``x`` with the clusterer's parameters.
-
-    What the paper does every 10 s (cost grows like N^2); used to measure how faithful the bounded
-    scheme is. Ids are HDBSCAN's own labels (not persistent).
-    """
-    p = params if params is not None else ClusteringParams()
-    return hdbscan_labels(np.asarray(x, dtype=float), p.min_cluster_size, p.min_samples)

@@ -1,0 +1,118 @@
+"""Settings of the context clustering (:class:`ClusteringParams`) and the noise id."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+NOISE = -1
+"""Context id of frames that belong to no context (noise or unseen terrain)."""
+
+
+@dataclass(frozen=True)
+class ClusteringParams:
+    """Settings of :class:`ContextClusterer`.
+
+    Attributes:
+        frame_rate_hz: camera (feature) rate [Hz]; converts the durations below to frame counts.
+        min_cluster_duration_s: seconds of driving on one terrain before it can form a context
+            (HDBSCAN ``min_cluster_size`` = this times the rate). Default 5 s = 50 frames at 10 Hz:
+            a terrain crossed for 20 s per lap becomes a context at the first re-clustering after
+            5 s on it, while a transition strip (a few metres at ~8 m/s, < 1 s) never does.
+        min_samples_duration_s: seconds of frames in a frame's neighbourhood for it to count as
+            dense (HDBSCAN ``min_samples``); default 1 s = 10 frames.
+        noise_memory_s: seconds of unclustered frames kept (newest first) so that a new terrain
+            accumulates until it forms a context; default 60 s (capped at a third of
+            ``max_stored``).
+        max_stored: budget of stored vectors (all contexts' reservoirs plus the noise window);
+            bounds memory and the re-clustering time (HDBSCAN cost grows like its square).
+        min_reservoir_durations: each context keeps at least this many times
+            ``min_cluster_size`` frames, even when many contexts share ``max_stored``.
+        gate_neighbours: k of the outlier gate: a frame joins the context of its nearest stored
+            member only if its k-th nearest member of that context is within the gate.
+        gate_quantile: quantile of the members' own (leave-one-out) k-th-neighbour distances
+            that sets the gate of a context.
+        gate_scale: margin on that quantile (gate = gate_scale * quantile).
+        persistence_epsilon: Algorithm 1 threshold in feature units; None (default) means
+            ``persistence_scale`` times the previous cluster's RMS radius, which adapts to the
+            feature backend (CLIP or descriptor vectors have different scales).
+        persistence_scale: see ``persistence_epsilon``.
+        seed: seed of the reservoir sampling.
+    """
+
+    frame_rate_hz: float = 10.0
+    min_cluster_duration_s: float = 5.0
+    min_samples_duration_s: float = 5.0
+    noise_memory_s: float = 60.0
+    max_stored: int = 2000
+    min_reservoir_durations: float = 2.0
+    gate_neighbours: int = 3
+    gate_quantile: float = 0.99
+    gate_scale: float = 1.25
+    persistence_epsilon: float | None = None
+    persistence_scale: float = 1.5
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        positive = (
+            "frame_rate_hz",
+            "min_cluster_duration_s",
+            "min_samples_duration_s",
+            "noise_memory_s",
+            "min_reservoir_durations",
+            "gate_scale",
+            "persistence_scale",
+        )
+        for name in positive:
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(
+                    f"ClusteringParams.{name} must be a positive number, got {value!r}"
+                )
+        if not (isinstance(self.gate_neighbours, int) and self.gate_neighbours >= 1):
+            raise ValueError(
+                "ClusteringParams.gate_neighbours must be an int >= 1, got "
+                f"{self.gate_neighbours!r}"
+            )
+        if not 0.0 < self.gate_quantile <= 1.0:
+            raise ValueError(
+                f"ClusteringParams.gate_quantile must be in (0, 1], got {self.gate_quantile!r}"
+            )
+        if self.persistence_epsilon is not None and not (
+            math.isfinite(self.persistence_epsilon) and self.persistence_epsilon > 0
+        ):
+            raise ValueError(
+                "ClusteringParams.persistence_epsilon must be None or a positive number, got "
+                f"{self.persistence_epsilon!r}"
+            )
+        if self.min_cluster_size < 2:
+            raise ValueError(
+                "ClusteringParams: min_cluster_duration_s * frame_rate_hz must give at least 2 "
+                f"frames, got {self.min_cluster_duration_s!r} s * {self.frame_rate_hz!r} Hz"
+            )
+        if self.max_stored < self.noise_capacity + self.min_reservoir:
+            raise ValueError(
+                f"ClusteringParams.max_stored={self.max_stored!r} is smaller than the noise window "
+                f"({self.noise_capacity} frames) plus one context reservoir ({self.min_reservoir})"
+            )
+
+    @property
+    def min_cluster_size(self) -> int:
+        """HDBSCAN ``min_cluster_size`` [frames]."""
+        return max(2, round(self.min_cluster_duration_s * self.frame_rate_hz))
+
+    @property
+    def min_samples(self) -> int:
+        """HDBSCAN ``min_samples`` [frames]."""
+        return max(1, round(self.min_samples_duration_s * self.frame_rate_hz))
+
+    @property
+    def noise_capacity(self) -> int:
+        """Frames of the noise window (``noise_memory_s``, at most a third of ``max_stored``)."""
+        window = min(round(self.noise_memory_s * self.frame_rate_hz), self.max_stored // 3)
+        return max(self.min_cluster_size, window)
+
+    @property
+    def min_reservoir(self) -> int:
+        """Smallest per-context reservoir [frames]."""
+        return max(2, round(self.min_reservoir_durations * self.min_cluster_size))
