@@ -21,6 +21,7 @@ from pydrake.systems.analysis import GetIntegrationSchemes, ResetIntegratorFromF
 
 from pcvfe_drake.control.course import Course
 from pcvfe_drake.diagrams.simulation import MakeSimulation, course_xy
+from pcvfe_drake.perception.ground_render import render_topdown
 from pcvfe_drake.runs.figures import write_figures
 from pcvfe_drake.runs.runlog import feature_columns
 from pcvfe_drake.runs.scenario import Scenario, excluded_terrains
@@ -215,7 +216,7 @@ def run_simulation(
     result.summary = summary
     if folder is not None and write_outputs:
         x0, x1, y0, y1 = terrain_map.bounds_m
-        map_image = terrain_map.render_topdown(px_per_m=2.0)
+        map_image = render_topdown(terrain_map, px_per_m=2.0)
         result.figures = write_figures(
             log,
             folder.figures,

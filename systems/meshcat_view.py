@@ -12,6 +12,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.perception import BaseField, Fields, PointCloud
 from pydrake.systems.framework import LeafSystem
 
+from pcvfe_drake.perception.ground_render import render_topdown
 from pcvfe_drake.perception.terrain import TerrainMap
 from pcvfe_drake.runs.palette import context_rgb, context_rgb_array
 from pcvfe_drake.vehicle.single_track import NX, PSI, SX, SY
@@ -127,7 +128,7 @@ class MeshcatView(LeafSystem):
     def _draw_ground(self) -> None:
         image = self._ground_image
         if image is None:
-            image = self._terrain_map.render_topdown(self._ground_px_per_m)
+            image = render_topdown(self._terrain_map, self._ground_px_per_m)
         image = np.ascontiguousarray(image, dtype=np.uint8)
         if image.ndim != 3 or image.shape[2] != 3:
             raise ValueError(f"MeshcatView: ground image must be (H, W, 3) RGB, got {image.shape}")

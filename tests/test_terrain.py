@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 from matplotlib.path import Path
 
+from pcvfe_drake.perception.ground_render import render_topdown
 from pcvfe_drake.perception.terrain import (
     Terrain,
     TerrainMap,
@@ -235,7 +236,7 @@ def test_topdown_render_shows_each_terrain_where_the_map_has_it(default_map):
         (90, 90, 100),
     ]
     textures = solid_textures(names, colors)
-    img = default_map.render_topdown(2.0, textures=textures)
+    img = render_topdown(default_map, 2.0, textures=textures)
     assert img.shape == (400, 600, 3) and img.dtype == np.uint8
     # pixel (col, row) <-> world (x_min + (c + .5)/2, y_max - (r + .5)/2)
     rng = np.random.default_rng(3)
@@ -247,7 +248,7 @@ def test_topdown_render_shows_each_terrain_where_the_map_has_it(default_map):
     expected = np.array(colors)[idx]
     got = img[rc[:, 0], rc[:, 1]].astype(int)
     assert np.abs(got[~near] - expected[~near]).max() <= 1
-    flat = default_map.render_topdown(1.0, flat=True, textures=textures)
+    flat = render_topdown(default_map, 1.0, flat=True, textures=textures)
     assert flat.shape == (200, 300, 3)
     assert tuple(flat[70, 210]) == colors[0]  # x = 60.5, y = 29.5 -> patchy grass
 

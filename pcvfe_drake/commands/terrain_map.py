@@ -8,6 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from pcvfe_drake.perception.ground_render import render_topdown
 from pcvfe_drake.perception.terrain import default_terrain_map
 
 
@@ -32,7 +33,7 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     terrain = default_terrain_map(strip_width_m=args.strip_width)
-    image = terrain.render_topdown(args.px_per_m, flat=args.flat)
+    image = render_topdown(terrain, args.px_per_m, flat=args.flat)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(args.out), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
         raise ValueError(f"could not write {args.out}")

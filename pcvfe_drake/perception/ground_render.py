@@ -1,6 +1,7 @@
 """Render the textured ground of a :class:`TerrainMap` through any affine pixel-to-world map.
 
-Shared by the downward camera (a small rotated view under the car) and the top-down map image.
+Shared by the downward camera (a small rotated view under the car) and the top-down map image
+(:func:`render_topdown`).
 Each terrain's texture is tiled over the world (``tile_m`` metres per tile, north up) and sampled
 with ``cv2.warpAffine`` (``BORDER_WRAP``); where several terrains are visible they are blended
 by the largest of the bilinearly interpolated one-hot label masks, so region boundaries show as
@@ -186,3 +187,28 @@ class GroundRenderer:
                 out[y0 : y0 + hh, x0 : x0 + ww],
             )
         return out
+
+
+def render_topdown(
+    terrain_map: TerrainMap, px_per_m: float = 4.0, *, flat: bool = False, textures=None
+) -> np.ndarray:
+    """Top-down RGB image (H, W, 3) uint8 of the whole map, north up, ``px_per_m`` pixels per
+    metre. ``flat=True`` paints each terrain in its texture's mean colour instead of the
+    tiled texture. ``textures``: a ``TextureSet`` (default: the packaged textures)."""
+    m = terrain_map
+    if not (np.isfinite(px_per_m) and px_per_m > 0):
+        raise ValueError(f"px_per_m must be positive, got {px_per_m!r}")
+    width = int(round((m.x_max_m - m.x_min_m) * px_per_m))
+    height = int(round((m.y_max_m - m.y_min_m) * px_per_m))
+    if width * height > 40_000_000:
+        raise ValueError(f"px_per_m={px_per_m} gives a {width}x{height} image; use fewer")
+    renderer = GroundRenderer(m, textures)
+    m_per_px = 1.0 / px_per_m
+    # pixel (c, r) -> world: x = x_min + (c + 0.5) / ppm, y = y_max - (r + 0.5) / ppm
+    px_to_world = np.array(
+        [
+            [m_per_px, 0.0, m.x_min_m + 0.5 * m_per_px],
+            [0.0, -m_per_px, m.y_max_m - 0.5 * m_per_px],
+        ]
+    )
+    return renderer.render(px_to_world, (height, width), flat=flat)

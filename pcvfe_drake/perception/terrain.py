@@ -284,32 +284,6 @@ class TerrainMap:
             return self.terrains[k].name
         return self._names[k]
 
-    # ----------------------------------------------------------------------------- rendering
-    def render_topdown(
-        self, px_per_m: float = 4.0, *, flat: bool = False, textures=None
-    ) -> np.ndarray:
-        """Top-down RGB image (H, W, 3) uint8 of the whole map, north up, ``px_per_m`` pixels per
-        metre. ``flat=True`` paints each terrain in its texture's mean colour instead of the
-        tiled texture. ``textures``: a ``TextureSet`` (default: the packaged textures)."""
-        from pcvfe_drake.perception.ground_render import GroundRenderer
-
-        if not (np.isfinite(px_per_m) and px_per_m > 0):
-            raise ValueError(f"px_per_m must be positive, got {px_per_m!r}")
-        width = int(round((self.x_max_m - self.x_min_m) * px_per_m))
-        height = int(round((self.y_max_m - self.y_min_m) * px_per_m))
-        if width * height > 40_000_000:
-            raise ValueError(f"px_per_m={px_per_m} gives a {width}x{height} image; use fewer")
-        renderer = GroundRenderer(self, textures)
-        m_per_px = 1.0 / px_per_m
-        # pixel (c, r) -> world: x = x_min + (c + 0.5) / ppm, y = y_max - (r + 0.5) / ppm
-        px_to_world = np.array(
-            [
-                [m_per_px, 0.0, self.x_min_m + 0.5 * m_per_px],
-                [0.0, -m_per_px, self.y_max_m - 0.5 * m_per_px],
-            ]
-        )
-        return renderer.render(px_to_world, (height, width), flat=flat)
-
 
 def _present_labels(labels: np.ndarray) -> np.ndarray:
     """Sorted label values (0..255) present in ``labels``, a histogram over 0..255 (never a
