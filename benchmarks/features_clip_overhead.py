@@ -253,7 +253,7 @@ def clip_model_section(clip_dir: Path | None, quick: bool, camera_frames, photos
     with tempfile.TemporaryDirectory() as tmp:
         model = None
         if clip_dir is None:
-            from pcvfe_drake.commands.export_clip import load_open_clip, write_clip_folder
+            from pcvfe_drake.perception.clip_export import load_open_clip, write_clip_folder
 
             folder = Path(tmp) / "vitb32"
             model, tokenizer = load_open_clip("ViT-B-32", None, seed=0)
@@ -267,7 +267,7 @@ def clip_model_section(clip_dir: Path | None, quick: bool, camera_frames, photos
         else:
             folder = Path(clip_dir)
             if _have_torch_export():
-                from pcvfe_drake.commands.export_clip import load_open_clip
+                from pcvfe_drake.perception.clip_export import load_open_clip
 
                 arch = json.loads((folder / "clip.json").read_text())["model"].split("/")[0]
                 try:

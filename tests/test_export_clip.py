@@ -15,7 +15,7 @@ torch = pytest.importorskip("torch")
 open_clip = pytest.importorskip("open_clip")
 pytest.importorskip("onnxscript")
 
-from pcvfe_drake.commands.export_clip import check_export, write_clip_folder  # noqa: E402
+from pcvfe_drake.perception.clip_export import check_export, write_clip_folder  # noqa: E402
 from pcvfe_drake.perception.features import CAPTIONS, ClipFeatureExtractor, prompts  # noqa: E402
 
 SIZE, CONTEXT = 32, 16
