@@ -49,19 +49,16 @@ class VehiclePlant(LeafSystem):
         scaled to the mu under the car. Two state realisations (``mb_integration``):
 
         * ``"continuous"`` (default): 29 continuous states, integrated by the simulator's
-          integrator. Drake's default error-controlled RK3 is the fastest choice measured
-          (``benchmarks/plant_realtime.py``): it shrinks its steps where the wheel-spin modes
-          are stiff (eigenvalues ~ -4750/v 1/s for the Ford Escort), so it slows down below
-          ~2 m/s; implicit integrators (radau3) were slower because their finite-difference
-          Jacobians cost 29 evaluations each.
+          integrator (Drake's default error-controlled RK3 is the recommended one).
         * ``"discrete"``: 29 discrete states advanced every ``mb_period_s`` (e.g. 0.01 s, the
           public PC-VFE simulator's 100 Hz), each update integrating the MB equations over the
           period with ``mb_method`` (``"rk4"``, default: 1 ms RK4 substeps with wheel speeds
-          kept >= 0, stable above ~2 m/s and well behaved from rest in our runs; ``"lsoda"``:
-          stiff-aware but restarted every period, which made it ~100x slower than real time
-          from rest) with the input and mu sampled at the update. The outputs hold between
-          updates. Slower than ``"continuous"`` at speed, but independent of the simulator's
-          integrator settings.
+          kept >= 0; ``"lsoda"``: stiff-aware, restarted every period) with the input and mu
+          sampled at the update. The outputs hold between updates; independent of the
+          simulator's integrator settings.
+
+        How the integrators compare (measured): ``docs/simulation.md``, "The plant's
+        integrators".
 
         The MB truth exists for vehicles with CommonRoad parameter sets (Ford Escort, BMW 320i,
         VW Vanagon; ``mb_vehicle`` defaults to ``params.name``).
