@@ -230,3 +230,18 @@ def test_low_sample_rate_rollouts_stay_stable(monkeypatch):
     with np.errstate(all="ignore"):
         err1 = model.errors(model.initial_theta(), data, starts, 10)
     assert not np.all(np.abs(err1[:, :, 5]) < 1.0)
+
+
+def test_model_parameters_are_effect_parameters_with_their_origin():
+    """One definition of a parameter: the model's entries are EffectParams (with their checks)
+    plus the effect or context they come from."""
+    from pcvfe_drake.workbench.model import ParamInfo
+
+    model = WorkbenchModel(None, effects=["drag"])
+    assert all(isinstance(p, EffectParam) for p in model.params)
+    base, drag = model.params[0], model.params[-1]
+    assert (base.name, base.effect, base.context) == ("mu", None, 0)
+    assert (drag.name, drag.effect, drag.context) == ("drag.CdA", "drag", None)
+    assert drag.unit == "m^2" and drag.description
+    with pytest.raises(ValueError, match="outside"):
+        ParamInfo("mu", "-", 0.1, 1.0, 2.0, 0.1, 1.0)

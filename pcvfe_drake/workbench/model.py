@@ -25,14 +25,14 @@ context, then each effect's parameters, named ``effect.param``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from pcvfe_drake.vehicle.params import THETA_NAMES, VehicleParams, load_vehicle
 from pcvfe_drake.vehicle.single_track import BETA, DELTA, NX, PSI, PSI_DOT, V, wrap_angle
 from pcvfe_drake.workbench.data import DriveData
-from pcvfe_drake.workbench.effects import Effect, StepContext, get_effect
+from pcvfe_drake.workbench.effects import Effect, EffectParam, StepContext, get_effect
 
 V_FLOOR_MPS = 0.1
 """Speed below which the force-form model is evaluated at this speed (matches vehicle.py)."""
@@ -46,18 +46,15 @@ BASE_BOUNDS = {"mu": (0.05, 3.0), "C_Sf": (1.0, 200.0), "C_Sr": (1.0, 200.0)}
 
 
 @dataclass(frozen=True)
-class ParamInfo:
-    """One entry of the model's parameter vector."""
+class ParamInfo(EffectParam):
+    """One entry of the model's parameter vector: an :class:`EffectParam` (bounds, start, scale,
+    null value; its checks) plus where it comes from. ``name`` is the model-wide name
+    (``"mu"``, ``"mu[sand]"`` or ``"effect.param"``)."""
 
-    name: str
-    unit: str
-    lower: float
-    upper: float
-    initial: float
-    scale: float
-    null: float
-    effect: str | None  # None for base parameters
-    context: int | None  # context index for base parameters
+    effect: str | None = None
+    """The effect the parameter belongs to; None for the base parameters (mu, C_Sf, C_Sr)."""
+    context: int | None = None
+    """Context index of a base parameter; None for effect parameters."""
 
 
 def applied_inputs(x: np.ndarray, u: np.ndarray, vp: VehicleParams):
@@ -115,23 +112,15 @@ class WorkbenchModel:
             for c, label in enumerate(self.contexts):
                 name = b if len(self.contexts) == 1 else f"{b}[{label}]"
                 v0 = float(np.clip(nominal[b], lo, hi))
-                self.params.append(ParamInfo(name, unit, lo, hi, v0, 0.1 * v0, v0, None, c))
+                self.params.append(
+                    ParamInfo(name, unit, lo, hi, v0, 0.1 * v0, v0, effect=None, context=c)
+                )
         self._state_slices: list[slice] = []
         start = NX
         for e in self.effects:
             for q in e.params:
                 self.params.append(
-                    ParamInfo(
-                        f"{e.name}.{q.name}",
-                        q.unit,
-                        q.lower,
-                        q.upper,
-                        q.initial,
-                        q.scale,
-                        q.null,
-                        e.name,
-                        None,
-                    )
+                    ParamInfo(**{**asdict(q), "name": f"{e.name}.{q.name}"}, effect=e.name)
                 )
             self._state_slices.append(slice(start, start + e.n_states))
             start += e.n_states

@@ -20,9 +20,10 @@ Driving (the excitation), chosen so every library effect is identifiable:
   which separates a road grade from rolling resistance. The driver counter-steers on side
   slip. The steering rate stays inside the vehicle's limit.
 
-Measurement noise (``InsNoise``): independent Gaussian noise per state with the accuracy of a
-survey-grade GNSS/INS (e.g. a dual-antenna RTK INS) and a steering encoder; inputs are the
-recorded commands and are noise-free.
+Measurement noise (``pcvfe_drake.estimation.synthetic_drive.SURVEY_INS_NOISE``, a
+``MeasurementNoise``): independent Gaussian noise per state with the accuracy of a survey-grade
+GNSS/INS (e.g. a dual-antenna RTK INS) and a steering encoder; inputs are the recorded commands
+and are noise-free.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from pcvfe_drake.estimation.synthetic_drive import SURVEY_INS_NOISE, MeasurementNoise
 from pcvfe_drake.vehicle.params import VehicleParams, load_vehicle
 from pcvfe_drake.workbench.effects import RHO_AIR_KGPM3
 
@@ -86,22 +88,6 @@ HEADING_RATE_RADPS = 0.07
 """Mean yaw rate of the driving program [rad/s]: one full turn of the heading in ~90 s."""
 COUNTER_STEER = 1.0
 """Steering angle [rad] the driver adds per radian of side slip (steering into a slide)."""
-
-
-@dataclass(frozen=True)
-class InsNoise:
-    """Measurement noise standard deviations (SI units) of a survey-grade GNSS/INS."""
-
-    sx: float = 0.02
-    sy: float = 0.02
-    delta: float = 0.001
-    v: float = 0.015
-    psi: float = 0.002
-    psi_dot: float = 0.002
-    beta: float = 0.003
-
-    def as_array(self) -> np.ndarray:
-        return np.array([self.sx, self.sy, self.delta, self.v, self.psi, self.psi_dot, self.beta])
 
 
 @dataclass(frozen=True)
@@ -247,7 +233,7 @@ def simulate_truths(
     duration_s: float = 120.0,
     rate_hz: float = 20.0,
     seed: int = 0,
-    noise: InsNoise | None = InsNoise(),
+    noise: MeasurementNoise | None = SURVEY_INS_NOISE,
     substeps: int = 5,
     v0_mps: float = 10.0,
 ) -> list[pd.DataFrame]:
@@ -316,7 +302,7 @@ def simulate_multibody(
     duration_s: float = 60.0,
     rate_hz: float = 20.0,
     seed: int = 0,
-    noise: InsNoise | None = InsNoise(),
+    noise: MeasurementNoise | None = SURVEY_INS_NOISE,
     mu: float | None = None,
     v0_mps: float = 10.0,
 ) -> pd.DataFrame:
@@ -351,7 +337,7 @@ def _to_log(states, steer, acc, dt, noise, seed) -> pd.DataFrame:
     x = states.copy()
     if noise is not None:
         rng = np.random.default_rng(seed)
-        x = x + rng.standard_normal(x.shape) * noise.as_array()
+        x = x + rng.standard_normal(x.shape) * noise.sigma
     x[:, 4] = np.pi - np.mod(np.pi - x[:, 4], 2.0 * np.pi)
     return pd.DataFrame(
         {
