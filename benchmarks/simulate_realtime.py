@@ -23,12 +23,12 @@ import platform
 import time
 
 import numpy as np
-from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
+from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
 from pcvfe_drake.control.course import initial_state, load_course
-from pcvfe_drake.diagrams.run_simulation import run_simulation
+from pcvfe_drake.diagrams.run_simulation import run_simulation, simulator_config
 from pcvfe_drake.diagrams.scenario_io import load_scenario
 from pcvfe_drake.runs.scenario import build_terrain_map
 from pcvfe_drake.systems.vehicle_plant import VehiclePlant
@@ -49,7 +49,7 @@ def plant_only_rtf(scenario, duration_s: float) -> float:
     u = builder.AddSystem(ConstantVectorSource(np.array([0.0, 0.0])))
     builder.Connect(u.get_output_port(), plant.GetInputPort("actuation"))
     simulator = Simulator(builder.Build())
-    ResetIntegratorFromFlags(simulator, scenario.rates.integrator, scenario.rates.plant_max_step_s)
+    ApplySimulatorConfig(simulator_config(scenario), simulator)
     simulator.Initialize()
     t0 = time.perf_counter()
     simulator.AdvanceTo(duration_s)

@@ -9,6 +9,7 @@ figures from what was logged.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from dataclasses import dataclass, field
@@ -17,7 +18,12 @@ from typing import Any
 
 import numpy as np
 from pydrake.geometry import Meshcat, MeshcatParams
-from pydrake.systems.analysis import GetIntegrationSchemes, ResetIntegratorFromFlags, Simulator
+from pydrake.systems.analysis import (
+    ApplySimulatorConfig,
+    GetIntegrationSchemes,
+    Simulator,
+    SimulatorConfig,
+)
 
 from pcvfe_drake.control.course import Course
 from pcvfe_drake.diagrams.simulation import MakeSimulation, course_xy
@@ -71,6 +77,19 @@ class LapProgress:
         return self.travelled_m / self.course.length
 
 
+def simulator_config(scenario: Scenario) -> SimulatorConfig:
+    """The scenario's ``simulator`` settings as Drake's ``SimulatorConfig`` (start time 0);
+    an unknown integration scheme raises ValueError listing the known ones."""
+    settings = scenario.simulator
+    schemes = GetIntegrationSchemes()
+    if settings.integration_scheme not in schemes:
+        raise ValueError(
+            f"scenario {scenario.name!r}: simulator.integration_scheme="
+            f"{settings.integration_scheme!r} is not one of {schemes}"
+        )
+    return SimulatorConfig(**dataclasses.asdict(settings))
+
+
 def StartLocalMeshcat() -> Meshcat:
     """A Meshcat server bound to localhost only (create it once, at the top, and pass it in)."""
     params = MeshcatParams()
@@ -117,14 +136,7 @@ def run_simulation(
     parts = MakeSimulation(scenario, meshcat, log_path=log_path)
     diagram, course, run_log = parts.diagram, parts.course, parts.run_log
     simulator = Simulator(diagram)
-    simulator.set_target_realtime_rate(0.0)
-    schemes = GetIntegrationSchemes()
-    if scenario.rates.integrator not in schemes:
-        raise ValueError(
-            f"scenario {scenario.name!r}: rates.integrator={scenario.rates.integrator!r} is not "
-            f"one of {schemes}"
-        )
-    ResetIntegratorFromFlags(simulator, scenario.rates.integrator, scenario.rates.plant_max_step_s)
+    ApplySimulatorConfig(simulator_config(scenario), simulator)
     if meshcat is not None:
         meshcat.StartRecording(frames_per_second=1.0 / scenario.rates.view_period_s)
     stop_t = scenario.stop_time_s()

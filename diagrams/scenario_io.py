@@ -1,15 +1,23 @@
 """Loading scenario YAML files into ``pcvfe_drake.runs.scenario.Scenario`` with ``yaml_load_typed``.
 
 The dataclasses live in the core (``pcvfe_drake/runs/scenario.py``, no pydrake); the loader lives
-here
-because it uses ``pydrake.common.yaml``. Before handing the text to ``yaml_load_typed`` the loader
-walks the YAML against the dataclass schema so that a malformed file gets an error naming the file
-and the dotted field (``clustering.min_cluster_size_s``), not only the leaf name.
+here because it uses ``pydrake.common.yaml``.
+
+Layers: :func:`load_scenario` reads each file with ``yaml_load_typed(..., defaults=previous)``,
+so the first file (a shipped scenario, say) lands on top of the dataclass defaults and every
+further file (a user's overrides) on top of that; a file names only what it changes.
+
+Before handing a file to ``yaml_load_typed`` the loader walks its YAML against the dataclass
+schema so that a malformed file gets an error naming the file and the dotted field
+(``clustering.min_cluster_size``), not only the leaf name. Numbers are read as YAML 1.2 reads
+them: ``2e-3``, ``1e1`` and ``1.0e12`` are numbers (PyYAML's YAML 1.1 reads them as strings),
+and an integer field takes ``1e1`` as 10. An empty file means "all defaults".
 """
 
 from __future__ import annotations
 
 import dataclasses
+import re
 import types
 import typing
 from pathlib import Path
@@ -17,94 +25,147 @@ from pathlib import Path
 import yaml
 from pydrake.common.yaml import yaml_load_typed
 
-from pcvfe_drake.runs.scenario import Scenario, resolve_scenario_path
+from pcvfe_drake.runs.scenario import DERIVED_FIELDS, Scenario, resolve_scenario_path
 from pcvfe_drake.vehicle.params import PRESETS
 
+_YAML12_FLOAT = re.compile(r"^[-+]?(\.[0-9]+|[0-9]+(\.[0-9]*)?)([eE][-+]?[0-9]+)?$")
+"""A number in YAML 1.2's core schema (PyYAML's YAML 1.1 needs a dot before an exponent)."""
 
-def _schema_problems(schema, data, prefix: str) -> list[str]:
-    """Problems of YAML ``data`` against dataclass ``schema`` (unknown fields, wrong types)."""
+
+def _number(value):
+    """``value`` as a float when it is a YAML 1.2 number written as text, else None."""
+    if isinstance(value, str) and _YAML12_FLOAT.match(value.strip()):
+        return float(value)
+    return None
+
+
+def _normalise(schema, data, prefix: str, problems: list[str]):
+    """``data`` checked against dataclass ``schema`` (problems appended) with numbers typed."""
     if not isinstance(data, dict):
         where = f"field {prefix.rstrip('.')!r}" if prefix else "the document"
-        return [f"{where} must be a mapping of fields, got {type(data).__name__} {data!r}"]
+        problems.append(f"{where} must be a mapping of fields, got {type(data).__name__} {data!r}")
+        return data
     hints = typing.get_type_hints(schema)
     fields = {f.name: hints[f.name] for f in dataclasses.fields(schema)}
-    problems = []
+    out = {}
     for key, value in data.items():
         name = f"{prefix}{key}"
         if key not in fields:
             problems.append(f"unknown field {name!r} (known: {', '.join(sorted(fields))})")
             continue
-        problems.extend(_value_problems(fields[key], value, name))
-    return problems
+        if name in DERIVED_FIELDS:
+            problems.append(f"field {name!r} is set from {DERIVED_FIELDS[name]}; set that instead")
+            continue
+        out[key] = _normalise_value(fields[key], value, name, problems)
+    return out
 
 
-def _value_problems(hint, value, name: str) -> list[str]:
+def _normalise_value(hint, value, name: str, problems: list[str]):
     origin = typing.get_origin(hint)
     if origin in (typing.Union, types.UnionType):
         args = typing.get_args(hint)
         if value is None and type(None) in args:
-            return []
+            return None
         (inner,) = [a for a in args if a is not type(None)]
-        return _value_problems(inner, value, name)
+        return _normalise_value(inner, value, name, problems)
     if dataclasses.is_dataclass(hint):
-        return _schema_problems(hint, value, f"{name}.")
+        return _normalise(hint, value, f"{name}.", problems)
+    if origin is list:
+        if not isinstance(value, list):
+            problems.append(f"field {name!r} must be a list, got {value!r}")
+            return value
+        (item,) = typing.get_args(hint)
+        return [_normalise_value(item, v, f"{name}[{i}]", problems) for i, v in enumerate(value)]
     expected = {bool: "a boolean", int: "an integer", float: "a number", str: "a string"}
+    if hint in (int, float) and _number(value) is not None:
+        value = _number(value)
+    if hint is int and isinstance(value, float) and value.is_integer():
+        value = int(value)
     if hint is bool:
         ok = isinstance(value, bool)
     elif hint is int:
         ok = isinstance(value, int) and not isinstance(value, bool)
     elif hint is float:
         ok = isinstance(value, int | float) and not isinstance(value, bool)
+        value = float(value) if ok else value
     elif hint is str:
         ok = isinstance(value, str)
     else:
-        return []  # containers: left to yaml_load_typed
+        return value  # other containers: left to yaml_load_typed
     if not ok:
-        return [f"field {name!r} must be {expected[hint]}, got {value!r}"]
-    return []
+        problems.append(f"field {name!r} must be {expected[hint]}, got {value!r}")
+    return value
 
 
-def scenario_from_yaml_text(text: str, source: str = "<string>") -> Scenario:
-    """Parse scenario YAML ``text``; errors name ``source`` and the offending field."""
+def scenario_from_yaml_text(
+    text: str, source: str = "<string>", *, defaults: Scenario | None = None
+) -> Scenario:
+    """Parse scenario YAML ``text`` on top of ``defaults`` (None: the dataclass defaults);
+    errors name ``source`` and the offending field. An empty text gives ``defaults``."""
     try:
         raw = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise ValueError(f"{source}: not valid YAML: {exc}") from exc
     if raw is None:
         raw = {}
-    problems = _schema_problems(Scenario, raw, "")
+    problems: list[str] = []
+    data = _normalise(Scenario, raw, "", problems)
     if problems:
         raise ValueError(f"{source}: malformed scenario: " + "; ".join(problems))
     try:
-        scenario = yaml_load_typed(schema=Scenario, data=text)
-    except (RuntimeError, ValueError, TypeError) as exc:
+        scenario = yaml_load_typed(
+            schema=Scenario,
+            data=yaml.safe_dump(data),
+            defaults=defaults if defaults is not None else Scenario(),
+        )
+    except (RuntimeError, ValueError, TypeError, NotImplementedError) as exc:
         raise ValueError(f"{source}: malformed scenario: {exc}") from exc
     return scenario.validate(source)
 
 
-def load_scenario(path_or_name: str | Path | None = None) -> Scenario:
-    """Load a scenario from a YAML file or a shipped scenario name (None: the default).
+def _read_text(path: Path) -> str:
+    try:
+        return path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(
+            f"{path}: not a scenario file (not UTF-8 text: {exc.reason} at byte {exc.start}); "
+            "give a YAML file"
+        ) from exc
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read the scenario file: {exc.strerror or exc}") from exc
+
+
+def load_scenario(path_or_name: str | Path | None = None, *overrides: str | Path) -> Scenario:
+    """Load a scenario from a YAML file or a shipped scenario name (None: the default), then
+    each of ``overrides`` (files or shipped names) on top of it, in order.
 
     A ``vehicle`` that is not a preset name is a vehicle YAML file; a relative path is taken
-    relative to the scenario file and stored as an absolute path.
+    relative to the scenario file that names it and stored as an absolute path.
     """
-    path = resolve_scenario_path(path_or_name)
-    scenario = scenario_from_yaml_text(path.read_text(), source=str(path))
-    if scenario.vehicle not in PRESETS:
-        vehicle_path = Path(scenario.vehicle).expanduser()
-        if not vehicle_path.is_absolute():
-            vehicle_path = path.parent / vehicle_path
-        if not vehicle_path.is_file():
-            raise FileNotFoundError(
-                f"{path}: field 'vehicle'={scenario.vehicle!r} is neither a preset "
-                f"({', '.join(sorted(PRESETS))}) nor a file ({vehicle_path})"
-            )
-        scenario = dataclasses.replace(scenario, vehicle=str(vehicle_path.resolve()))
+    scenario = None
+    for layer in (path_or_name, *overrides):
+        path = resolve_scenario_path(layer)
+        before = scenario.vehicle if scenario is not None else None
+        scenario = scenario_from_yaml_text(_read_text(path), source=str(path), defaults=scenario)
+        if scenario.vehicle not in PRESETS and scenario.vehicle != before:
+            scenario = _resolve_vehicle(scenario, path)
     return scenario
 
 
+def _resolve_vehicle(scenario: Scenario, path: Path) -> Scenario:
+    vehicle_path = Path(scenario.vehicle).expanduser()
+    if not vehicle_path.is_absolute():
+        vehicle_path = path.parent / vehicle_path
+    if not vehicle_path.is_file():
+        raise FileNotFoundError(
+            f"{path}: field 'vehicle'={scenario.vehicle!r} is neither a preset "
+            f"({', '.join(sorted(PRESETS))}) nor a file ({vehicle_path})"
+        )
+    return dataclasses.replace(scenario, vehicle=str(vehicle_path.resolve()))
+
+
 def save_scenario(scenario: Scenario, path: str | Path) -> Path:
-    """Write ``scenario`` as YAML (every field) to ``path``; returns the path."""
+    """Write ``scenario`` as YAML (every field but the derived ones) to ``path``; returns it."""
     path = Path(path)
     path.write_text(yaml.safe_dump(scenario.to_dict(), sort_keys=False))
     return path

@@ -22,13 +22,11 @@ from pydrake.geometry import Meshcat
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
-from pcvfe_drake.contexts.clustering import ClusteringParams
 from pcvfe_drake.control.course import Course, load_course
-from pcvfe_drake.control.nmpc import NmpcConfig
 from pcvfe_drake.diagrams.station import MakeVehicleStation
 from pcvfe_drake.perception.terrain import TerrainMap
 from pcvfe_drake.runs.runlog import RunLog
-from pcvfe_drake.runs.scenario import Scenario, build_terrain_map, settings_kwargs
+from pcvfe_drake.runs.scenario import Scenario, build_terrain_map
 from pcvfe_drake.systems.clip_features import ClipFeatures
 from pcvfe_drake.systems.context_clustering import ContextClustering
 from pcvfe_drake.systems.context_fitter import ContextFitter
@@ -47,25 +45,6 @@ class SimulationParts:
     terrain_map: TerrainMap
     params: VehicleParams
     run_log: RunLog
-
-
-def nmpc_config(scenario: Scenario) -> NmpcConfig:
-    """The scenario's NMPC settings as an ``NmpcConfig`` (None fields: the NMPC's defaults)."""
-    kw = settings_kwargs(scenario.nmpc)
-    dt = scenario.rates.nmpc_period_s
-    horizon_s = kw.pop("horizon_s", None)
-    if horizon_s is not None:
-        kw["horizon"] = max(1, int(round(horizon_s / dt)))
-    return NmpcConfig(dt_s=dt, **kw)
-
-
-def clustering_params(scenario: Scenario) -> ClusteringParams:
-    """The scenario's clustering settings (frame rate from the camera period, seed)."""
-    return ClusteringParams(
-        frame_rate_hz=1.0 / scenario.rates.camera_period_s,
-        seed=scenario.seed,
-        **settings_kwargs(scenario.clustering),
-    )
 
 
 def MakeSimulation(
@@ -107,7 +86,7 @@ def MakeSimulation(
         "clustering",
         ContextClustering(
             feature_dim,
-            clustering_params(scenario),
+            scenario.clustering_params(),
             frame_period_s=rates.camera_period_s,
             recluster_period_s=rates.recluster_period_s,
             frame_offset_s=rates.clustering_frame_offset_s,
@@ -119,10 +98,10 @@ def MakeSimulation(
             params,
             period_s=rates.fitter_period_s,
             sample_period_s=rates.fitter_sample_period_s,
-            **settings_kwargs(scenario.fitter),
+            config=scenario.fit_config(),
         ),
     )
-    nmpc = builder.AddNamedSystem("nmpc", Nmpc(course, params, nmpc_config(scenario)))
+    nmpc = builder.AddNamedSystem("nmpc", Nmpc(course, params, scenario.nmpc_config()))
 
     state = station.GetOutputPort("state")
     builder.Connect(station.GetOutputPort("image"), features.GetInputPort("image"))

@@ -21,13 +21,15 @@ The hardware station will not have the sim-only ports (``SIM_ONLY_OUTPUTS``).
 
 from __future__ import annotations
 
+import dataclasses
+
 from pydrake.geometry import Meshcat
 from pydrake.systems.framework import Diagram, DiagramBuilder
 
 from pcvfe_drake.control.course import Course, initial_state, load_course
 from pcvfe_drake.perception.camera import CameraConfig
 from pcvfe_drake.perception.terrain import TerrainMap
-from pcvfe_drake.runs.scenario import Scenario, build_terrain_map, settings_kwargs
+from pcvfe_drake.runs.scenario import Scenario, build_terrain_map
 from pcvfe_drake.systems.texture_camera import TextureCamera
 from pcvfe_drake.systems.vehicle_plant import VehiclePlant
 from pcvfe_drake.vehicle.params import load_vehicle
@@ -41,8 +43,8 @@ SIM_ONLY_OUTPUTS = ("true_mu", "true_terrain")
 
 
 def camera_config(scenario: Scenario) -> CameraConfig:
-    """The scenario's camera settings as a ``CameraConfig`` (None fields: camera defaults)."""
-    return CameraConfig(**settings_kwargs(scenario.camera))
+    """The scenario's camera (a copy, validated)."""
+    return dataclasses.replace(scenario.camera)
 
 
 def MakeVehicleStation(

@@ -10,13 +10,12 @@ from pydrake.systems.framework import BasicVector, Context, LeafSystem
 from pydrake.systems.sensors import ImageRgba8U
 
 from pcvfe_drake.perception.features import (
+    DESCRIPTOR_BACKEND,
     LAMBDA_C,
     BlankImageError,
     FeatureExtractor,
     make_extractor,
 )
-
-DESCRIPTOR = "descriptor"
 
 
 class ClipFeatures(LeafSystem):
@@ -52,15 +51,15 @@ class ClipFeatures(LeafSystem):
 
     def __init__(
         self,
-        backend: str | Path | FeatureExtractor = DESCRIPTOR,
+        backend: str | Path | FeatureExtractor = DESCRIPTOR_BACKEND,
         lambda_c: float = LAMBDA_C,
         threads: int = 2,
     ) -> None:
         super().__init__()
         if isinstance(backend, FeatureExtractor):
             self._extractor = backend
-        elif str(backend) == DESCRIPTOR:
-            self._extractor = make_extractor("descriptor", lambda_c=lambda_c)
+        elif str(backend) == DESCRIPTOR_BACKEND:
+            self._extractor = make_extractor(DESCRIPTOR_BACKEND, lambda_c=lambda_c)
         else:
             self._extractor = make_extractor(
                 "clip", clip_dir=backend, lambda_c=lambda_c, threads=threads

@@ -8,10 +8,8 @@ import numpy as np
 from pydrake.systems.framework import BasicVector, LeafSystem
 
 from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
-from pcvfe_drake.vehicle.params import VehicleParams, ford_escort
+from pcvfe_drake.vehicle.params import TRUTH_MODELS, VehicleParams, ford_escort
 from pcvfe_drake.vehicle.single_track import INPUT_NAMES, NX, STATE_NAMES, st_dynamics
-
-TRUTH_MODELS = ("st", "mb")
 
 
 class VehiclePlant(LeafSystem):

@@ -8,7 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
-from pcvfe_drake.perception.features import LAMBDA_C, ClipFeatureExtractor, make_extractor
+from pcvfe_drake.perception.features import (
+    DESCRIPTOR_BACKEND,
+    LAMBDA_C,
+    ClipFeatureExtractor,
+    make_extractor,
+)
 from pcvfe_drake.perception.texture_library import load_rgb
 
 
@@ -30,8 +35,8 @@ def register(subparsers) -> None:
     )
     group.add_argument(
         "--backend",
-        choices=["descriptor"],
-        default="descriptor",
+        choices=[DESCRIPTOR_BACKEND],
+        default=DESCRIPTOR_BACKEND,
         help="non-learned texture descriptor (the default when --clip is not given)",
     )
     parser.add_argument(
@@ -53,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         out = {
             "backend": backend,
-            "model": extractor.model_name if is_clip else "descriptor",
+            "model": extractor.model_name if is_clip else DESCRIPTOR_BACKEND,
             "lambda_c": extractor.lambda_c,
             "names": extractor.names,
             "images": [],

@@ -12,7 +12,7 @@ import time
 from datetime import datetime
 from pathlib import Path
 
-from pcvfe_drake.runs.scenario import DEFAULT_SCENARIO, shipped_scenarios
+from pcvfe_drake.runs.scenario_files import DEFAULT_SCENARIO, shipped_scenarios
 
 CHUNK_S = 1.0
 """Simulated time advanced per progress-bar step [s]."""
@@ -36,6 +36,16 @@ def register(subparsers) -> None:
         nargs="?",
         default=DEFAULT_SCENARIO,
         help=f"shipped scenario name or YAML file (default: {DEFAULT_SCENARIO})",
+    )
+    parser.add_argument(
+        "--with",
+        dest="overrides",
+        action="append",
+        default=[],
+        type=Path,
+        metavar="FILE",
+        help="scenario YAML file applied on top of SCENARIO (repeatable, in order; it names only "
+        "what it changes)",
     )
     parser.add_argument(
         "--out", type=Path, default=None, help="run folder (default: runs/<scenario>-<time>)"
@@ -72,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
     from pcvfe_drake.diagrams.run_simulation import RunFolder, StartLocalMeshcat, run_simulation
     from pcvfe_drake.diagrams.scenario_io import load_scenario, save_scenario
 
-    scenario = load_scenario(args.scenario)
+    scenario = load_scenario(args.scenario, *args.overrides)
     if args.laps is not None or args.duration is not None:
         scenario = scenario.with_run_length(laps=args.laps, duration_s=args.duration)
     if args.seed is not None:

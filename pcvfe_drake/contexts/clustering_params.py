@@ -9,7 +9,7 @@ NOISE = -1
 """Context id of frames that belong to no context (noise or unseen terrain)."""
 
 
-@dataclass(frozen=True)
+@dataclass
 class ClusteringParams:
     """Settings of :class:`ContextClusterer`.
 

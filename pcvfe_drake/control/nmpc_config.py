@@ -12,7 +12,7 @@ MODELS = ("st", "ks")
 """Prediction models: ``"st"`` single track with theta_hat, ``"ks"`` kinematic (KMPC)."""
 
 
-@dataclass(frozen=True)
+@dataclass
 class NmpcConfig:
     """Settings of the tracking NMPC (SI units; scales are Bryson-rule tolerances: the weight of
     a term is 1 / scale^2; ``None`` derives a scale from the vehicle, see :meth:`resolved`).

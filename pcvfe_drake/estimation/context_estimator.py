@@ -190,7 +190,7 @@ class EstimateTable:
         }
 
 
-@dataclass(frozen=True)
+@dataclass
 class LiveFitConfig:
     """Settings of :class:`ContextEstimator`.
 
@@ -218,7 +218,7 @@ class LiveFitConfig:
     x0_smoothing_s: float = DEFAULT_X0_SMOOTHING_S
     fit_stiffness: bool = False
     stiffness_prior_rel: float = 0.1
-    prior_theta: tuple[float, float, float] | None = None
+    prior_theta: list[float] | None = None
     min_windows: int = 20
     buffer_s: float = 60.0
     sample_period_s: float = 0.01

@@ -32,7 +32,7 @@ from pcvfe_drake.vehicle.single_track import PSI, SX, SY, V
 _NOISE_FIELD_SEED = 20240607  # fixed seed of the precomputed unit-variance noise field
 
 
-@dataclass(frozen=True)
+@dataclass
 class CameraConfig:
     """Downward camera settings (units in the names)."""
 

@@ -28,6 +28,9 @@ import cv2
 import numpy as np
 
 LAMBDA_C = 0.25  # paper: weight of the low-level (mean RGB) part of z
+DESCRIPTOR_BACKEND = "descriptor"
+"""Backend name of the non-learned texture descriptor (the scenario's ``features.backend``: this
+name or the path of a CLIP model folder)."""
 PROMPT_TEMPLATE = "This image contains {}"
 # The paper's caption set Q (Appendix A), in its order.
 CAPTIONS: tuple[str, ...] = (
@@ -471,14 +474,14 @@ class ClipFeatureExtractor(FeatureExtractor):
 
 
 def make_extractor(
-    backend: str = "descriptor",
+    backend: str = DESCRIPTOR_BACKEND,
     clip_dir: Path | str | None = None,
     lambda_c: float = LAMBDA_C,
     threads: int = 2,
 ) -> FeatureExtractor:
     """Backend by name: ``"descriptor"`` or ``"clip"`` (needs ``clip_dir``; ``threads`` is the
     onnxruntime intra-op thread count, 1 is the safer choice on a loaded 2-core machine)."""
-    if backend == "descriptor":
+    if backend == DESCRIPTOR_BACKEND:
         return DescriptorExtractor(lambda_c=lambda_c)
     if backend == "clip":
         if clip_dir is None:

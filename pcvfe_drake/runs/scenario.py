@@ -19,24 +19,48 @@ Shipped scenarios live in ``pcvfe_drake/data/scenarios/<name>.yaml``:
 
 import dataclasses
 import math
+import typing
 from dataclasses import dataclass, field
-from pathlib import Path
 
-TRUTH_MODELS = ("st", "mb")
-"""Truth plant models: our single-track model, or CommonRoad's multi-body model."""
+from pcvfe_drake.contexts.clustering_params import ClusteringParams
+from pcvfe_drake.control.nmpc_config import NmpcConfig
+from pcvfe_drake.estimation.context_estimator import LiveFitConfig
+from pcvfe_drake.perception.camera import CameraConfig
+from pcvfe_drake.perception.features import DESCRIPTOR_BACKEND
+from pcvfe_drake.runs.scenario_files import (
+    DEFAULT_SCENARIO,
+    SCENARIO_DIR,
+    resolve_scenario_path,
+    shipped_scenarios,
+)
+from pcvfe_drake.vehicle.params import TRUTH_MODELS
 
-DESCRIPTOR_BACKEND = "descriptor"
-"""Feature backend name of the non-learned texture descriptor (any other value is a CLIP folder)."""
-
-SCENARIO_DIR = Path(__file__).resolve().parents[1] / "data" / "scenarios"
-"""Folder of the shipped scenario files."""
-
-DEFAULT_SCENARIO = "paper_sim"
+__all__ = [
+    "DEFAULT_SCENARIO",
+    "DERIVED_FIELDS",
+    "DESCRIPTOR_BACKEND",
+    "SCENARIO_DIR",
+    "TRUTH_MODELS",
+    "FeatureSettings",
+    "Rates",
+    "Scenario",
+    "SimulatorSettings",
+    "build_terrain_map",
+    "excluded_terrains",
+    "resolve_scenario_path",
+    "scenario_problems",
+    "shipped_scenarios",
+]
 
 
 @dataclass
 class Rates:
-    """Periods of the periodic parts of the loop [s] (a rate of 10 Hz is a period of 0.1 s)."""
+    """Periods of the periodic parts of the loop [s] (a rate of 10 Hz is a period of 0.1 s).
+
+    Every period of the diagram lives here, once: the configs embedded in the scenario that also
+    carry a rate (``clustering.frame_rate_hz``, ``fitter.sample_period_s``, ``nmpc.dt_s``) get it
+    from here (see :data:`DERIVED_FIELDS`).
+    """
 
     camera_period_s: float = 0.1
     """Downward camera frame period (10 Hz); features and context ids follow each frame."""
@@ -60,35 +84,33 @@ class Rates:
     takes its frame at offset 0; an assignment at the same instant would read the previous frame
     (simultaneous updates see the state before the step), adding a frame period to every
     latency. 1 ms later it assigns the frame just taken. Must be in [0, camera_period_s)."""
-    plant_max_step_s: float = 0.01
-    """Integrator step of the continuous plant [s] (the largest step for error-controlled
-    schemes)."""
-    integrator: str = "runge_kutta2"
-    """Integration scheme of the simulator (``pydrake.systems.analysis.GetIntegrationSchemes``):
-    the fixed-step ``runge_kutta2`` at ``plant_max_step_s`` is the default (the 100 Hz fitter
-    sampling forces 10 ms steps anyway, and it needs 2 derivative evaluations per step where the
-    error-controlled ``runge_kutta3`` needs 3; final positions agree to a millimetre over 30 s)."""
 
 
 @dataclass
-class CameraSettings:
-    """Downward texture camera (``pcvfe_drake.perception.camera.CameraConfig``; None: the camera's default).
+class SimulatorSettings:
+    """Drake's ``pydrake.systems.analysis.SimulatorConfig``, field for field (the core does not
+    import pydrake; ``diagrams/run_simulation.py`` turns it into a ``SimulatorConfig`` and applies
+    it with ``ApplySimulatorConfig``; a test checks the fields match Drake's). ``start_time`` is
+    left out: a run starts at t = 0.
 
-    The scenario defaults switch the realistic effects on: motion blur from a 2 ms exposure,
-    per-frame exposure changes and sensor noise, all seeded from the scenario's seed.
+    Defaults: the fixed-step ``runge_kutta2`` at 10 ms (the 100 Hz fitter sampling forces 10 ms
+    steps anyway, and it needs 2 derivative evaluations per step where the error-controlled
+    ``runge_kutta3`` needs 3; final positions agree to a millimetre over 30 s). ``accuracy`` is
+    used by error-controlled schemes only (1e-3: what ``ResetIntegratorFromFlags`` gave before).
     """
 
-    height_m: float | None = None
-    fov_deg: float | None = None
-    width_px: int | None = None
-    height_px: int | None = None
-    forward_offset_m: float | None = None
-    exposure_s: float | None = 0.002
-    """Exposure time [s]; motion blur is ``v * exposure_s`` metres long."""
-    exposure_jitter: float | None = 0.05
-    """Standard deviation of the log exposure gain per frame."""
-    noise_std: float | None = 3.0
-    """Sensor noise standard deviation on the 0-255 scale."""
+    integration_scheme: str = "runge_kutta2"
+    """Scheme name (``pydrake.systems.analysis.GetIntegrationSchemes``)."""
+    max_step_size: float = 0.01
+    """Integrator step [s] (the largest step for error-controlled schemes)."""
+    accuracy: float = 1e-3
+    """Target accuracy of error-controlled schemes."""
+    use_error_control: bool = True
+    """Error control for schemes that support it (False: fixed steps of ``max_step_size``)."""
+    target_realtime_rate: float = 0.0
+    """Pace the simulation at this multiple of real time (0: as fast as possible)."""
+    publish_every_time_step: bool = False
+    """Publish after every integration step (the loop's publishes are periodic events)."""
 
 
 @dataclass
@@ -102,59 +124,33 @@ class FeatureSettings:
     """onnxruntime threads of the CLIP backend (1 is safer on a loaded 2-core machine)."""
 
 
-@dataclass
-class ClusteringSettings:
-    """Context clustering (``pcvfe_drake.contexts.clustering.ClusteringParams``; None: its default).
-
-    Durations are seconds of driving at the camera rate (converted to frame counts there).
-    """
-
-    min_cluster_duration_s: float | None = None
-    min_samples_duration_s: float | None = None
-    noise_memory_s: float | None = None
-    max_stored: int | None = None
-    gate_scale: float | None = None
-    persistence_scale: float | None = None
-    persistence_epsilon: float | None = None
+def _scenario_camera() -> CameraConfig:
+    """The scenario's default camera: ``CameraConfig`` with the realistic effects switched on
+    (motion blur from a 2 ms exposure, per-frame exposure changes, sensor noise; all seeded
+    from the scenario's seed)."""
+    return CameraConfig(exposure_s=0.002, exposure_jitter=0.05, noise_std=3.0)
 
 
-@dataclass
-class FitterSettings:
-    """Context fitter (``pcvfe_drake.estimation.context_estimator.LiveFitConfig``; None: its default)."""
-
-    horizon_steps: int | None = None
-    """Rollout window length H in samples (paper eq. 5b-5c)."""
-    stride_steps: int | None = None
-    """Window start stride in samples."""
-    min_speed_mps: float | None = None
-    """Windows only from samples with v >= this speed (eq. 6)."""
-    fit_stiffness: bool | None = None
-    """Fit C_Sf, C_Sr too, with priors (see params.py); default: mu only."""
-    min_windows: int | None = None
-    """Fewer usable windows than this: the context keeps the prior."""
-    buffer_s: float | None = None
-    """Seconds of data kept per context."""
-    noise_hold_s: float | None = None
-    """Noise this long [s] after a known context keeps its estimate; then the prior."""
-
-
-@dataclass
-class NmpcSettings:
-    """Friction-aware NMPC (``pcvfe_drake.control.nmpc.NmpcConfig``; None: its default)."""
-
-    horizon_s: float | None = None
-    """Prediction horizon [s] (steps = horizon_s / rates.nmpc_period_s)."""
-    model: str | None = None
-    """Prediction model: "st" (single track with theta_hat) or "ks" (kinematic baseline)."""
-    speed_margin: float | None = None
-    """Fraction of the friction-limited speed sqrt(mu_hat g / |kappa|) the reference uses."""
-    max_speed_mps: float | None = None
-    """Cap on the reference speed (None: the course's planned speed)."""
+DERIVED_FIELDS: dict[str, str] = {
+    "clustering.frame_rate_hz": "rates.camera_period_s",
+    "clustering.seed": "seed",
+    "fitter.sample_period_s": "rates.fitter_sample_period_s",
+    "nmpc.dt_s": "rates.nmpc_period_s",
+}
+"""Fields of the embedded configs that the scenario sets from another field (the value): a
+scenario file must not name them, and :meth:`Scenario.clustering_params`,
+:meth:`Scenario.fit_config`, :meth:`Scenario.nmpc_config` fill them in."""
 
 
 @dataclass
 class Scenario:
-    """One closed-loop run. Every field has a default; YAML files name only what they change."""
+    """One closed-loop run. Every field has a default; YAML files name only what they change.
+
+    ``camera``, ``clustering``, ``fitter`` and ``nmpc`` are the core's own configs
+    (``CameraConfig``, ``ClusteringParams``, ``LiveFitConfig``, ``NmpcConfig``): their fields,
+    defaults, documentation and validation are those of the core, in one place. The camera's
+    scenario default switches the realistic effects on (see ``_scenario_camera``).
+    """
 
     name: str = DEFAULT_SCENARIO
     description: str = ""
@@ -180,11 +176,12 @@ class Scenario:
     """Where the car starts: arc length along the course from the course's own start [m]
     (negative: before it, counted back around the loop)."""
     rates: Rates = field(default_factory=Rates)
-    camera: CameraSettings = field(default_factory=CameraSettings)
+    simulator: SimulatorSettings = field(default_factory=SimulatorSettings)
+    camera: CameraConfig = field(default_factory=_scenario_camera)
     features: FeatureSettings = field(default_factory=FeatureSettings)
-    clustering: ClusteringSettings = field(default_factory=ClusteringSettings)
-    fitter: FitterSettings = field(default_factory=FitterSettings)
-    nmpc: NmpcSettings = field(default_factory=NmpcSettings)
+    clustering: ClusteringParams = field(default_factory=ClusteringParams)
+    fitter: LiveFitConfig = field(default_factory=LiveFitConfig)
+    nmpc: NmpcConfig = field(default_factory=NmpcConfig)
 
     def validate(self, source: str = "scenario") -> "Scenario":
         """Check every value; raise ValueError naming ``source`` and the field. Returns self."""
@@ -214,12 +211,60 @@ class Scenario:
             return float(self.duration_s)
         return float(self.max_duration_s)
 
+    def clustering_params(self) -> ClusteringParams:
+        """``clustering`` with its frame rate (from the camera period) and seed filled in."""
+        return dataclasses.replace(
+            self.clustering, frame_rate_hz=1.0 / self.rates.camera_period_s, seed=self.seed
+        )
+
+    def fit_config(self) -> LiveFitConfig:
+        """``fitter`` with its data rate (``rates.fitter_sample_period_s``) filled in."""
+        return dataclasses.replace(self.fitter, sample_period_s=self.rates.fitter_sample_period_s)
+
+    def nmpc_config(self) -> NmpcConfig:
+        """``nmpc`` with its step (``rates.nmpc_period_s``) filled in."""
+        return dataclasses.replace(self.nmpc, dt_s=self.rates.nmpc_period_s)
+
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """Every field as plain data, without the :data:`DERIVED_FIELDS` (a file that can be
+        loaded again)."""
+        data = dataclasses.asdict(self)
+        for dotted in DERIVED_FIELDS:
+            group, name = dotted.split(".")
+            data[group].pop(name, None)
+        return data
+
+
+def resolve_field_types(schema: type) -> type:
+    """Replace the string annotations of ``schema``'s fields (and of the dataclasses in them)
+    with the types they name; returns ``schema``.
+
+    ``yaml_load_typed`` reads ``dataclasses.fields(schema)[i].type`` and needs real types there;
+    the core's config modules use ``from __future__ import annotations``, which leaves strings.
+    """
+    hints = typing.get_type_hints(schema)
+    for f in dataclasses.fields(schema):
+        f.type = hints[f.name]
+        for arg in (f.type, *typing.get_args(f.type)):
+            if dataclasses.is_dataclass(arg) and isinstance(arg, type):
+                resolve_field_types(arg)
+    return schema
+
+
+resolve_field_types(Scenario)
 
 
 def _is_number(value) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _config_problems(group: str, make) -> list[str]:
+    """The core config's own validation (its ``__post_init__`` / ``validate``) as problems."""
+    try:
+        make()
+    except (ValueError, TypeError) as exc:
+        return [f"{group}: {exc}"]
+    return []
 
 
 def scenario_problems(scenario: Scenario) -> list[str]:
@@ -263,11 +308,14 @@ def scenario_problems(scenario: Scenario) -> list[str]:
         s.initial_speed_mps,
         "must be >= 0",
     )
+    rates_ok = True
     for f in dataclasses.fields(Rates):
-        if f.name in ("integrator", "clustering_frame_offset_s"):
+        if f.name == "clustering_frame_offset_s":
             continue
         value = getattr(s.rates, f.name)
-        need(_is_number(value) and value > 0, f"rates.{f.name}", value, "must be a period > 0 s")
+        ok = _is_number(value) and value > 0
+        rates_ok &= ok
+        need(ok, f"rates.{f.name}", value, "must be a period > 0 s")
     offset = s.rates.clustering_frame_offset_s
     need(
         _is_number(offset)
@@ -284,20 +332,50 @@ def scenario_problems(scenario: Scenario) -> list[str]:
             s.rates.recluster_period_s,
             "must not be shorter than rates.camera_period_s",
         )
-    for group in ("camera", "clustering", "fitter", "nmpc"):
-        settings = getattr(s, group)
-        for f in dataclasses.fields(settings):
-            value = getattr(settings, f.name)
-            if value is None or isinstance(value, bool | str):
-                continue
-            need(
-                _is_number(value) and value >= 0,
-                f"{group}.{f.name}",
-                value,
-                "must be a finite number >= 0",
-            )
-    if s.nmpc.model is not None:
-        need(s.nmpc.model in ("st", "ks"), "nmpc.model", s.nmpc.model, "must be 'st' or 'ks'")
+    sim = s.simulator
+    need(
+        bool(sim.integration_scheme.strip()),
+        "simulator.integration_scheme",
+        sim.integration_scheme,
+        "must name a scheme (e.g. runge_kutta2)",
+    )
+    need(
+        _is_number(sim.max_step_size) and sim.max_step_size > 0,
+        "simulator.max_step_size",
+        sim.max_step_size,
+        "must be a step > 0 s",
+    )
+    need(
+        _is_number(sim.accuracy) and sim.accuracy >= 0,
+        "simulator.accuracy",
+        sim.accuracy,
+        "must be >= 0",
+    )
+    need(
+        _is_number(sim.target_realtime_rate) and sim.target_realtime_rate >= 0,
+        "simulator.target_realtime_rate",
+        sim.target_realtime_rate,
+        "must be >= 0 (0: as fast as possible)",
+    )
+    defaults = {
+        "clustering": ClusteringParams(),
+        "fitter": LiveFitConfig(),
+        "nmpc": NmpcConfig(),
+    }
+    for dotted, source in DERIVED_FIELDS.items():
+        group, name = dotted.split(".")
+        value = getattr(getattr(s, group), name)
+        need(
+            value == getattr(defaults[group], name),
+            dotted,
+            value,
+            f"is set from {source}; change that instead",
+        )
+    problems += _config_problems("camera", lambda: dataclasses.replace(s.camera))
+    if rates_ok:
+        problems += _config_problems("clustering", s.clustering_params)
+        problems += _config_problems("fitter", s.fit_config)
+        problems += _config_problems("nmpc", lambda: s.nmpc_config().validate())
     need(bool(s.features.backend.strip()), "features.backend", s.features.backend, "empty")
     need(
         _is_number(s.features.lambda_c) and s.features.lambda_c >= 0,
@@ -312,31 +390,6 @@ def scenario_problems(scenario: Scenario) -> list[str]:
         "must be an integer >= 1",
     )
     return problems
-
-
-def shipped_scenarios() -> list[str]:
-    """Names of the scenarios shipped in ``pcvfe_drake/data/scenarios``."""
-    return sorted(p.stem for p in SCENARIO_DIR.glob("*.yaml"))
-
-
-def resolve_scenario_path(path_or_name: str | Path | None) -> Path:
-    """The YAML file of a scenario given as a file path or a shipped scenario name.
-
-    None means the default scenario. Raises FileNotFoundError naming the input and the shipped
-    scenarios when neither exists.
-    """
-    if path_or_name is None:
-        path_or_name = DEFAULT_SCENARIO
-    candidate = Path(path_or_name).expanduser()
-    if candidate.is_file():
-        return candidate.resolve()
-    shipped = SCENARIO_DIR / f"{path_or_name}.yaml"
-    if shipped.is_file():
-        return shipped
-    raise FileNotFoundError(
-        f"scenario {str(path_or_name)!r} is neither a file nor a shipped scenario "
-        f"(shipped: {', '.join(shipped_scenarios())})"
-    )
 
 
 # ------------------------------------------------------------------ building from a scenario
@@ -371,12 +424,3 @@ def excluded_terrains(scenario: Scenario) -> tuple[str, ...]:
     if TERRAIN_LAYOUTS.get(scenario.terrain_layout, {}).get("strip_width_m", 1.0) == 0.0:
         return ()
     return TRANSITION_TERRAINS
-
-
-def settings_kwargs(settings) -> dict:
-    """The fields of a settings dataclass that are set (not None), as keyword arguments."""
-    return {
-        f.name: getattr(settings, f.name)
-        for f in dataclasses.fields(settings)
-        if getattr(settings, f.name) is not None
-    }

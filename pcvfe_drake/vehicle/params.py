@@ -27,6 +27,9 @@ G_MPS2 = 9.81
 """Gravitational acceleration used by the CommonRoad models [m/s^2]."""
 
 THETA_NAMES = ("mu", "C_Sf", "C_Sr")
+TRUTH_MODELS = ("st", "mb")
+"""Truth plant models: our single-track model (``single_track.py``), or CommonRoad's multi-body
+model (``mb_truth.py``): the scenario's ``truth_model`` and ``VehiclePlant``'s ``truth``."""
 """Order of the friction parameter vector theta used everywhere in the project."""
 
 

@@ -8,6 +8,7 @@ import json
 import pytest
 from pydrake.geometry import Meshcat, MeshcatParams
 
+from pcvfe_drake.contexts.clustering import ClusteringParams
 from pcvfe_drake.diagrams import run_simulation as run_module
 from pcvfe_drake.diagrams.run_simulation import RunFolder, run_simulation
 from pcvfe_drake.diagrams.scenario_io import load_scenario
@@ -19,7 +20,6 @@ from pcvfe_drake.diagrams.station import (
     MakeVehicleStation,
 )
 from pcvfe_drake.runs.drivelog import read_drive_log
-from pcvfe_drake.runs.scenario import ClusteringSettings
 
 
 def short_scenario(duration_s: float):
@@ -32,7 +32,7 @@ def short_scenario(duration_s: float):
         s,
         start_s_m=80.0,
         rates=dataclasses.replace(s.rates, recluster_period_s=5.0),
-        clustering=ClusteringSettings(min_cluster_duration_s=2.0, min_samples_duration_s=1.0),
+        clustering=ClusteringParams(min_cluster_duration_s=2.0, min_samples_duration_s=1.0),
     )
 
 
@@ -124,20 +124,18 @@ def test_ctrl_c_or_an_error_keeps_what_was_logged(tmp_path, monkeypatch, stop):
     assert result.figures["fig5_mu_over_time"]
 
 
-def test_every_fitter_setting_is_a_context_fitter_keyword():
-    from pcvfe_drake.runs.scenario import FitterSettings, settings_kwargs
-    from pcvfe_drake.systems.context_fitter import ContextFitter
-    from pcvfe_drake.vehicle.params import load_vehicle
+def test_the_scenario_configs_reach_the_systems():
+    """The diagram is built from the scenario's own configs, with the rates filled in."""
+    from pcvfe_drake.estimation.context_estimator import LiveFitConfig
 
-    values = FitterSettings(
-        horizon_steps=8,
-        stride_steps=4,
-        min_speed_mps=1.0,
-        fit_stiffness=False,
-        min_windows=10,
-        buffer_s=30.0,
-        noise_hold_s=0.5,
+    s = dataclasses.replace(
+        short_scenario(1.0),
+        fitter=LiveFitConfig(horizon_steps=8, stride_steps=4, min_windows=10, noise_hold_s=0.5),
     )
-    kwargs = settings_kwargs(values)
-    assert set(kwargs) == {f.name for f in dataclasses.fields(FitterSettings)}
-    ContextFitter(load_vehicle(None), period_s=1.0, sample_period_s=0.01, **kwargs)
+    s.nmpc.horizon = 30
+    s.rates.nmpc_period_s = 0.04
+    parts = MakeSimulation(s)
+    fitter = parts.diagram.GetSubsystemByName("fitter")
+    assert fitter._config == dataclasses.replace(s.fitter, sample_period_s=0.01)
+    nmpc = parts.diagram.GetSubsystemByName("nmpc")
+    assert (nmpc.controller.config.horizon, nmpc.controller.config.dt_s) == (30, 0.04)
