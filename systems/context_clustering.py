@@ -8,7 +8,13 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, Context, EventStatus, LeafSystem, State
 
-from pcvfe_drake.contexts.clustering import NOISE, ClusteringParams, ClusterTable, ContextClusterer
+from pcvfe_drake.contexts.clustering import (
+    NOISE,
+    ClusteringParams,
+    ClusterTable,
+    ContextClusterer,
+    StoredFeatures,
+)
 
 
 class ContextClustering(LeafSystem):
@@ -22,6 +28,7 @@ class ContextClustering(LeafSystem):
         output_ports:
         - context_id
         - cluster_table
+        - stored_features
 
     - ``features``: vector of ``feature_dim`` numbers, z(t) from ClipFeatures (any backend).
     - ``context_id``: 1-element vector, the current context id (an integer; -1 = noise or a
@@ -29,6 +36,8 @@ class ContextClustering(LeafSystem):
     - ``cluster_table``: abstract :class:`pcvfe_drake.contexts.clustering.ClusterTable` (id,
     centroid,
       size, first/last seen time of every context, vanished ones included).
+    - ``stored_features``: abstract :class:`pcvfe_drake.contexts.clustering.StoredFeatures`, a
+      copy of the bounded store (vectors, labels, times) for views; copied only when evaluated.
 
     Rates: a periodic unrestricted update every ``frame_period_s`` (default 1 / frame rate of
     ``params``, 0.1 s), at ``frame_offset_s`` after each period start (default 0), reads
@@ -96,6 +105,12 @@ class ContextClustering(LeafSystem):
             self._calc_table,
             prerequisites_of_calc={self.abstract_state_ticket(self._clusterer_index)},
         )
+        self._stored_port = self.DeclareAbstractOutputPort(
+            "stored_features",
+            lambda: AbstractValue.Make(StoredFeatures()),
+            self._calc_stored,
+            prerequisites_of_calc={self.abstract_state_ticket(self._clusterer_index)},
+        )
 
     @property
     def params(self) -> ClusteringParams:
@@ -135,3 +150,6 @@ class ContextClustering(LeafSystem):
 
     def _calc_table(self, context: Context, output: AbstractValue) -> None:
         output.set_value(self.clusterer(context).table())
+
+    def _calc_stored(self, context: Context, output: AbstractValue) -> None:
+        output.set_value(self.clusterer(context).stored())

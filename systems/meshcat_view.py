@@ -93,7 +93,8 @@ class MeshcatView(LeafSystem):
     # ------------------------------------------------------------------ static scene
     def _draw_static(self, context) -> None:
         mc = self._meshcat
-        mc.Delete(ROOT)
+        for part in ("ground", "reference", "car", "driven"):
+            mc.Delete(f"{ROOT}/{part}")
         self._trail = []
         self._chunks = 0
         self._markers = set()

@@ -69,6 +69,23 @@ class ClusterTable:
         raise KeyError(f"context_id {context_id!r} is not in the cluster table (ids {self.ids})")
 
 
+@dataclass
+class StoredFeatures:
+    """A copy of the clusterer's bounded store (for views and tools; never fed back).
+
+    Attributes:
+        z: (N, D) stored information vectors.
+        labels: (N,) their context ids as of the latest re-clustering or assignment (-1 noise).
+        t_s: (N,) times the frames were taken [s].
+        n_reclusterings: re-clusterings so far when the copy was taken.
+    """
+
+    z: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    labels: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    t_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    n_reclusterings: int = 0
+
+
 def match_centroids(
     previous: np.ndarray,
     epsilons: np.ndarray,

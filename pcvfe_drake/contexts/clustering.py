@@ -43,7 +43,12 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from pcvfe_drake.contexts.cluster_table import ClusterRecord, ClusterTable, match_centroids
+from pcvfe_drake.contexts.cluster_table import (
+    ClusterRecord,
+    ClusterTable,
+    StoredFeatures,
+    match_centroids,
+)
 from pcvfe_drake.contexts.clustering_params import NOISE, ClusteringParams
 from pcvfe_drake.contexts.density_gate import (
     GateIndex,
@@ -59,6 +64,7 @@ __all__ = [
     "ClusterTable",
     "ClusteringParams",
     "ContextClusterer",
+    "StoredFeatures",
     "detach_small_groups",
     "full_hdbscan_labels",
     "hdbscan_labels",
@@ -141,6 +147,16 @@ class ContextClusterer:
             n_reclusterings=self._n_reclusterings,
             n_stored=self.n_stored,
         )
+
+    def stored(self) -> StoredFeatures:
+        """A copy of the stored vectors with their labels and times."""
+        if self._dim is None:
+            return StoredFeatures(n_reclusterings=self._n_reclusterings)
+        used = self._used
+        return StoredFeatures(
+            z=self._x[used], labels=self._label[used], t_s=self._t[used],
+            n_reclusterings=self._n_reclusterings,
+        )  # fmt: skip
 
     # ----------------------------------------------------------------------------------------
     # Per-frame path

@@ -51,6 +51,11 @@ def test_fixed_input_forms_one_context_after_the_first_reclustering():
     assert rec.first_seen_s == pytest.approx(0.0)
     assert rec.last_seen_s == pytest.approx(10.2)
     assert rec.size == pytest.approx(103)  # frames at 0.0, 0.1, ..., 10.2
+    stored = system.GetOutputPort("stored_features").Eval(context)
+    assert stored.n_reclusterings == 1 and stored.z.shape[1] == 4
+    assert 0 < len(stored.z) <= 103 and np.all(stored.labels == 0)
+    np.testing.assert_allclose(stored.z, np.tile(z, (len(stored.z), 1)))
+    assert np.all(np.diff(np.sort(stored.t_s)) > 0) and stored.t_s.max() <= 10.2 + 1e-9
     # A corrupt frame (NaN) is reported as noise, not stored, and does not stop the simulation.
     system.get_input_port(0).FixValue(context, np.full(4, np.nan))
     simulator.AdvanceTo(10.35)
