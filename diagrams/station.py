@@ -12,21 +12,29 @@ port                  dir     meaning
 ``actuation``         input   (2) [steer_rate rad/s, accel m/s^2]
 ``state``             output  (7) ST state [sx, sy, delta, v, psi, psi_dot, beta] (SI units)
 ``image``             output  abstract Drake image of the downward camera (RGBA, 8 bit)
+``station_status``    output  abstract ``pcvfe_drake.hardware.watchdog.StationStatus``: whether
+                              ``state`` and ``image`` are live, and if not why (always ``ok``
+                              in simulation; the LCM station's watchdog fills it)
 ``true_mu``           output  (1) **sim only**: true friction coefficient under the car
 ``true_terrain``      output  (1) **sim only**: index of the true terrain (-1: none)
 ====================  ======  ===============================================================
 
-The hardware station will not have the sim-only ports (``SIM_ONLY_OUTPUTS``).
+The hardware station (``hardware_station.py``, ``hardware=True``) exports the same ports
+without the sim-only ones (``SIM_ONLY_OUTPUTS``); consumers connect a sim-only port only where
+``station.HasOutputPort(name)``.
 """
 
 from __future__ import annotations
 
 import dataclasses
 
+from pydrake.common.value import AbstractValue
 from pydrake.geometry import Meshcat
 from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import ConstantValueSource
 
 from pcvfe_drake.control.course import Course, initial_state, load_course
+from pcvfe_drake.hardware.watchdog import StationStatus
 from pcvfe_drake.perception.camera import CameraConfig
 from pcvfe_drake.perception.terrain import TerrainMap
 from pcvfe_drake.runs.scenario import Scenario, build_terrain_map
@@ -36,7 +44,7 @@ from pcvfe_drake.vehicle.params import load_vehicle
 
 STATION_INPUTS = ("actuation",)
 """Input ports of every station variant."""
-STATION_OUTPUTS = ("state", "image")
+STATION_OUTPUTS = ("state", "image", "station_status")
 """Output ports of every station variant."""
 SIM_ONLY_OUTPUTS = ("true_mu", "true_terrain")
 """Outputs of the simulated station only (ground truth a real car does not have)."""
@@ -54,6 +62,7 @@ def MakeVehicleStation(
     hardware: bool = False,
     terrain_map: TerrainMap | None = None,
     course: Course | None = None,
+    lcm_buses=None,
 ) -> Diagram:
     """The station diagram of ``scenario`` (named ``vehicle_station``; ports in the module doc).
 
@@ -61,19 +70,20 @@ def MakeVehicleStation(
         scenario: the scenario (vehicle, truth model, terrain layout, camera, rates, seed).
         meshcat: accepted so every station factory has the same signature; the simulated
             station draws nothing itself (``MakeSimulation`` adds the ``MeshcatView``).
-        hardware: True asks for the real-car station, which this version does not have.
+        hardware: True builds the LCM station instead (``hardware_station.py``): the same
+            ports without the sim-only ones, plus ``station_status``.
         terrain_map, course: already built ones to share (default: built from the scenario).
+        lcm_buses: (hardware only) ``pydrake.systems.lcm.LcmBuses`` to use instead of those of
+            the scenario's ``hardware.lcm_buses``.
 
     Subsystems: ``plant`` (VehiclePlant, its default state on the course at the scenario's
-    start_s_m and initial speed) and ``camera`` (TextureCamera).
+    start_s_m and initial speed), ``camera`` (TextureCamera) and ``status`` (a constant ``ok``
+    ``station_status``).
     """
     if hardware:
-        raise NotImplementedError(
-            "MakeVehicleStation(hardware=True): the hardware interface is not available in this "
-            "version; the hardware station (next step of the project) will export the same "
-            f"ports: inputs {list(STATION_INPUTS)}, outputs {list(STATION_OUTPUTS)} (the "
-            f"sim-only outputs {list(SIM_ONLY_OUTPUTS)} exist only in simulation)"
-        )
+        from pcvfe_drake.diagrams.hardware_station import MakeHardwareStation
+
+        return MakeHardwareStation(scenario, meshcat, lcm_buses=lcm_buses)
     params = load_vehicle(scenario.vehicle)
     terrain_map = terrain_map if terrain_map is not None else build_terrain_map(scenario)
     course = course if course is not None else load_course(scenario.course)
@@ -93,10 +103,14 @@ def MakeVehicleStation(
             seed=scenario.seed,
         ),
     )
+    status = builder.AddNamedSystem(
+        "status", ConstantValueSource(AbstractValue.Make(StationStatus(source="sim")))
+    )
     builder.Connect(plant.GetOutputPort("state"), camera.GetInputPort("state"))
     builder.ExportInput(plant.GetInputPort("actuation"), "actuation")
     builder.ExportOutput(plant.GetOutputPort("state"), "state")
     builder.ExportOutput(camera.GetOutputPort("image"), "image")
+    builder.ExportOutput(status.get_output_port(), "station_status")
     builder.ExportOutput(plant.GetOutputPort("true_mu"), "true_mu")
     builder.ExportOutput(plant.GetOutputPort("true_terrain"), "true_terrain")
     diagram = builder.Build()

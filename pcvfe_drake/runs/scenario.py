@@ -34,6 +34,7 @@ from pcvfe_drake.runs.scenario_files import (
     shipped_scenarios,
 )
 from pcvfe_drake.vehicle.params import TRUTH_MODELS
+from pcvfe_drake.hardware.settings import HardwareSettings, hardware_problems
 
 __all__ = [
     "DEFAULT_SCENARIO",
@@ -182,6 +183,9 @@ class Scenario:
     clustering: ClusteringParams = field(default_factory=ClusteringParams)
     fitter: LiveFitConfig = field(default_factory=LiveFitConfig)
     nmpc: NmpcConfig = field(default_factory=NmpcConfig)
+    hardware: HardwareSettings = field(default_factory=HardwareSettings)
+    """LCM buses, channels and watchdog limits of the hardware station and the vehicle bridge
+    (``pcvfe_drake.hardware.settings``; docs/hardware.md)."""
 
     def validate(self, source: str = "scenario") -> "Scenario":
         """Check every value; raise ValueError naming ``source`` and the field. Returns self."""
@@ -389,6 +393,7 @@ def scenario_problems(scenario: Scenario) -> list[str]:
         s.features.clip_threads,
         "must be an integer >= 1",
     )
+    problems.extend(hardware_problems(s.hardware))
     return problems
 
 

@@ -44,8 +44,6 @@ def test_station_exports_the_fixed_port_names():
     outputs = {station.get_output_port(i).get_name() for i in range(station.num_output_ports())}
     assert inputs == set(STATION_INPUTS) == {"actuation"}
     assert outputs == set(STATION_OUTPUTS) | set(SIM_ONLY_OUTPUTS)
-    with pytest.raises(NotImplementedError, match="hardware interface is not available"):
-        MakeVehicleStation(scenario, hardware=True)
 
 
 def test_closed_loop_discovers_contexts_fits_friction_and_tracks(tmp_path):

@@ -1,0 +1,121 @@
+"""The hardware vehicle station: the real car (or ``pcvfe vehicle-bridge``) over LCM.
+
+``MakeHardwareStation`` (called by ``MakeVehicleStation(scenario, meshcat, hardware=True)``)
+builds the station the way ``manipulation``'s hardware station does: ``ApplyLcmBusConfig`` from
+the scenario's ``hardware.lcm_buses``, an ``LcmSubscriberSystem`` / ``LcmPublisherSystem`` per
+channel, and small translator systems between LCM messages and the station's ports::
+
+    PCVFE_STATE     -> state_subscriber  -> state_receiver  --state-------------> (state)
+    PCVFE_IMAGE     -> image_subscriber  -> camera_receiver --image-------------> (image)
+    (actuation) -> actuation_sender -> actuation_publisher -> PCVFE_ACTUATION
+    state_receiver.status, camera_receiver.status -> status_monitor ----> (station_status)
+
+Exported ports: ``actuation`` in; ``state``, ``image``, ``station_status`` out: those of the
+simulated station minus its sim-only truth. The receivers' watchdogs and what the station does
+on each fault are described in ``docs/hardware.md``.
+
+The actuation is published at the NMPC's rate (``rates.nmpc_period_s``), ``publish_offset``
+one fifth of the watchdog period after each NMPC update, so each command leaves right after it
+is computed. The caller paces the simulator to wall-clock time (``hardware.realtime_rate``).
+"""
+
+from __future__ import annotations
+
+from drake import lcmt_image_array
+from pydrake.geometry import Meshcat
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.lcm import LcmBuses, LcmPublisherSystem, LcmSubscriberSystem
+
+from pcvfe_drake.diagrams.lcm_buses import scenario_lcm
+from pcvfe_drake.lcmtypes import lcmt_vehicle_actuation, lcmt_vehicle_state
+from pcvfe_drake.runs.scenario import Scenario
+from pcvfe_drake.systems.actuation_sender import ActuationSender
+from pcvfe_drake.systems.camera_receiver import CameraReceiver
+from pcvfe_drake.systems.station_status_monitor import StationStatusMonitor
+from pcvfe_drake.systems.vehicle_state_receiver import VehicleStateReceiver
+
+
+def MakeHardwareStation(
+    scenario: Scenario,
+    meshcat: Meshcat | None = None,
+    *,
+    lcm_buses: LcmBuses | None = None,
+) -> Diagram:
+    """The LCM station of ``scenario`` (named ``vehicle_station``).
+
+    Args:
+        scenario: its ``hardware`` settings (buses, channels, watchdog limits), ``rates``
+            (NMPC and camera periods) and ``camera`` (frame size of the blank frame).
+        meshcat: unused (same signature as the simulated station).
+        lcm_buses: already made buses (default: ``ApplyLcmBusConfig`` from the scenario).
+
+    Subsystems: ``state_subscriber``, ``state_receiver``, ``image_subscriber``,
+    ``camera_receiver``, ``actuation_sender``, ``actuation_publisher``, ``status_monitor``
+    (and ``LcmInterfaceSystem``s when the buses are made here).
+    """
+    hw = scenario.hardware
+    builder = DiagramBuilder()
+    lcm = scenario_lcm(hw, builder, lcm_buses, "MakeHardwareStation")
+    nmpc_period = scenario.rates.nmpc_period_s
+
+    state_sub = builder.AddNamedSystem(
+        "state_subscriber",
+        LcmSubscriberSystem.Make(channel=hw.state_channel, lcm_type=lcmt_vehicle_state, lcm=lcm),
+    )
+    state_rx = builder.AddNamedSystem(
+        "state_receiver",
+        VehicleStateReceiver(
+            period_s=hw.watchdog_period_s,
+            timeout_s=hw.state_timeout_s,
+            max_delay_s=hw.state_max_delay_s,
+        ),
+    )
+    builder.Connect(state_sub.get_output_port(), state_rx.GetInputPort("message"))
+
+    camera = scenario.camera
+    image_sub = builder.AddNamedSystem(
+        "image_subscriber",
+        LcmSubscriberSystem.Make(channel=hw.image_channel, lcm_type=lcmt_image_array, lcm=lcm),
+    )
+    camera_rx = builder.AddNamedSystem(
+        "camera_receiver",
+        CameraReceiver(
+            width_px=camera.width_px,
+            height_px=camera.height_px,
+            period_s=hw.watchdog_period_s,
+            timeout_s=hw.image_timeout_s,
+            max_delay_s=hw.image_max_delay_s,
+        ),
+    )
+    builder.Connect(image_sub.get_output_port(), camera_rx.GetInputPort("message"))
+
+    sender = builder.AddNamedSystem("actuation_sender", ActuationSender())
+    publisher = builder.AddNamedSystem(
+        "actuation_publisher",
+        LcmPublisherSystem.Make(
+            channel=hw.actuation_channel,
+            lcm_type=lcmt_vehicle_actuation,
+            lcm=lcm,
+            publish_period=nmpc_period,
+            publish_offset=hw.watchdog_period_s / 5.0,
+        ),
+    )
+    builder.Connect(state_rx.GetOutputPort("state_utime"), sender.GetInputPort("state_utime"))
+    builder.Connect(sender.GetOutputPort("message"), publisher.get_input_port())
+
+    monitor = builder.AddNamedSystem(
+        "status_monitor",
+        StationStatusMonitor(
+            state_timeout_s=hw.state_timeout_s, camera_timeout_s=hw.image_timeout_s
+        ),
+    )
+    builder.Connect(state_rx.GetOutputPort("status"), monitor.GetInputPort("state_status"))
+    builder.Connect(camera_rx.GetOutputPort("status"), monitor.GetInputPort("camera_status"))
+
+    builder.ExportInput(sender.GetInputPort("actuation"), "actuation")
+    builder.ExportOutput(state_rx.GetOutputPort("state"), "state")
+    builder.ExportOutput(camera_rx.GetOutputPort("image"), "image")
+    builder.ExportOutput(monitor.GetOutputPort("station_status"), "station_status")
+    diagram = builder.Build()
+    diagram.set_name("vehicle_station")
+    return diagram

@@ -1,0 +1,193 @@
+"""Message watchdog: what a station accepts from a stream of timestamped messages, and why not.
+
+A car's sensor streams fail in a few ways; :func:`check_message` turns each into a decision and
+:func:`stream_condition` into what the station outputs:
+
+==================  =====================================================================
+rejection           when
+==================  =====================================================================
+``non_finite``      a state with a NaN or infinite component
+``invalid``         the sender marked the message invalid (no fix, ...)
+``malformed``       the payload cannot be decoded (wrong size, unknown pixel format, ...)
+``out_of_order``    its timestamp is not newer than the newest accepted one (repeats too)
+``late``            its transport delay exceeds the smallest delay seen so far by more than
+                    ``max_delay_s`` (the sender's clock need not agree with the station's:
+                    only differences of delay count)
+==================  =====================================================================
+
+A rejected message never reaches the station's outputs; the output holds the last accepted one
+until ``timeout_s`` has passed without a new acceptance, then the stream's condition is
+``timeout`` (``waiting`` before the first acceptance) and the station outputs its safe value
+(NaN state, blank image). Every decision is counted in :class:`StreamStatus`.
+
+Plain Python (no pydrake): the receiver LeafSystems keep a :class:`StreamStatus` in abstract state.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+CONDITIONS = ("ok", "waiting", "timeout")
+"""What a stream's output is now: fresh data, nothing accepted yet, or no acceptance for longer
+than the timeout. The numeric code of a condition is its index."""
+
+REJECTIONS = ("non_finite", "invalid", "malformed", "out_of_order", "late")
+"""Reasons a message is rejected."""
+
+
+@dataclass(frozen=True)
+class StreamStatus:
+    """Bookkeeping of one message stream (immutable: every update returns a new one).
+
+    Times: ``*_t_s`` on the station's clock [s]; ``*_utime`` the sender's timestamps [us].
+    """
+
+    name: str = ""
+    last_seen_utime: int | None = None
+    """Timestamp of the newest message looked at (to tell a new message from a held one)."""
+    accepted_utime: int | None = None
+    """Timestamp of the newest accepted message."""
+    accepted_t_s: float = math.nan
+    """Station time at which the newest accepted message was taken."""
+    min_delay_s: float = math.inf
+    """Smallest (station time - sender time) of the accepted messages [s]."""
+    last_delay_s: float = math.nan
+    """Delay of the newest accepted message above ``min_delay_s`` [s]."""
+    accepted: int = 0
+    rejected: tuple[tuple[str, int], ...] = field(default_factory=tuple)
+    """Rejection counts by reason, as ``((reason, count), ...)``."""
+    last_rejection: str = ""
+    last_rejection_t_s: float = math.nan
+    timeouts: int = 0
+    """How many times the stream went from ``ok`` to ``timeout``."""
+    was_ok: bool = False
+
+    def rejected_count(self, reason: str | None = None) -> int:
+        """Rejections for ``reason`` (None: all)."""
+        return sum(n for r, n in self.rejected if reason is None or r == reason)
+
+    def age_s(self, t_s: float) -> float:
+        """Seconds since the newest acceptance (inf before the first)."""
+        return t_s - self.accepted_t_s if math.isfinite(self.accepted_t_s) else math.inf
+
+    def to_dict(self) -> dict:
+        return {
+            "accepted": self.accepted,
+            "rejected": dict(self.rejected),
+            "last_rejection": self.last_rejection,
+            "timeouts": self.timeouts,
+        }
+
+
+def _with_rejection(status: StreamStatus, reason: str, t_s: float) -> StreamStatus:
+    counts = dict(status.rejected)
+    counts[reason] = counts.get(reason, 0) + 1
+    return replace(
+        status,
+        rejected=tuple(sorted(counts.items())),
+        last_rejection=reason,
+        last_rejection_t_s=t_s,
+    )
+
+
+def is_new(status: StreamStatus, utime: int) -> bool:
+    """True when a message with timestamp ``utime`` has not been looked at yet (a subscriber
+    holds its latest message, so the same one is seen on every check until another arrives)."""
+    return status.last_seen_utime is None or int(utime) != status.last_seen_utime
+
+
+def check_message(
+    status: StreamStatus,
+    t_s: float,
+    utime: int,
+    *,
+    problem: str = "",
+    max_delay_s: float,
+) -> tuple[StreamStatus, bool]:
+    """Decide on a new message with timestamp ``utime`` [us] taken at station time ``t_s``.
+
+    ``problem`` is a rejection reason the caller found in the payload (``"non_finite"``,
+    ``"invalid"``, ``"malformed"``; empty: none). Returns the new status and whether the message
+    is accepted.
+    """
+    utime = int(utime)
+    status = replace(status, last_seen_utime=utime)
+    if problem:
+        if problem not in REJECTIONS:
+            raise ValueError(f"unknown rejection reason {problem!r} (known: {REJECTIONS})")
+        return _with_rejection(status, problem, t_s), False
+    if status.accepted_utime is not None and utime <= status.accepted_utime:
+        return _with_rejection(status, "out_of_order", t_s), False
+    delay = t_s - utime * 1e-6
+    if math.isfinite(status.min_delay_s) and delay - status.min_delay_s > max_delay_s:
+        return _with_rejection(status, "late", t_s), False
+    return (
+        replace(
+            status,
+            accepted_utime=utime,
+            accepted_t_s=t_s,
+            min_delay_s=min(status.min_delay_s, delay),
+            last_delay_s=max(0.0, delay - min(status.min_delay_s, delay)),
+            accepted=status.accepted + 1,
+        ),
+        True,
+    )
+
+
+def stream_condition(status: StreamStatus, t_s: float, timeout_s: float) -> str:
+    """``"ok"``, ``"waiting"`` (nothing accepted yet) or ``"timeout"`` at station time ``t_s``."""
+    if status.accepted_utime is None:
+        return "waiting"
+    return "ok" if status.age_s(t_s) <= timeout_s else "timeout"
+
+
+def note_condition(status: StreamStatus, condition: str) -> StreamStatus:
+    """Count a transition from ``ok`` to ``timeout`` (call on every check)."""
+    ok = condition == "ok"
+    if status.was_ok and condition == "timeout":
+        return replace(status, was_ok=False, timeouts=status.timeouts + 1)
+    if ok != status.was_ok:
+        return replace(status, was_ok=ok)
+    return status
+
+
+@dataclass(frozen=True)
+class StationStatus:
+    """What the station's ``station_status`` output says: each stream's condition now and its
+    counts. The simulated and replay stations report ``ok`` streams with no counts."""
+
+    state: str = "ok"
+    """Condition of the state stream (one of :data:`CONDITIONS`)."""
+    camera: str = "ok"
+    """Condition of the camera stream."""
+    streams: tuple[StreamStatus, ...] = ()
+    source: str = "sim"
+    """Which station: ``"sim"``, ``"lcm"`` or ``"replay"``."""
+
+    @property
+    def ok(self) -> bool:
+        return self.state == "ok" and self.camera == "ok"
+
+    def reason(self) -> str:
+        """One line: ``"ok"`` or what is wrong (``"state timeout (last rejection: late)"``)."""
+        parts = []
+        by_name = {s.name: s for s in self.streams}
+        for name, cond in (("state", self.state), ("camera", self.camera)):
+            if cond != "ok":
+                last = by_name.get(name)
+                why = (
+                    f" (last rejection: {last.last_rejection})"
+                    if last and last.last_rejection
+                    else ""
+                )
+                parts.append(f"{name} {cond}{why}")
+        return "; ".join(parts) if parts else "ok"
+
+    def to_dict(self) -> dict:
+        return {
+            "source": self.source,
+            "state": self.state,
+            "camera": self.camera,
+            "streams": {s.name: s.to_dict() for s in self.streams},
+        }
