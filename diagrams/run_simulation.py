@@ -53,6 +53,8 @@ class SimulationResult:
     figure_notes: dict[str, str] = field(default_factory=dict)
     playback: Path | None = None
     log_errors: list[str] = field(default_factory=list)
+    log: Any = None
+    """The run log as a pandas DataFrame (drive-log columns, ``final_context`` included)."""
 
 
 class LapProgress:
@@ -226,6 +228,7 @@ def run_simulation(
     summary["nmpc_fallbacks"] = int(getattr(diag, "fallback_count", 0))
     summary["nmpc_updates"] = int(getattr(diag, "updates", 0))
     result.summary = summary
+    result.log = log
     if folder is not None and write_outputs:
         x0, x1, y0, y1 = terrain_map.bounds_m
         map_image = render_topdown(terrain_map, px_per_m=2.0)

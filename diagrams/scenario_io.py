@@ -39,6 +39,14 @@ def _number(value):
     return None
 
 
+def schema_problems(schema, data) -> tuple[dict, list[str]]:
+    """YAML ``data`` checked against dataclass ``schema``: the data with numbers typed, and every
+    problem naming the dotted field (``sources[1].overrides.nmpc.model``). Also used for
+    experiment files."""
+    problems: list[str] = []
+    return _normalise(schema, data, "", problems), problems
+
+
 def _normalise(schema, data, prefix: str, problems: list[str]):
     """``data`` checked against dataclass ``schema`` (problems appended) with numbers typed."""
     if not isinstance(data, dict):
@@ -66,8 +74,13 @@ def _normalise_value(hint, value, name: str, problems: list[str]):
         args = typing.get_args(hint)
         if value is None and type(None) in args:
             return None
-        (inner,) = [a for a in args if a is not type(None)]
-        return _normalise_value(inner, value, name, problems)
+        inner = [a for a in args if a is not type(None)]
+        if len(inner) > 1:  # a union of scalars (an experiment's override value)
+            if not isinstance(value, tuple(inner)):
+                names = " or ".join(a.__name__ for a in inner)
+                problems.append(f"field {name!r} must be {names}, got {value!r}")
+            return value
+        return _normalise_value(inner[0], value, name, problems)
     if dataclasses.is_dataclass(hint):
         return _normalise(hint, value, f"{name}.", problems)
     if origin is list:
@@ -76,6 +89,12 @@ def _normalise_value(hint, value, name: str, problems: list[str]):
             return value
         (item,) = typing.get_args(hint)
         return [_normalise_value(item, v, f"{name}[{i}]", problems) for i, v in enumerate(value)]
+    if origin is dict:
+        if not isinstance(value, dict):
+            problems.append(f"field {name!r} must be a mapping, got {value!r}")
+            return value
+        _, item = typing.get_args(hint)
+        return {k: _normalise_value(item, v, f"{name}.{k}", problems) for k, v in value.items()}
     expected = {bool: "a boolean", int: "an integer", float: "a number", str: "a string"}
     if hint in (int, float) and _number(value) is not None:
         value = _number(value)

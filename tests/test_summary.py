@@ -132,6 +132,13 @@ def test_missed_reidentification_and_failures_are_counted(course):
     assert s["reidentifications_missed"] == 1
     assert s["catastrophic_failures"] == 3
     assert s["max_abs_lateral_error_m"] > 3.0
+    events = s["failure_events"]
+    assert [e["kind"] for e in events] == ["off_course", "off_course", "spin"]
+    t = log["t"].to_numpy()
+    for e, t0 in zip(events, (20.0, 40.0, 60.0), strict=True):
+        k = int(np.argmax(t >= t0))
+        assert e["t_s"] == pytest.approx(t[k])
+        assert (e["sx_m"], e["sy_m"]) == pytest.approx((log["sx"][k], log["sy"][k]))
     json.dumps(s, allow_nan=False)
 
 
@@ -141,6 +148,9 @@ def test_nan_state_is_a_failure_and_estimate_table_wins(course):
     table = [{"id": 0, "mu": 0.31, "mu_std": 0.004, "samples": 1234}]
     s = summarize(log, course, wall_time_s=1.0, estimate_table=table, interrupted=True)
     assert s["catastrophic_failures"] == 1
+    (event,) = s["failure_events"]
+    assert event["kind"] == "non_finite" and event["t_s"] == log["t"][100]
+    assert (event["sx_m"], event["sy_m"]) == (log["sx"][99], log["sy"][99])
     assert s["interrupted"] is True
     e0 = next(e for e in s["mu_estimates"] if e["id"] == 0)
     assert (e0["mu_hat"], e0["std"], e0["samples"]) == (0.31, 0.004, 1234)

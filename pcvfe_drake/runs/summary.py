@@ -11,7 +11,8 @@ dict written as ``summary.json``:
   projection of the driven path onto the course; ``mean_speed_mps``.
 - ``catastrophic_failures``: number of events where the car left the course by more than its
   half width, spun (|beta| > ``SPIN_BETA_RAD`` or heading error > 90 deg) or had a non-finite
-  state; ``max_abs_lateral_error_m``, ``lateral_error_rms_m``.
+  state; ``failure_events`` (time, place and kind of each); ``max_abs_lateral_error_m``,
+  ``lateral_error_rms_m``.
 - Context discovery (``pcvfe_drake.contexts.metrics``; transition-strip terrains excluded): ``ari``,
   ``contexts_discovered``, ``true_terrains_visited``, ``noise_fraction``,
   ``reidentification_latency_s`` (one entry per re-entry of a terrain that already had an id),
@@ -122,7 +123,27 @@ def course_tracking(log: pd.DataFrame, course) -> dict[str, Any]:
     failure = ~finite | spin | off_course
     out["catastrophic_failures"] = _rising_edges(failure)
     out["failure_time_s"] = float(np.sum(sample_weights(t)[failure]))
+    out["failure_events"] = failure_events(t, xy, failure, ~finite, spin, off_course)
     return out
+
+
+def failure_events(t_s, xy_m, failure, non_finite, spin, off_course) -> list[dict[str, Any]]:
+    """One entry per catastrophic failure (rising edge of ``failure``): its time ``t_s``, the
+    place ``sx_m``, ``sy_m`` (the last finite position at or before it) and ``kind``
+    (``non_finite``, ``spin`` or ``off_course``, the first that holds in that order)."""
+    failure = np.asarray(failure, dtype=bool)
+    starts = np.flatnonzero(failure & ~np.concatenate([[False], failure[:-1]]))
+    finite_rows = np.flatnonzero(np.all(np.isfinite(xy_m), axis=1))
+    events = []
+    for k in starts:
+        before = finite_rows[finite_rows <= k]
+        x, y = (xy_m[before[-1]] if before.size else (math.nan, math.nan))
+        kind = "non_finite" if non_finite[k] else ("spin" if spin[k] else "off_course")
+        events.append(
+            {"t_s": float(t_s[k]), "sx_m": _finite_or_none(x), "sy_m": _finite_or_none(y),
+             "kind": kind}
+        )
+    return events
 
 
 def mu_estimates(

@@ -1,0 +1,122 @@
+"""Loading experiment YAML files (``pcvfe evaluate``) and expanding them into run specs.
+
+The dataclasses live in the core (``pcvfe_drake.evaluation.experiment``); the loader lives here
+because it uses ``pydrake.common.yaml.yaml_load_typed``. Errors name the file and the dotted
+field. :func:`run_specs` loads each scenario of the experiment, applies the experiment's and the
+source's overrides, the seed and the run length, and validates the result with the scenario
+loader, so every run of the grid is checked before anything is submitted.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import yaml
+from pydrake.common.yaml import yaml_load_typed
+
+from pcvfe_drake.diagrams.scenario_io import (
+    load_scenario,
+    scenario_from_yaml_text,
+    schema_problems,
+)
+from pcvfe_drake.evaluation.experiment import (
+    Experiment,
+    RunSpec,
+    apply_overrides,
+    experiment_problems,
+    resolve_experiment_path,
+    run_id,
+    spec_hash,
+)
+from pcvfe_drake.runs.scenario import resolve_scenario_path
+
+
+def experiment_from_yaml_text(text: str, source: str = "<string>") -> Experiment:
+    """Parse experiment YAML ``text``; errors name ``source`` and the offending field."""
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{source}: not valid YAML: {exc}") from exc
+    if raw is None:
+        raw = {}
+    data, problems = schema_problems(Experiment, raw)
+    if problems:
+        raise ValueError(f"{source}: malformed experiment: " + "; ".join(problems))
+    try:
+        exp = yaml_load_typed(schema=Experiment, data=yaml.safe_dump(data))
+    except (RuntimeError, ValueError, TypeError) as exc:
+        raise ValueError(f"{source}: malformed experiment: {exc}") from exc
+    problems = experiment_problems(exp)
+    if problems:
+        raise ValueError(f"{source}: invalid experiment: " + "; ".join(problems))
+    return exp
+
+
+def load_experiment(path_or_name: str | Path) -> tuple[Experiment, Path]:
+    """Load an experiment file or shipped experiment name; returns it and its path."""
+    path = resolve_experiment_path(path_or_name)
+    return experiment_from_yaml_text(path.read_text(), source=str(path)), path
+
+
+def _scenario_path(entry: str, experiment_path: Path) -> Path:
+    candidate = Path(entry).expanduser()
+    if not candidate.is_absolute() and (experiment_path.parent / candidate).is_file():
+        return (experiment_path.parent / candidate).resolve()
+    return resolve_scenario_path(entry)
+
+
+def run_specs(
+    exp: Experiment,
+    experiment_path: str | Path,
+    *,
+    seeds: int | None = None,
+    quick: bool = False,
+) -> list[RunSpec]:
+    """Every run of the grid (scenario x source x seed), validated; order: seed-major.
+
+    ``seeds`` replaces the experiment's seed count; ``quick`` uses ``exp.quick`` (its seed count
+    unless ``seeds`` is given, and its duration).
+    """
+    experiment_path = Path(experiment_path)
+    if seeds is not None and seeds < 1:
+        raise ValueError(f"--seeds must be >= 1, got {seeds}")
+    n_seeds = seeds if seeds is not None else (exp.quick.seeds if quick else exp.seeds)
+    duration_s = exp.quick.duration_s if quick else exp.duration_s
+    laps = None if quick else exp.laps
+    per_seed: list[list[RunSpec]] = [[] for _ in range(n_seeds)]
+    for i, entry in enumerate(exp.scenarios):
+        try:
+            base = load_scenario(_scenario_path(entry, experiment_path))
+        except (ValueError, FileNotFoundError) as exc:
+            raise ValueError(f"{experiment_path}: scenarios[{i}]={entry!r}: {exc}") from exc
+        if duration_s is not None or laps is not None:
+            base = base.with_run_length(laps=laps, duration_s=duration_s)
+        base_dict = base.to_dict()
+        for j, src in enumerate(exp.sources):
+            where = f"{experiment_path}: sources[{j}] ({src.name}) on scenarios[{i}] ({base.name})"
+            merged = apply_overrides(base_dict, exp.overrides, f"{experiment_path}: overrides")
+            merged = apply_overrides(merged, src.overrides, where)
+            checked = scenario_from_yaml_text(yaml.safe_dump(merged), source=where)
+            for k, seed in enumerate(exp.seed_list(n_seeds)):
+                scenario = dataclasses.replace(checked, seed=seed).to_dict()
+                per_seed[k].append(
+                    RunSpec(
+                        run_id=run_id(base.name, src.name, seed),
+                        experiment=exp.name,
+                        scenario_name=base.name,
+                        source=src.name,
+                        seed=seed,
+                        scenario=scenario,
+                        spec_hash=spec_hash(scenario),
+                    )
+                )
+    specs = [s for group in per_seed for s in group]
+    ids = [s.run_id for s in specs]
+    dupes = sorted({i for i in ids if ids.count(i) > 1})
+    if dupes:
+        raise ValueError(
+            f"{experiment_path}: two scenarios share a name, so runs collide: {dupes[:3]} "
+            "(give each scenario file its own `name`)"
+        )
+    return specs

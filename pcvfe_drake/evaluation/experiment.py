@@ -1,0 +1,221 @@
+"""Experiment files of ``pcvfe evaluate``: a grid of scenario x friction source x seed (no pydrake).
+
+An experiment names the scenarios to run, the friction sources to compare (each one a set of
+scenario overrides, e.g. ``estimator: ukf`` or ``nmpc.model: ks``), how many seeds, how long each
+run lasts and overrides shared by every run. It is a YAML file loaded into :class:`Experiment`
+with ``pydrake.common.yaml.yaml_load_typed`` by ``pcvfe_drake.diagrams.experiment_io`` (the core
+never imports pydrake). Like the scenario module, this one does not use
+``from __future__ import annotations``: ``yaml_load_typed`` needs real types in the fields.
+
+Overrides are a flat mapping from a dotted scenario field to a value
+(``{nmpc.model: ks, fitter.buffer_s: 20}``); they are applied to the scenario's YAML mapping and
+the result is loaded and validated as a scenario, so a bad override gets the scenario loader's
+error naming the field. Every run of the grid is a :class:`RunSpec`: the complete scenario it
+runs (as a mapping, seed and run length included), so a worker needs nothing but the spec.
+
+Shipped experiments live in ``pcvfe_drake/data/experiments/<name>.yaml``.
+"""
+
+import copy
+import dataclasses
+import hashlib
+import json
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+EXPERIMENT_DIR = Path(__file__).resolve().parents[1] / "data" / "experiments"
+"""Folder of the shipped experiment files."""
+
+OverrideValue = bool | int | float | str
+"""Value of one scenario override (a YAML scalar)."""
+
+
+@dataclass
+class Source:
+    """One friction source (method) of the comparison: a name and the overrides that select it."""
+
+    name: str = ""
+    """Short name used in tables and plots (letters, digits, ``_`` and ``-``)."""
+    description: str = ""
+    overrides: dict[str, OverrideValue] = field(default_factory=dict)
+    """Dotted scenario field -> value, applied after the experiment's own overrides."""
+
+
+@dataclass
+class QuickSettings:
+    """What ``--quick`` changes: fewer seeds and shorter runs, for a first look."""
+
+    seeds: int = 2
+    duration_s: float = 30.0
+    """Simulated time of each quick run [s] (replaces laps / duration_s of the experiment)."""
+
+
+@dataclass
+class Experiment:
+    """A comparison grid. Every field has a default except what makes a grid: sources."""
+
+    name: str = "experiment"
+    description: str = ""
+    scenarios: list[str] = field(default_factory=lambda: ["paper_sim"])
+    """Shipped scenario names or YAML files (relative paths: relative to the experiment file)."""
+    sources: list[Source] = field(default_factory=list)
+    reference: str = ""
+    """The source every other one is compared with, seed by seed (default: the first source)."""
+    seeds: int = 10
+    """Number of seeds per scenario and source: ``first_seed`` .. ``first_seed + seeds - 1``."""
+    first_seed: int = 0
+    laps: float | None = None
+    """Laps per run (None: the scenario's own run length unless ``duration_s`` is given)."""
+    duration_s: float | None = None
+    """Simulated time per run [s]; takes precedence over ``laps``."""
+    overrides: dict[str, OverrideValue] = field(default_factory=dict)
+    """Overrides applied to every run (before the source's own)."""
+    plot_seed: int | None = None
+    """The seed whose mu_hat over time the report plots for every source (None: first_seed)."""
+    quick: QuickSettings = field(default_factory=QuickSettings)
+
+    @property
+    def reference_source(self) -> str:
+        return self.reference or (self.sources[0].name if self.sources else "")
+
+    def seed_list(self, seeds: int | None = None) -> list[int]:
+        n = self.seeds if seeds is None else int(seeds)
+        return list(range(self.first_seed, self.first_seed + n))
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]*$")
+
+
+def _positive(x) -> bool:
+    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x) and x > 0
+
+
+def experiment_problems(exp: Experiment) -> list[str]:
+    """Every problem with the values of ``exp`` as ``"field=value: reason"`` strings."""
+    problems: list[str] = []
+
+    def need(ok: bool, name: str, value, reason: str) -> None:
+        if not ok:
+            problems.append(f"{name}={value!r}: {reason}")
+
+    need(bool(_NAME_RE.match(exp.name)), "name", exp.name, "letters, digits, '_' or '-' only")
+    need(len(exp.scenarios) > 0, "scenarios", exp.scenarios, "name at least one scenario")
+    for i, s in enumerate(exp.scenarios):
+        need(bool(str(s).strip()), f"scenarios[{i}]", s, "must not be empty")
+    need(len(exp.sources) > 0, "sources", exp.sources, "name at least one friction source")
+    names = [s.name for s in exp.sources]
+    for i, s in enumerate(exp.sources):
+        need(
+            bool(_NAME_RE.match(s.name)),
+            f"sources[{i}].name",
+            s.name,
+            "letters, digits, '_' or '-' only",
+        )
+        need(names.count(s.name) == 1, f"sources[{i}].name", s.name, "used by two sources")
+    if exp.reference:
+        need(exp.reference in names, "reference", exp.reference, f"must be one of {names}")
+    need(
+        isinstance(exp.seeds, int) and exp.seeds >= 1, "seeds", exp.seeds, "must be an integer >= 1"
+    )
+    need(
+        isinstance(exp.first_seed, int) and exp.first_seed >= 0,
+        "first_seed",
+        exp.first_seed,
+        "must be an integer >= 0",
+    )
+    if exp.laps is not None:
+        need(_positive(exp.laps), "laps", exp.laps, "must be > 0")
+    if exp.duration_s is not None:
+        need(_positive(exp.duration_s), "duration_s", exp.duration_s, "must be > 0")
+    need(
+        isinstance(exp.quick.seeds, int) and exp.quick.seeds >= 1,
+        "quick.seeds",
+        exp.quick.seeds,
+        "must be an integer >= 1",
+    )
+    need(_positive(exp.quick.duration_s), "quick.duration_s", exp.quick.duration_s, "must be > 0")
+    if exp.plot_seed is not None:
+        need(
+            isinstance(exp.plot_seed, int) and exp.plot_seed >= 0,
+            "plot_seed",
+            exp.plot_seed,
+            "must be an integer >= 0",
+        )
+    return problems
+
+
+def apply_overrides(scenario: dict, overrides: dict[str, Any], source: str) -> dict:
+    """A copy of the scenario mapping ``scenario`` with the dotted ``overrides`` set.
+
+    A path whose parent is not a mapping of the scenario raises ValueError naming ``source``
+    and the field (unknown leaf names are left to the scenario loader, which lists the known).
+    """
+    out = copy.deepcopy(scenario)
+    for dotted, value in overrides.items():
+        parts = str(dotted).split(".")
+        node = out
+        for depth, part in enumerate(parts[:-1]):
+            child = node.get(part) if isinstance(node, dict) else None
+            if not isinstance(child, dict):
+                where = ".".join(parts[: depth + 1])
+                groups = ", ".join(k for k, v in out.items() if isinstance(v, dict))
+                raise ValueError(
+                    f"{source}: override {dotted!r}: {where!r} is not a group of scenario "
+                    f"fields (groups: {groups})"
+                )
+            node = child
+        node[parts[-1]] = value
+    return out
+
+
+def spec_hash(scenario: dict) -> str:
+    """Short hash of a complete scenario mapping: a run is the same run iff this is equal."""
+    text = json.dumps(scenario, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run of a grid: everything a worker needs (the scenario as a complete mapping)."""
+
+    run_id: str
+    experiment: str
+    scenario_name: str
+    source: str
+    seed: int
+    scenario: dict = field(hash=False, compare=False)
+    spec_hash: str = ""
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def run_id(scenario_name: str, source: str, seed: int) -> str:
+    """The folder name of a run: ``<scenario>__<source>__s<seed>``."""
+    safe = re.sub(r"[^A-Za-z0-9_-]+", "-", scenario_name)
+    return f"{safe}__{source}__s{seed:03d}"
+
+
+def shipped_experiments() -> list[str]:
+    """Names of the experiments shipped in ``pcvfe_drake/data/experiments``."""
+    return sorted(p.stem for p in EXPERIMENT_DIR.glob("*.yaml"))
+
+
+def resolve_experiment_path(path_or_name: str | Path) -> Path:
+    """The YAML file of an experiment given as a path or a shipped experiment name."""
+    candidate = Path(path_or_name).expanduser()
+    if candidate.is_file():
+        return candidate.resolve()
+    shipped = EXPERIMENT_DIR / f"{path_or_name}.yaml"
+    if shipped.is_file():
+        return shipped
+    raise FileNotFoundError(
+        f"experiment {str(path_or_name)!r} is neither a file nor a shipped experiment "
+        f"(shipped: {', '.join(shipped_experiments()) or 'none'})"
+    )

@@ -1,0 +1,280 @@
+"""The report of an experiment, rebuilt from the stored tables (``pcvfe evaluate --report DIR``).
+
+:func:`build_report` reads a results folder (``pcvfe_drake.evaluation.store``) and writes
+``report.md`` and ``report.html`` (standalone: figures embedded) with
+
+- per scenario, the table per source: every metric of ``tables.METRICS`` that the runs have, as
+  the mean over seeds with its 95 % confidence interval, and the paired difference to the
+  reference source (PC-VFE in the shipped experiment) seed by seed, with its interval;
+- the per-seed differences of mean speed and failures;
+- the figures (``figures/``): speed and failure bars with intervals, mu_hat over time of every
+  source on one seed, and the map of failures;
+- failed runs with their errors, and the experiment as run with the package versions.
+
+No pydrake: the report needs only this folder.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from pcvfe_drake.evaluation import plots
+from pcvfe_drake.evaluation.stats import LEVEL, mean_ci, paired_differences
+from pcvfe_drake.evaluation.store import ResultStore
+from pcvfe_drake.evaluation.tables import METRICS
+
+
+@dataclass
+class _Doc:
+    """A report as blocks, rendered both as Markdown and as HTML."""
+
+    blocks: list[tuple] = field(default_factory=list)
+
+    def h(self, level: int, text: str) -> None:
+        self.blocks.append(("h", level, text))
+
+    def p(self, text: str) -> None:
+        self.blocks.append(("p", text))
+
+    def table(self, header: list[str], rows: list[list[str]]) -> None:
+        self.blocks.append(("table", header, rows))
+
+    def image(self, path: Path, alt: str) -> None:
+        self.blocks.append(("image", path, alt))
+
+    def code(self, text: str) -> None:
+        self.blocks.append(("code", text))
+
+    def markdown(self, root: Path) -> str:
+        out = []
+        for b in self.blocks:
+            if b[0] == "h":
+                out.append(f"{'#' * b[1]} {b[2]}\n")
+            elif b[0] == "p":
+                out.append(f"{b[1]}\n")
+            elif b[0] == "table":
+                out.append("| " + " | ".join(b[1]) + " |")
+                out.append("|" + "---|" * len(b[1]))
+                out.extend("| " + " | ".join(r) + " |" for r in b[2])
+                out.append("")
+            elif b[0] == "image":
+                out.append(f"![{b[2]}]({b[1].relative_to(root).as_posix()})\n")
+            elif b[0] == "code":
+                out.append(f"```\n{b[1].rstrip()}\n```\n")
+        return "\n".join(out)
+
+    def html(self, title: str) -> str:
+        esc = html.escape
+        out = [
+            "<!doctype html><html><head><meta charset='utf-8'>",
+            f"<title>{esc(title)}</title><style>body{{font-family:sans-serif;max-width:1200px;"
+            "margin:2em auto}}table{{border-collapse:collapse;margin:1em 0}}td,th{{border:1px "
+            "solid #ccc;padding:3px 8px;text-align:right}}th{{background:#f3f3f3}}"
+            "img{{max-width:100%}}pre{{background:#f6f6f6;padding:1em;overflow:auto}}</style>",
+            "</head><body>",
+        ]
+        for b in self.blocks:
+            if b[0] == "h":
+                out.append(f"<h{b[1]}>{esc(b[2])}</h{b[1]}>")
+            elif b[0] == "p":
+                out.append(f"<p>{esc(b[1])}</p>")
+            elif b[0] == "table":
+                out.append("<table><tr>" + "".join(f"<th>{esc(c)}</th>" for c in b[1]) + "</tr>")
+                out.extend(
+                    "<tr>" + "".join(f"<td>{esc(c)}</td>" for c in r) + "</tr>" for r in b[2]
+                )
+                out.append("</table>")
+            elif b[0] == "image":
+                data = base64.b64encode(b[1].read_bytes()).decode()
+                out.append(f"<p><img alt='{esc(b[2])}' src='data:image/png;base64,{data}'></p>")
+            elif b[0] == "code":
+                out.append(f"<pre>{esc(b[1])}</pre>")
+        out.append("</body></html>")
+        return "\n".join(out)
+
+
+def _fmt(x: float) -> str:
+    if x is None or not math.isfinite(x):
+        return "-"
+    if x == 0:
+        return "0"
+    return f"{x:.3g}" if abs(x) < 1000 else f"{x:.0f}"
+
+
+def _cell(values) -> str:
+    ci = mean_ci(values)
+    if ci.n == 0:
+        return "-"
+    if ci.n == 1 or not math.isfinite(ci.lo):
+        return f"{_fmt(ci.mean)} (n=1)"
+    return f"{_fmt(ci.mean)} [{_fmt(ci.lo)}, {_fmt(ci.hi)}]"
+
+
+def _sources(store: ResultStore, runs: pd.DataFrame) -> list[str]:
+    names = [s.get("name") for s in store.experiment_dict().get("sources") or []]
+    seen = [s for s in names if s in set(runs["source"])]
+    return seen + [s for s in dict.fromkeys(runs["source"]) if s not in seen]
+
+
+def _reference(store: ResultStore, sources: list[str]) -> str:
+    ref = store.experiment_dict().get("reference") or ""
+    return ref if ref in sources else (sources[0] if sources else "")
+
+
+def _label(m) -> str:
+    arrow = "higher is better" if m.better == "higher" else "lower is better"
+    unit = f" [{m.unit}]" if m.unit else ""
+    return f"{m.label}{unit} ({arrow})"
+
+
+def _scenario_maps(store: ResultStore, runs: pd.DataFrame) -> dict:
+    """Per scenario: terrain map image, its bounds and the course polyline (from a run's
+    scenario.yaml)."""
+    from pcvfe_drake.control.course import load_course
+    from pcvfe_drake.perception.ground_render import render_topdown
+    from pcvfe_drake.runs.scenario import Scenario, build_terrain_map
+
+    maps = {}
+    for sc, group in runs.groupby("scenario"):
+        path = store.run_dir(group["run_id"].iloc[0]) / "scenario.yaml"
+        if not path.is_file():
+            continue
+        raw = yaml.safe_load(path.read_text()) or {}
+        scenario = Scenario(
+            course=raw.get("course", "slalom"), terrain_layout=raw.get("terrain_layout", "paper")
+        )
+        try:
+            terrain = build_terrain_map(scenario)
+            image = render_topdown(terrain, px_per_m=2.0)
+            bounds = terrain.bounds_m
+            course = load_course(scenario.course)
+        except (ValueError, FileNotFoundError):
+            continue
+        maps[sc] = (image, bounds, np.column_stack([course.x, course.y]))
+    return maps
+
+
+def build_report(root: str | Path) -> tuple[Path, Path]:
+    """Write ``report.md``, ``report.html`` and ``figures/`` of the results folder ``root``."""
+    store = ResultStore(root)
+    if not store.exists():
+        raise FileNotFoundError(
+            f"{store.root}: no runs.parquet here; run `pcvfe evaluate EXPERIMENT --out "
+            f"{store.root}` first"
+        )
+    runs = store.table("runs")
+    exp = store.experiment_dict()
+    sources = _sources(store, runs)
+    ref = _reference(store, sources)
+    done = runs[runs["status"] == "done"]
+    failed = runs[runs["status"] != "done"]
+    metrics = [m for m in METRICS if np.isfinite(done[m.column].astype(float)).any()]
+    missing = [m.label for m in METRICS if m not in metrics]
+    store.figures.mkdir(parents=True, exist_ok=True)
+
+    doc = _Doc()
+    name = exp.get("name", store.root.name)
+    doc.h(1, f"Experiment {name}")
+    if exp.get("description"):
+        doc.p(exp["description"])
+    doc.p(
+        f"{len(runs)} runs: {len(done)} done, {len(failed)} failed; scenarios "
+        f"{', '.join(sorted(runs['scenario'].unique()))}; sources {', '.join(sources)}; seeds "
+        f"{', '.join(str(s) for s in sorted(runs['seed'].unique()))}. Every cell is the mean over "
+        f"seeds with its {LEVEL:.0%} confidence interval (Student t) in brackets; differences are "
+        f"paired by seed against {ref}."
+    )
+    if missing:
+        doc.p(f"Not in these runs' summary.json (not shown): {', '.join(missing)}.")
+    for sc in sorted(done["scenario"].unique()):
+        here = done[done["scenario"] == sc]
+        doc.h(2, f"Scenario {sc}")
+        header = ["source", "runs"] + [_label(m) for m in metrics]
+        rows = []
+        for src in sources:
+            r = here[here["source"] == src]
+            n_failed = int(((failed["scenario"] == sc) & (failed["source"] == src)).sum())
+            count = f"{len(r)}" + (f" (+{n_failed} failed)" if n_failed else "")
+            rows.append([src, count] + [_cell(r[m.column].astype(float)) for m in metrics])
+        doc.table(header, rows)
+        doc.h(3, f"Paired difference to {ref} (source minus {ref}, same seed)")
+        header = ["source", "pairs"] + [_label(m) for m in metrics]
+        rows = []
+        diffs = {m.column: paired_differences(here, m.column, ref) for m in metrics}
+        for src in sources:
+            if src == ref:
+                continue
+            mine = [d[d["source"] == src]["diff"] for d in diffs.values()]
+            pairs = max((len(d) for d in mine), default=0)
+            rows.append([src, str(pairs)] + [_cell(d) for d in mine])
+        doc.table(header, rows)
+        for col, label in (("mean_speed_mps", "mean speed [m/s]"), ("failures", "failures")):
+            if col not in diffs:
+                continue
+            d = diffs[col].pivot_table(index="seed", columns="source", values="diff")
+            if d.empty:
+                continue
+            doc.p(f"Per seed: {label}, source minus {ref}.")
+            cols = [s for s in sources if s in d.columns]
+            doc.table(
+                ["seed", *cols],
+                [[str(seed)] + [_fmt(d.loc[seed, c]) for c in cols] for seed in d.index],
+            )
+        stopped = here[here["error"].astype(str) != ""]
+        if len(stopped):
+            doc.p(
+                "Runs whose simulation stopped early with an error (their metrics cover the "
+                "time before it): "
+                + "; ".join(f"{r.run_id}: {r.error}" for r in stopped.itertuples())
+            )
+
+    doc.h(2, "Figures")
+    bars = plots.plot_bars(runs, sources, store.figures / "speed_failures.png")
+    doc.image(bars, "mean speed and failures per source with 95 % intervals")
+    plot_seed = exp.get("plot_seed")
+    if plot_seed is None and len(done):
+        plot_seed = int(done["seed"].min())
+    if len(done):
+        sc0 = sorted(done["scenario"].unique())[0]
+        logs = {}
+        for r in done[(done["scenario"] == sc0) & (done["seed"] == plot_seed)].itertuples():
+            log = store.drive_log(r.run_id)
+            if log is not None:
+                logs[r.source] = log
+        if logs:
+            title = f"mu_hat over time, scenario {sc0}, seed {plot_seed}"
+            mu = plots.plot_mu_over_time(logs, sources, title, store.figures / "mu_over_time.png")
+            doc.image(mu, title)
+    failures = store.table("failures")
+    fmap = plots.plot_failure_map(
+        failures, sources, _scenario_maps(store, runs), store.figures / "failure_map.png"
+    )
+    doc.image(fmap, "where each catastrophic failure happened")
+
+    if len(failed):
+        doc.h(2, "Failed runs")
+        doc.table(["run", "error"], [[r.run_id, str(r.error)] for r in failed.itertuples()])
+    doc.h(2, "The experiment as run")
+    doc.code(yaml.safe_dump(exp, sort_keys=False) if exp else "(experiment.yaml missing)")
+    doc.h(2, "Versions")
+    env = store.environment()
+    if env:
+        doc.code(yaml.safe_dump(env, sort_keys=False))
+    workers = sorted(set(runs["versions"].astype(str)) - {""})
+    if workers:
+        doc.p("Package versions on the workers (one line per distinct set):")
+        doc.code("\n".join(workers))
+
+    md_path = store.root / "report.md"
+    html_path = store.root / "report.html"
+    md_path.write_text(doc.markdown(store.root))
+    html_path.write_text(doc.html(f"Experiment {name}"))
+    return md_path, html_path
