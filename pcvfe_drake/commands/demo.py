@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pcvfe_drake.runs.output_paths import check_output_dir
 from pcvfe_drake.vehicle.params import load_vehicle
 from pcvfe_drake.vehicle.single_track import STATE_NAMES, STATE_UNITS
 
@@ -60,6 +61,7 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.duration) and 0 < args.duration <= MAX_DURATION_S):
         raise ValueError(f"--duration must be in (0, {MAX_DURATION_S:g}] s, got {args.duration}")
+    check_output_dir(args.out)
     # The diagram lives in pcvfe_drake.diagrams (imported here, not at module import time, so
     # that the core package stays free of pydrake).
     from pcvfe_drake.diagrams.plant_demo import run_plant_demo

@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 
+from pcvfe_drake.runs.output_paths import check_output_dir, write_failed
 from pcvfe_drake.vehicle.params import load_vehicle
 from pcvfe_drake.workbench.data import load
 from pcvfe_drake.workbench.effects import get_effect, known_effects
@@ -41,7 +42,8 @@ def register(subparsers) -> None:
         action="append",
         default=[],
         metavar="FILE.py",
-        help="a Python file that registers effects of your own (repeatable; docs/workbench.md)",
+        help="a Python file that registers effects of your own (repeatable; docs/workbench.md). "
+        "It is imported, i.e. its code RUNS with your permissions: use only files you trust",
     )
     p.add_argument("--vehicle", default=None, help="vehicle preset or YAML file (default: Ford)")
     p.add_argument(
@@ -49,13 +51,22 @@ def register(subparsers) -> None:
         default=None,
         help="column with context labels (default: context, terrain)",
     )
-    p.add_argument("--out", default=None, help="folder for report.json, report.html and PNGs")
+    p.add_argument(
+        "--out",
+        default=None,
+        help="folder for report.json, report.html and PNGs (checked before the work starts; "
+        "written after the report is printed)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
 
 
 def load_effects_file(path: str) -> None:
-    """Import a Python file (it registers effects with ``register_effect``)."""
+    """Import (i.e. execute) a Python file; it registers effects with ``register_effect``.
+
+    The file runs with the user's permissions, like any script they start. An exception or a
+    ``sys.exit`` inside it is reported as a ``ValueError`` naming the file.
+    """
     import importlib.util
     from pathlib import Path
 
@@ -68,6 +79,11 @@ def load_effects_file(path: str) -> None:
     module = importlib.util.module_from_spec(spec)
     try:
         spec.loader.exec_module(module)
+    except SystemExit as exc:
+        raise ValueError(
+            f"--effects-file {file}: the file called sys.exit({exc.code!r}) while being imported; "
+            "an effects file should only define and register effects"
+        ) from exc
     except Exception as exc:  # a user's file can fail in any way; report it cleanly
         raise ValueError(f"--effects-file {file}: {type(exc).__name__}: {exc}") from exc
 
@@ -75,6 +91,8 @@ def load_effects_file(path: str) -> None:
 def run(args: argparse.Namespace) -> int:
     from pcvfe_drake.workbench.report import diagnose, to_jsonable, write_report
 
+    if args.out:
+        check_output_dir(args.out)
     for path in args.effects_file:
         load_effects_file(path)
     add = [get_effect(e).name for e in args.add]  # unknown names fail before any work
@@ -84,8 +102,6 @@ def run(args: argparse.Namespace) -> int:
     vehicle = load_vehicle(args.vehicle)
     data = load(args.log, context_column=args.context_column)
     report, wb = diagnose(data, vehicle, add=add, candidates=candidates)
-    if args.out:
-        write_report(report, wb, args.out)
     if args.json:
         print(json.dumps(to_jsonable(report)))
     else:
@@ -126,6 +142,11 @@ def run(args: argparse.Namespace) -> int:
                     if k in after
                 )
             )
-        if args.out:
-            print(f"report written to {args.out}", file=sys.stderr)
+    if args.out:
+        # Written after the report is printed: a full disk or a vanished folder loses no result.
+        try:
+            write_report(report, wb, args.out)
+        except OSError as exc:
+            raise write_failed(exc, "--out", args.out) from exc
+        print(f"report written to {args.out}", file=sys.stderr)
     return 0

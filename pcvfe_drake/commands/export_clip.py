@@ -20,6 +20,7 @@ from pcvfe_drake.perception.clip_export import (
     write_clip_folder,
 )
 from pcvfe_drake.perception.features import PROMPT_TEMPLATE
+from pcvfe_drake.runs.output_paths import check_output_dir
 
 
 def register(subparsers) -> None:
@@ -60,6 +61,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_dir(args.out)
     captions = read_captions(args.captions)
     if "{}" not in args.template:
         raise ValueError(f"--template must contain '{{}}', got {args.template!r}")

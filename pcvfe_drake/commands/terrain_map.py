@@ -10,6 +10,7 @@ import numpy as np
 
 from pcvfe_drake.perception.ground_render import render_topdown
 from pcvfe_drake.perception.terrain import default_terrain_map
+from pcvfe_drake.runs.output_paths import OutputPathError, check_output_file, write_failed
 
 
 def register(subparsers) -> None:
@@ -22,7 +23,12 @@ def register(subparsers) -> None:
             "friction and area."
         ),
     )
-    parser.add_argument("--out", type=Path, default=Path("terrain_map.png"), help="PNG file")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path("terrain_map.png"),
+        help="image file; the suffix picks the format (.png, .jpg, .bmp, .tif, ...)",
+    )
     parser.add_argument("--px-per-m", type=float, default=4.0, help="resolution [px/m]")
     parser.add_argument(
         "--strip-width", type=float, default=3.0, help="transition strip width [m] (0: none)"
@@ -31,12 +37,34 @@ def register(subparsers) -> None:
     parser.set_defaults(func=run)
 
 
+def check_image_path(path: Path) -> Path:
+    """``path`` if OpenCV can write an image there (its suffix names a known format)."""
+    check_output_file(path)
+    if not path.suffix or not cv2.haveImageWriter(str(path)):
+        raise OutputPathError(
+            f"--out {path}: unknown image format {path.suffix or '(no suffix)'!r}; "
+            "use .png, .jpg, .bmp or .tif"
+        )
+    return path
+
+
+def write_image(path: Path, rgb: np.ndarray) -> None:
+    """Encode ``rgb`` in the format of ``path``'s suffix and write it (OS errors name the path)."""
+    ok, encoded = cv2.imencode(path.suffix, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise OutputPathError(f"--out {path}: OpenCV could not encode the image as {path.suffix}")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(encoded.tobytes())
+    except OSError as exc:
+        raise write_failed(exc, "--out", path) from exc
+
+
 def run(args: argparse.Namespace) -> int:
+    check_image_path(args.out)
     terrain = default_terrain_map(strip_width_m=args.strip_width)
     image = render_topdown(terrain, args.px_per_m, flat=args.flat)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(args.out), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
-        raise ValueError(f"could not write {args.out}")
+    write_image(args.out, image)
     x0, x1, y0, y1 = terrain.bounds_m
     h, w = image.shape[:2]
     print(f"terrain map x in [{x0:g}, {x1:g}] m, y in [{y0:g}, {y1:g}] m, "
