@@ -169,4 +169,3 @@ def test_ctrl_c_while_importing_is_one_line(capsys, monkeypatch):
     assert main(["fit", "x.csv"]) == 130
     err = capsys.readouterr().err
     assert err.strip() == "pcvfe: interrupted"
-

@@ -39,6 +39,7 @@ from __future__ import annotations
 import copy
 import math
 import time
+import warnings
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -49,7 +50,7 @@ from pcvfe_drake.contexts.cluster_table import (
     StoredFeatures,
     match_centroids,
 )
-from pcvfe_drake.contexts.clustering_params import NOISE, ClusteringParams
+from pcvfe_drake.contexts.clustering_params import MAX_ABS_FEATURE, NOISE, ClusteringParams
 from pcvfe_drake.contexts.density_gate import (
     GateIndex,
     detach_small_groups,
@@ -59,6 +60,7 @@ from pcvfe_drake.contexts.density_gate import (
 )
 
 __all__ = [
+    "MAX_ABS_FEATURE",
     "NOISE",
     "ClusterRecord",
     "ClusterTable",
@@ -107,6 +109,8 @@ class ContextClusterer:
         self._n_reclusterings = 0
         self._last_recluster_duration_s = 0.0
         self._n_frames = 0
+        self._n_rejected = 0
+        self._warned_scale = False
         # Assignment index: stored members of the active contexts and their gates.
         self._index = GateIndex(np.zeros((0, 1)), np.zeros(0, dtype=int), self.params)
 
@@ -126,6 +130,11 @@ class ContextClusterer:
     def n_frames(self) -> int:
         """Frames seen so far."""
         return self._n_frames
+
+    @property
+    def n_rejected(self) -> int:
+        """Frames refused as corrupt: non-finite or beyond ``MAX_ABS_FEATURE``."""
+        return self._n_rejected
 
     @property
     def last_recluster_duration_s(self) -> float:
@@ -182,7 +191,8 @@ class ContextClusterer:
         if self._dim is not None and z.shape[1] != self._dim:
             raise ValueError(f"z has {z.shape[1]} numbers per row, the clusterer holds {self._dim}")
         out = np.full(z.shape[0], NOISE, dtype=int)
-        finite = np.flatnonzero(np.isfinite(z).all(1))
+        with np.errstate(invalid="ignore"):
+            finite = np.flatnonzero((np.abs(z) <= MAX_ABS_FEATURE).all(1))
         block = 4096
         for s in range(0, finite.size, block):
             rows = finite[s : s + block]
@@ -192,12 +202,26 @@ class ContextClusterer:
     def assign(self, z: np.ndarray, t_s: float) -> int:
         """Give frame ``z`` (taken at time ``t_s`` [s]) a context id at once and store it.
 
-        A non-finite vector (a corrupt frame) gets -1 and is not stored.
+        A corrupt frame (a non-finite vector, or a component beyond ``MAX_ABS_FEATURE``) gets -1
+        and is not stored; the first one beyond the bound warns.
         """
         z = self._check_vector(z, "z")
         if not math.isfinite(t_s):
             raise ValueError(f"t_s must be finite, got {t_s!r}")
         if not np.isfinite(z).all():
+            self._n_rejected += 1
+            return NOISE
+        if np.abs(z).max() > MAX_ABS_FEATURE:
+            if not self._warned_scale:
+                self._warned_scale = True
+                warnings.warn(
+                    f"ContextClusterer: feature vector at t = {t_s:g} s has |z| up to "
+                    f"{np.abs(z).max():.3g} (> {MAX_ABS_FEATURE:g}); such frames are treated as "
+                    "corrupt (context -1, not stored). Check the feature extractor's scaling.",
+                    RuntimeWarning,
+                    stacklevel=2,
+                )
+            self._n_rejected += 1
             return NOISE
         if self._dim is None:
             self._dim = z.size

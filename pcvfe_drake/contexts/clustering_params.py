@@ -7,6 +7,10 @@ from dataclasses import dataclass
 
 NOISE = -1
 """Context id of frames that belong to no context (noise or unseen terrain)."""
+MAX_ABS_FEATURE = 1e100
+"""Largest |component| of a usable feature vector. CLIP features are unit vectors and the
+descriptor's are O(1); far beyond, squared distances overflow to inf (from ~1e154) and HDBSCAN
+exhausts memory. Larger vectors are treated like non-finite ones: a corrupt frame."""
 
 
 @dataclass

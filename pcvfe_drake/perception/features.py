@@ -310,6 +310,14 @@ class ClipFeatureExtractor(FeatureExtractor):
     ) -> None:
         self.lambda_c = _check_lambda(lambda_c)
         self.folder = Path(folder)
+        if self.folder.exists() and not self.folder.is_dir():
+            hint = (
+                f"; use its folder {self.folder.parent}" if self.folder.name == "clip.json" else ""
+            )
+            raise ValueError(
+                f"CLIP model folder {self.folder} is a file; give the folder that holds clip.json "
+                f"and image_encoder.onnx (docs/perception.md){hint}"
+            )
         if not self.folder.is_dir():
             raise FileNotFoundError(f"CLIP model folder {self.folder} does not exist")
         if batch_size < 1:

@@ -95,6 +95,10 @@ def read_index(folder: Path | str) -> list[TextureEntry]:
 def load_rgb(path: Path | str) -> np.ndarray:
     """Read an image file as RGB uint8 (H, W, 3); clear error if missing or unreadable."""
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(
+            f"image {path} is a folder, not an image file; name the image files (e.g. {path}/*.png)"
+        )
     if not path.is_file():
         raise FileNotFoundError(f"image {path} does not exist")
     bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import IO
@@ -93,6 +94,7 @@ MAX_LISTED_ROWS = 10
 """How many row numbers an error message lists per problem before summarising."""
 
 _MIN_MOTION_ROWS = 10
+_LOG_NAME = re.compile(r"\.(csv|csv\.gz|parquet|pq)$")
 
 
 class DriveLogError(ValueError):
@@ -362,6 +364,54 @@ def _normalise(df: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
+def _undecodable_rows(values: list[bytes | None]) -> tuple[np.ndarray, list[bytes]]:
+    """Rows whose bytes are not UTF-8, and up to 3 examples."""
+    rows, examples = [], []
+    for i, raw in enumerate(values):
+        if raw is None:
+            continue
+        try:
+            raw.decode("utf-8")
+        except UnicodeDecodeError:
+            rows.append(i)
+            if len(examples) < 3:
+                examples.append(raw[:40])
+    return np.asarray(rows, dtype=np.int64), examples
+
+
+def _read_parquet(path: Path) -> tuple[pd.DataFrame, list[str]]:
+    """A Parquet file as a DataFrame, and a problem per text column holding invalid UTF-8.
+
+    Such a column (Parquet strings must be UTF-8, but writers do not all check) is decoded with
+    the bad bytes replaced by U+FFFD, so that the caller can choose to reject or go on.
+    (Dictionary-encoded text is checked by pyarrow while reading: a read error.)
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(path)
+    problems = []
+    for k, name in enumerate(table.column_names):
+        column = table.column(k)
+        if not (pa.types.is_string(column.type) or pa.types.is_large_string(column.type)):
+            continue
+        try:
+            column.validate(full=True)
+            continue
+        except pa.ArrowInvalid:
+            pass
+        raw = column.cast(pa.large_binary()).to_pylist()
+        rows, examples = _undecodable_rows(raw)
+        problems.append(
+            f"column '{name}': text that is not valid UTF-8 at {_rows(rows)} "
+            f"(e.g. {', '.join(map(repr, examples))}); re-write the file with UTF-8 text "
+            "(`pcvfe fit --lenient`, i.e. validate=False, reads it with U+FFFD for the bad bytes)"
+        )
+        text = [None if b is None else b.decode("utf-8", "replace") for b in raw]
+        table = table.set_column(k, name, pa.array(text, type=pa.large_string()))
+    return table.to_pandas(), problems
+
+
 def read_drive_log(
     path: str | os.PathLike,
     validate: bool = True,
@@ -377,18 +427,30 @@ def read_drive_log(
         DriveLogError: the file is unreadable or breaks the format (every problem listed).
     """
     path = Path(path)
+    if path.is_dir():
+        inside = sorted(
+            q.name for q in path.iterdir() if q.is_file() and _LOG_NAME.search(q.name.lower())
+        )
+        found = f"; it holds {', '.join(inside[:5])}: name one of them" if inside else ""
+        raise ValueError(f"drive log {path} is a folder, not a file{found}")
     if not path.is_file():
         raise FileNotFoundError(f"drive log {path}: no such file")
     fmt = _format_of(path)
+    encoding: list[str] = []
     try:
         if fmt == "csv":
             df = pd.read_csv(path, dtype={"terrain": str, "image": str}, keep_default_na=True)
         else:
-            df = pd.read_parquet(path)
+            df, encoding = _read_parquet(path)
     except Exception as exc:  # parser errors of pandas/pyarrow come in many types
         raise DriveLogError(str(path), [f"cannot be read as {fmt}: {exc}"]) from exc
     if validate:
-        validate_drive_log(df, source=str(path), max_gap_s=max_gap_s, check_units=check_units)
+        try:
+            validate_drive_log(df, source=str(path), max_gap_s=max_gap_s, check_units=check_units)
+        except DriveLogError as exc:
+            raise DriveLogError(str(path), encoding + exc.problems) from None
+        if encoding:
+            raise DriveLogError(str(path), encoding)
         df = _normalise(df)
     return df
 
@@ -441,6 +503,7 @@ class DriveLogWriter:
         self._file: IO[str] | None = open(self.path, "w", newline="")  # noqa: SIM115
         self._columns: list[str] | None = None
         self._last_t = -math.inf
+        self._write_failed = False
         self.rows_written = 0
 
     def append(self, rows: pd.DataFrame | Mapping[str, Iterable] | Iterable[Mapping]) -> None:
@@ -470,19 +533,31 @@ class DriveLogWriter:
             raise DriveLogError(
                 source, [f"column 't': chunk starts at {t0:g} s, not after {self._last_t:g} s"]
             )
-        chunk[columns].to_csv(self._file, header=self._columns is None, index=False)
-        self._file.flush()
+        try:
+            chunk[columns].to_csv(self._file, header=self._columns is None, index=False)
+            self._file.flush()
+        except OSError as exc:  # e.g. a full disk: name the file (rows written so far are kept)
+            self._write_failed = True
+            raise OSError(exc.errno, exc.strerror, str(self.path)) from exc
         self._columns = columns
         self._last_t = float(chunk["t"].iloc[-1])
         self.rows_written += len(chunk)
 
     def close(self) -> None:
         if self._file is not None:
-            self._file.close()
-            self._file = None
+            file, self._file = self._file, None
+            try:
+                file.close()  # flushes; the file is closed even when that fails
+            except OSError as exc:
+                if not self._write_failed:  # a failed append has already reported it
+                    raise OSError(exc.errno, exc.strerror, str(self.path)) from exc
 
     def __enter__(self) -> DriveLogWriter:
         return self
 
-    def __exit__(self, *exc_info) -> None:
-        self.close()
+    def __exit__(self, exc_type, *exc_info) -> None:
+        try:
+            self.close()
+        except OSError:
+            if exc_type is None:  # else the error that ended the block is the one to report
+                raise
