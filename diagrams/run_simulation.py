@@ -26,6 +26,8 @@ from pydrake.systems.analysis import (
 )
 
 from pcvfe_drake.control.course import Course
+from pcvfe_drake.diagrams.debug_layers import LAYERS
+from pcvfe_drake.diagrams.meshcat_controls import MeshcatControls
 from pcvfe_drake.diagrams.simulation import MakeSimulation, course_xy
 from pcvfe_drake.perception.ground_render import render_topdown
 from pcvfe_drake.runs.figures import write_figures
@@ -125,22 +127,32 @@ def run_simulation(
     progress: bool = True,
     chunk_s: float = 1.0,
     write_outputs: bool = True,
+    debug_layers: bool = True,
+    controls: bool = True,
 ) -> SimulationResult:
     """Simulate ``scenario``; write drive log, playback, summary and figures into ``folder``.
 
     The run stops at ``scenario.duration_s``, or when ``scenario.laps`` laps are completed (at
     ``scenario.max_duration_s`` at the latest), or at Ctrl-C (``summary["interrupted"]``), or
     when the simulation raises (``summary["error"]``; the outputs are still written).
+
+    With a ``meshcat``: ``debug_layers`` adds the ``/pcvfe/`` debugging layers
+    (``MakeSimulation``), and ``controls`` the Meshcat controls (show/hide layers, pause/resume,
+    real-time rate; :class:`pcvfe_drake.diagrams.meshcat_controls.MeshcatControls`), polled
+    between chunks of ``chunk_s`` simulated seconds.
     """
     log_path = folder.drive_log if folder is not None and write_outputs else None
     if folder is not None:
         folder.root.mkdir(parents=True, exist_ok=True)
-    parts = MakeSimulation(scenario, meshcat, log_path=log_path)
+    parts = MakeSimulation(scenario, meshcat, log_path=log_path, debug_layers=debug_layers)
     diagram, course, run_log = parts.diagram, parts.course, parts.run_log
     simulator = Simulator(diagram)
     ApplySimulatorConfig(simulator_config(scenario), simulator)
     if meshcat is not None:
         meshcat.StartRecording(frames_per_second=1.0 / scenario.rates.view_period_s)
+    panel = None
+    if meshcat is not None and controls:
+        panel = MeshcatControls(meshcat, LAYERS if debug_layers else ())
     stop_t = scenario.stop_time_s()
     laps_goal = scenario.laps if scenario.duration_s is None else None
     lap_progress = LapProgress(course)
@@ -162,6 +174,8 @@ def run_simulation(
         simulator.Initialize()
         t = 0.0
         while t < stop_t - 1e-9:
+            if panel is not None:
+                panel.poll(simulator)
             target = min(t + chunk_s, stop_t)
             w0, c0 = time.perf_counter(), time.process_time()
             simulator.AdvanceTo(target)
@@ -194,6 +208,8 @@ def run_simulation(
         view = diagram.GetSubsystemByName("meshcat_view")
         view.flush(view.GetMyContextFromRoot(context))
         meshcat.StopRecording()
+        if panel is not None:
+            panel.remove()
         meshcat.PublishRecording()
         if folder is not None and write_outputs:
             folder.playback.write_text(meshcat.StaticHtml())

@@ -23,6 +23,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
 from pcvfe_drake.control.course import Course, load_course
+from pcvfe_drake.diagrams.debug_layers import AddDebugLayers
 from pcvfe_drake.diagrams.station import MakeVehicleStation
 from pcvfe_drake.perception.terrain import TerrainMap
 from pcvfe_drake.runs.runlog import RunLog
@@ -52,6 +53,7 @@ def MakeSimulation(
     meshcat: Meshcat | None = None,
     *,
     log_path: str | Path | None = None,
+    debug_layers: bool = True,
 ) -> SimulationParts:
     """The closed loop of ``scenario`` as a diagram named ``pcvfe_simulation``.
 
@@ -59,10 +61,13 @@ def MakeSimulation(
         scenario: the scenario.
         meshcat: a Meshcat (created once by the caller) for the ``meshcat_view``; None: no view.
         log_path: CSV drive log the ``run_logger`` appends to as the run goes (None: in memory).
+        debug_layers: with a Meshcat, also the debugging layers under ``/pcvfe/`` (plan,
+            friction circle, camera, features; ``debug_layers.AddDebugLayers``).
 
     Systems (names): ``station`` (exports actuation / state / image / true_mu / true_terrain),
     ``features``, ``clustering``, ``fitter``, ``nmpc``, ``run_logger``, the ``log_*`` vector
-    loggers, and ``meshcat_view`` when a Meshcat is given.
+    loggers, and ``meshcat_view`` when a Meshcat is given (with ``debug_layers``, also
+    ``plan_view``, ``friction_circle_view``, ``camera_view``, ``feature_view``).
     """
     params = load_vehicle(scenario.vehicle)
     terrain_map = build_terrain_map(scenario)
@@ -145,6 +150,18 @@ def MakeSimulation(
         )
         for name in ("state", "context_id", "theta_hat", "true_mu"):
             builder.Connect(sources[name], view.GetInputPort(name))
+        if debug_layers:
+            AddDebugLayers(
+                builder,
+                meshcat,
+                station=station,
+                features=features,
+                clustering=clustering,
+                fitter=fitter,
+                nmpc=nmpc,
+                terrain_map=terrain_map,
+                view_period_s=rates.view_period_s,
+            )
 
     diagram = builder.Build()
     diagram.set_name("pcvfe_simulation")

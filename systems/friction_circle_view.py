@@ -62,7 +62,7 @@ class FrictionCircleView(LeafSystem):
         has_truth: bool,
         horizon: int,
         period_s: float = 0.1,
-        stride: int = 2,
+        stride: int = 4,
         m_per_mps2: float = 0.5,
         offset_m=(-7.0, 0.0, 9.0),
         mu_max: float = 1.2,

@@ -9,6 +9,7 @@ re-clustered cloud), one object per distinct content of which exactly one is vis
 
 from __future__ import annotations
 
+import struct
 import tempfile
 from collections.abc import Callable, Hashable
 from pathlib import Path
@@ -49,19 +50,50 @@ def set_image_quad(
         corners = [(-w, -h, 0), (w, -h, 0), (w, h, 0), (-w, h, 0)]
         normal = "0 0 1"
     vertices = "".join(f"v {x} {y} {z}\n" for x, y, z in corners)
-    with tempfile.TemporaryDirectory(prefix="pcvfe_quad_") as tmp:
-        folder = Path(tmp)
-        cv2.imwrite(str(folder / "tex.png"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
-        (folder / "quad.mtl").write_text(
-            "newmtl quad\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nmap_Kd tex.png\n"
-        )
-        (folder / "quad.obj").write_text(
-            f"mtllib quad.mtl\n{vertices}vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvn {normal}\n"
-            "usemtl quad\nf 1/1/1 2/2/1 3/3/1\nf 1/1/1 3/3/1 4/4/1\n"
-            "f 1/2/1 3/4/1 2/1/1\nf 1/2/1 4/3/1 3/4/1\n"
-        )
-        meshcat.SetObject(path, Mesh(str(folder / "quad.obj")))
+    folder = _scratch_folder()
+    # Fast PNG compression: the frames are small and drawn often.
+    cv2.imwrite(
+        str(folder / "tex.png"),
+        cv2.cvtColor(image, cv2.COLOR_RGB2BGR),
+        [cv2.IMWRITE_PNG_COMPRESSION, 1],
+    )
+    (folder / "quad.mtl").write_text("newmtl quad\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nmap_Kd tex.png\n")
+    (folder / "quad.obj").write_text(
+        f"mtllib quad.mtl\n{vertices}vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvn {normal}\n"
+        "usemtl quad\nf 1/1/1 2/2/1 3/3/1\nf 1/1/1 3/3/1 4/4/1\n"
+        "f 1/2/1 3/4/1 2/1/1\nf 1/2/1 4/3/1 3/4/1\n"
+    )
+    # Meshcat reads the files (and embeds the texture) during SetObject.
+    meshcat.SetObject(path, Mesh(str(folder / "quad.obj")))
     return 2 * h
+
+
+def packed_translation(meshcat: Meshcat, path: str) -> np.ndarray | None:
+    """Translation [m] of the transform last set on ``path`` in the live scene (None if none):
+    read back from Meshcat's own message, for tests and tools that aim a camera at a layer."""
+    packed = bytes(meshcat._GetPackedTransform(path))
+    tag = b"matrix\xdc\x00\x10"
+    if not packed or tag not in packed:
+        return None
+    start = packed.index(tag) + len(tag)
+    values = []
+    for _ in range(16):
+        if packed[start] != 0xCB:  # msgpack float64
+            raise ValueError(f"packed_translation({path}): unexpected transform encoding")
+        values.append(struct.unpack(">d", packed[start + 1 : start + 9])[0])
+        start += 9
+    return np.array(values[12:15])
+
+
+_SCRATCH: tempfile.TemporaryDirectory | None = None
+
+
+def _scratch_folder() -> Path:
+    """A folder for the quads' files, made once per process and removed at exit."""
+    global _SCRATCH
+    if _SCRATCH is None:
+        _SCRATCH = tempfile.TemporaryDirectory(prefix="pcvfe_quad_")
+    return Path(_SCRATCH.name)
 
 
 class VisibleChoice:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -11,6 +12,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 
 from pcvfe_drake.control.course import Course, load_course
 from pcvfe_drake.control.nmpc import NmpcConfig, NmpcController, NmpcDiagnostics, NmpcMemory
+from pcvfe_drake.control.plan import NmpcPlan
 from pcvfe_drake.vehicle.params import VehicleParams, ford_escort
 from pcvfe_drake.vehicle.single_track import NTHETA, NU, NX
 
@@ -27,6 +29,7 @@ class Nmpc(LeafSystem):
         output_ports:
         - actuation
         - diagnostics
+        - plan
 
     Ports:
         state: input (7), the measured ST state (``pcvfe_drake.vehicle.single_track.STATE_NAMES``).
@@ -38,6 +41,10 @@ class Nmpc(LeafSystem):
         diagnostics: output (abstract :class:`pcvfe_drake.control.nmpc.NmpcDiagnostics`) of the last
             update: mode, OSQP status, update and solve times, fallback counters, tracking
             errors.
+        plan: output (abstract :class:`pcvfe_drake.control.plan.NmpcPlan`) of the last update:
+            predicted states and inputs over the horizon, the reference window, the fallback
+            mode and reason, stamped with the update's time; held from state (no solving
+            when it is evaluated).
 
     Rate: one periodic unrestricted update every ``config.dt_s`` (default 0.05 s, 20 Hz; offset
     0) runs one real-time iteration of :class:`pcvfe_drake.control.nmpc.NmpcController`. The
@@ -79,7 +86,9 @@ class Nmpc(LeafSystem):
         self._memory_index = self.DeclareAbstractState(AbstractValue.Make(NmpcMemory()))
         self._diag_index = self.DeclareAbstractState(AbstractValue.Make(NmpcDiagnostics()))
         self._actuation_port = self.DeclareStateOutputPort("actuation", self._u_index)
+        self._plan_index = self.DeclareAbstractState(AbstractValue.Make(NmpcPlan()))
         self._diagnostics_port = self.DeclareStateOutputPort("diagnostics", self._diag_index)
+        self._plan_port = self.DeclareStateOutputPort("plan", self._plan_index)
         self.DeclarePeriodicUnrestrictedUpdateEvent(
             period_sec=self.period_s, offset_sec=0.0, update=self._update
         )
@@ -92,4 +101,6 @@ class Nmpc(LeafSystem):
         state.get_mutable_discrete_state(self._u_index).set_value(u)
         state.get_mutable_abstract_state(self._memory_index).set_value(memory)
         state.get_mutable_abstract_state(self._diag_index).set_value(diagnostics)
+        plan = dataclasses.replace(diagnostics.plan, time_s=context.get_time())
+        state.get_mutable_abstract_state(self._plan_index).set_value(plan)
         return EventStatus.Succeeded()

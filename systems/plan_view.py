@@ -53,8 +53,8 @@ class PlanView(LeafSystem):
         horizon: int,
         v_max_mps: float,
         period_s: float = 0.1,
-        stride: int = 2,
-        reference_stride: int = 4,
+        stride: int = 4,
+        reference_stride: int = 8,
         point_radius_m: float = 0.35,
     ) -> None:
         super().__init__()

@@ -59,7 +59,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import osqp
@@ -67,6 +67,7 @@ import scipy.sparse as sp
 
 from pcvfe_drake.control.course import Course, SpeedProfile, speed_profile
 from pcvfe_drake.control.nmpc_config import MODELS, NmpcConfig
+from pcvfe_drake.control.plan import NmpcPlan
 from pcvfe_drake.control.prediction_model import discretize, ks_jacobians
 from pcvfe_drake.control.qp_layout import QpLayout, SparsityPattern
 from pcvfe_drake.vehicle.params import VehicleParams
@@ -126,7 +127,9 @@ class NmpcDiagnostics:
     """Result of one update: ``mode`` is ``"qp"``, ``"shifted_plan"`` or ``"braking"``;
     ``status`` the OSQP status (or the reason of a fallback); times in seconds; ``s_m``,
     ``lateral_error_m``, ``heading_error_rad`` of the measured state against the course;
-    ``v_ref_mps`` the reference speed there; ``mu_hat`` the friction used."""
+    ``v_ref_mps`` the reference speed there; ``mu_hat`` the friction used; ``plan`` what the
+    update planned (:class:`pcvfe_drake.control.plan.NmpcPlan`: predicted states and inputs,
+    reference window, fallback reason; the arrays are the plan's own, not copies)."""
 
     mode: str = "none"
     status: str = "not run"
@@ -142,6 +145,12 @@ class NmpcDiagnostics:
     heading_error_rad: float = float("nan")
     v_ref_mps: float = float("nan")
     mu_hat: float = float("nan")
+    plan: NmpcPlan = field(default_factory=NmpcPlan)
+
+    def __deepcopy__(self, memo) -> NmpcDiagnostics:
+        # Immutable (frozen, the plan's arrays never written): Drake's per-step copies of the
+        # abstract state can share it.
+        return self
 
 
 @dataclass
@@ -165,6 +174,7 @@ class Linearization:
     friction_radius: float
     corridor: float
     measured: tuple[float, float, float]  # s [m], lateral and course-angle errors of the state
+    ref_xy: np.ndarray  # (N, 2) course points [m] the predicted positions x_bar[1:] project on
 
 
 # ---------------------------------------------------------------------------- controller
@@ -391,6 +401,7 @@ class NmpcController:
             u_hi=u_hi,
             friction_radius=cfg.friction_margin * mu * p.g,
             corridor=cfg.corridor_fraction * self.course.half_width,
+            ref_xy=np.column_stack([proj.x, proj.y]),
         )
 
     # ----------------------------------------------------------------- QP data
@@ -613,7 +624,21 @@ class NmpcController:
             heading_error_rad=herr,
             v_ref_mps=vref,
             mu_hat=float(th[0]),
+            plan=self._plan(mem, mode, status, th, lin),
         )
+
+    @staticmethod
+    def _plan(mem: NmpcMemory, mode: str, status: str, th, lin) -> NmpcPlan:
+        """What this update planned: the fresh plan (mode "qp"), the rest of the stale plan it
+        shifted ("shifted_plan"), or nothing ("braking")."""
+        if mode == "qp":
+            return NmpcPlan(mem.x_plan, mem.u_plan, lin.ref_xy, lin.v_ref, mode, "", float(th[0]))
+        if mode == "shifted_plan" and mem.x_plan is not None:
+            j = mem.steps_since_solve
+            return NmpcPlan(
+                mem.x_plan[j:], mem.u_plan[j:], mode=mode, reason=status, mu_hat=float(th[0])
+            )
+        return NmpcPlan(mode=mode, reason=status, mu_hat=float(th[0]))
 
     def update(self, x, theta=None) -> np.ndarray:
         """One update using and advancing the memory kept in this object; returns u (2,)."""

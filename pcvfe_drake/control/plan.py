@@ -44,6 +44,11 @@ class NmpcPlan:
     mu_hat: float = float("nan")
     time_s: float = float("nan")
 
+    def __deepcopy__(self, memo) -> NmpcPlan:
+        # Immutable (frozen, arrays never written): Drake's per-step copies of the abstract
+        # state can share it.
+        return self
+
     @property
     def is_fallback(self) -> bool:
         """Whether this update fell back (shifted plan or braking)."""

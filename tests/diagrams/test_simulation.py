@@ -82,6 +82,20 @@ def test_closed_loop_discovers_contexts_fits_friction_and_tracks(tmp_path):
     assert html.startswith("<!DOCTYPE html>") and len(html) > len(empty) + 300_000
     assert result.figures["fig4_contexts_map"] and result.figures["fig5_mu_over_time"]
     assert (folder.root / "frames").is_dir()
+    # The debugging layers were drawn: the plan, the friction circle with the true circle (the
+    # simulated station has truth), camera frames, and a feature cloud per re-clustering.
+    for path in (
+        "plan/trajectory/00/00000",
+        "plan/reference/00",
+        "friction_circle/mu_hat/line",
+        "friction_circle/mu_true/line",
+        "friction_circle/actual",
+        "camera/frame/00000",
+        "features/clouds/00001/points",
+    ):
+        assert meshcat.HasPath(f"/pcvfe/{path}"), path
+    # The controls were removed at the end, so the playback has none.
+    assert not meshcat.GetSliderNames() and not meshcat.GetButtonNames()
 
 
 def test_every_system_is_named_and_connected():
@@ -96,6 +110,21 @@ def test_every_system_is_named_and_connected():
             assert system.get_input_port(i).HasValue(context), (name, i)
     for name in ("log_state", "log_context_id", "log_theta_hat", "log_true_mu"):
         diagram.GetSubsystemByName(name)
+
+
+def test_debug_layers_are_named_and_connected():
+    params = MeshcatParams()
+    params.host = "localhost"
+    diagram = MakeSimulation(short_scenario(1.0), Meshcat(params)).diagram
+    root = diagram.CreateDefaultContext()
+    views = ("meshcat_view", "plan_view", "friction_circle_view", "camera_view", "feature_view")
+    for name in views:
+        system = diagram.GetSubsystemByName(name)
+        context = system.GetMyContextFromRoot(root)
+        for i in range(system.num_input_ports()):
+            assert system.get_input_port(i).HasValue(context), (name, i)
+    without = MakeSimulation(short_scenario(1.0), Meshcat(params), debug_layers=False).diagram
+    assert not without.HasSubsystemNamed("plan_view")
 
 
 @pytest.mark.parametrize("stop", [KeyboardInterrupt, RuntimeError])

@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 from pydrake.geometry import Meshcat, MeshcatParams
 
+from pcvfe_drake.systems.meshcat_layer import packed_translation
+
 
 def local_meshcat() -> Meshcat:
     """A Meshcat server bound to localhost only."""
@@ -16,19 +18,11 @@ def local_meshcat() -> Meshcat:
     return Meshcat(params)
 
 
-def transform(meshcat: Meshcat, path: str) -> np.ndarray:
-    """The 4x4 transform last set on ``path`` (identity if none was set)."""
-    packed = meshcat._GetPackedTransform(path)
-    if not packed:
-        return np.eye(4)
-    tag = b"matrix\xdc\x00\x10"
-    i = packed.index(tag) + len(tag)
-    return np.array(_floats(packed, i, 16)).reshape(4, 4).T
-
-
 def translation(meshcat: Meshcat, path: str) -> np.ndarray:
     """The translation [m] of the transform last set on ``path``."""
-    return transform(meshcat, path)[:3, 3]
+    t = packed_translation(meshcat, path)
+    assert t is not None, f"no transform set on {path}"
+    return t
 
 
 def _floats(packed: bytes, start: int, n: int) -> list[float]:
@@ -61,9 +55,8 @@ def object_bytes(meshcat: Meshcat, path: str) -> bytes:
 
 
 class MeshcatProbe:
-    """What a Meshcat holds for a path: transform, translation, object, scale, visible."""
+    """What a Meshcat holds for a path: translation, object, scale, visible."""
 
-    transform = staticmethod(transform)
     translation = staticmethod(translation)
     object_bytes = staticmethod(object_bytes)
     scale = staticmethod(scale)

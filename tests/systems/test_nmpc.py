@@ -49,6 +49,43 @@ def test_output_held_between_updates_and_diagnostics(nmpc):
     assert nmpc.GetOutputPort("diagnostics").Eval(ctx).updates == 2
 
 
+def test_plan_output_is_the_solved_plan_with_its_reference_window(nmpc):
+    ctx = nmpc.CreateDefaultContext()
+    course = nmpc.controller.course
+    x0 = initial_state(course, nmpc.params, 5.0, 30.0)
+    nmpc.GetInputPort("state").FixValue(ctx, x0)
+    nmpc.GetInputPort("theta_hat").FixValue(ctx, [0.45, nmpc.params.C_Sf, nmpc.params.C_Sr])
+    plan = nmpc.GetOutputPort("plan").Eval(ctx)
+    assert plan.mode == "none" and not plan.has_prediction  # before the first update
+    sim = Simulator(nmpc, ctx)
+    sim.AdvanceTo(0.06)  # updates at 0 and 0.05
+    plan = nmpc.GetOutputPort("plan").Eval(ctx)
+    n = nmpc.controller.N
+    assert plan.mode == "qp" and plan.reason == "" and plan.time_s == pytest.approx(0.05)
+    assert plan.x_pred.shape == (n + 1, 7) and plan.u_pred.shape == (n, 2)
+    assert plan.mu_hat == pytest.approx(0.45)
+    # The first planned input is what was applied; the plan starts at the measured state.
+    np.testing.assert_allclose(plan.u_pred[0], nmpc.GetOutputPort("actuation").Eval(ctx))
+    np.testing.assert_allclose(plan.x_pred[0], x0, atol=1e-4)  # dx_0 = 0 to OSQP tolerance
+    # The reference window lies on the course, ahead of the car, near the predicted positions.
+    proj = course.project(plan.ref_xy)
+    np.testing.assert_allclose(proj.lateral_error, 0.0, atol=1e-6)
+    assert np.all(np.diff(proj.s) > 0) and proj.s[0] > course.project(x0[:2]).s
+    assert np.max(np.hypot(*(plan.ref_xy - plan.x_pred[1:, :2]).T)) < 0.5
+    assert plan.v_ref_mps.shape == (n,) and np.all(plan.v_ref_mps > 0)
+
+
+def test_plan_of_a_fallback_carries_the_reason():
+    sys_ = Nmpc("slalom", config=NmpcConfig(horizon=20))
+    ctx = sys_.CreateDefaultContext()
+    sys_.GetInputPort("state").FixValue(ctx, np.full(7, np.nan))
+    sys_.GetInputPort("theta_hat").FixValue(ctx, [0.45, sys_.params.C_Sf, sys_.params.C_Sr])
+    Simulator(sys_, ctx).AdvanceTo(0.01)
+    plan = sys_.GetOutputPort("plan").Eval(ctx)
+    assert plan.mode == "braking" and plan.reason == "state not finite"
+    assert plan.is_fallback and not plan.has_prediction
+
+
 def test_fixed_theta_ignores_the_unconnected_input():
     sys_ = Nmpc(
         "slalom",
