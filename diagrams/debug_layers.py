@@ -40,18 +40,20 @@ def AddDebugLayers(
     meshcat: Meshcat,
     *,
     station,
-    features,
-    clustering,
-    fitter,
     nmpc,
+    theta_hat,
+    features=None,
+    clustering=None,
     terrain_map: TerrainMap,
     view_period_s: float = 0.1,
     camera_period_s: float = 0.5,
 ) -> dict[str, object]:
-    """Adds and connects the four layer systems; returns them by layer name.
+    """Adds and connects the layer systems; returns them by layer name.
 
-    Systems (names): ``plan_view``, ``friction_circle_view``, ``camera_view``, ``feature_view``.
-    ``station`` must export ``state`` and ``image``; ``true_mu`` is used where it exists.
+    Systems (names): ``plan_view``, ``friction_circle_view`` (from the ``station``'s ``state``,
+    the ``nmpc``'s ``plan`` and ``actuation``, and the ``theta_hat`` output port the NMPC is
+    given; the station's ``true_mu`` where it exists), and, where the loop has a perception
+    stage (``features`` and ``clustering`` systems), ``camera_view`` and ``feature_view``.
     """
     state = station.GetOutputPort("state")
     horizon = nmpc.controller.N
@@ -70,10 +72,13 @@ def AddDebugLayers(
     )
     builder.Connect(state, circle.GetInputPort("state"))
     builder.Connect(nmpc.GetOutputPort("actuation"), circle.GetInputPort("actuation"))
-    builder.Connect(fitter.GetOutputPort("theta_hat"), circle.GetInputPort("theta_hat"))
+    builder.Connect(theta_hat, circle.GetInputPort("theta_hat"))
     builder.Connect(nmpc.GetOutputPort("plan"), circle.GetInputPort("plan"))
     if has_truth:
         builder.Connect(station.GetOutputPort("true_mu"), circle.GetInputPort("true_mu"))
+    layers = {"plan": plan, "friction_circle": circle}
+    if features is None or clustering is None:
+        return layers
 
     feature_dim = features.GetOutputPort("features").size()
     camera = builder.AddNamedSystem(
@@ -105,4 +110,5 @@ def AddDebugLayers(
     builder.Connect(features.GetOutputPort("features"), feature_view.GetInputPort("features"))
     for name in ("context_id", "cluster_table", "stored_features"):
         builder.Connect(clustering.GetOutputPort(name), feature_view.GetInputPort(name))
-    return {"plan": plan, "friction_circle": circle, "camera": camera, "features": feature_view}
+    layers.update(camera=camera, features=feature_view)
+    return layers

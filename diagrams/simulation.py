@@ -155,10 +155,10 @@ def MakeSimulation(
                 builder,
                 meshcat,
                 station=station,
+                nmpc=nmpc,
+                theta_hat=fitter.GetOutputPort("theta_hat"),
                 features=features,
                 clustering=clustering,
-                fitter=fitter,
-                nmpc=nmpc,
                 terrain_map=terrain_map,
                 view_period_s=rates.view_period_s,
             )
