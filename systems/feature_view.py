@@ -51,7 +51,7 @@ class FeatureView(LeafSystem):
         origin_m=(0.0, 0.0, 15.0),
         size_m: float = 30.0,
         period_s: float = 0.1,
-        point_size_m: float = 0.5,
+        point_size_m: float = 1.0,
     ) -> None:
         super().__init__()
         if not (np.isfinite(period_s) and period_s > 0):
