@@ -14,6 +14,9 @@ Exported ports: ``actuation`` in; ``state``, ``image``, ``station_status`` out: 
 simulated station minus its sim-only truth. The receivers' watchdogs and what the station does
 on each fault are described in ``docs/hardware.md``.
 
+Initialization waits up to ``hardware.first_message_timeout_s`` (wall clock) for the first
+state message and raises naming the channel and URL if none comes.
+
 The actuation is published at the NMPC's rate (``rates.nmpc_period_s``), ``publish_offset``
 one fifth of the watchdog period after each NMPC update, so each command leaves right after it
 is computed. The caller paces the simulator to wall-clock time (``hardware.realtime_rate``).
@@ -60,7 +63,12 @@ def MakeHardwareStation(
 
     state_sub = builder.AddNamedSystem(
         "state_subscriber",
-        LcmSubscriberSystem.Make(channel=hw.state_channel, lcm_type=lcmt_vehicle_state, lcm=lcm),
+        LcmSubscriberSystem.Make(
+            channel=hw.state_channel,
+            lcm_type=lcmt_vehicle_state,
+            lcm=lcm,
+            wait_for_message_on_initialization_timeout=hw.first_message_timeout_s,
+        ),
     )
     state_rx = builder.AddNamedSystem(
         "state_receiver",
@@ -68,6 +76,7 @@ def MakeHardwareStation(
             period_s=hw.watchdog_period_s,
             timeout_s=hw.state_timeout_s,
             max_delay_s=hw.state_max_delay_s,
+            wall_clock=hw.lateness_clock == "wall",
         ),
     )
     builder.Connect(state_sub.get_output_port(), state_rx.GetInputPort("message"))
@@ -85,6 +94,7 @@ def MakeHardwareStation(
             period_s=hw.watchdog_period_s,
             timeout_s=hw.image_timeout_s,
             max_delay_s=hw.image_max_delay_s,
+            wall_clock=hw.lateness_clock == "wall",
         ),
     )
     builder.Connect(image_sub.get_output_port(), camera_rx.GetInputPort("message"))

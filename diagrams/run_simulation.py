@@ -24,6 +24,7 @@ from pydrake.systems.analysis import (
     Simulator,
     SimulatorConfig,
 )
+from pydrake.systems.framework import Diagram
 
 from pcvfe_drake.control.course import Course
 from pcvfe_drake.diagrams.debug_layers import LAYERS
@@ -129,6 +130,8 @@ def run_simulation(
     write_outputs: bool = True,
     debug_layers: bool = True,
     controls: bool = True,
+    station: Diagram | None = None,
+    realtime_rate: float | None = None,
 ) -> SimulationResult:
     """Simulate ``scenario``; write drive log, playback, summary and figures into ``folder``.
 
@@ -140,19 +143,29 @@ def run_simulation(
     (``MakeSimulation``), and ``controls`` the Meshcat controls (show/hide layers, pause/resume,
     real-time rate; :class:`pcvfe_drake.diagrams.meshcat_controls.MeshcatControls`), polled
     between chunks of ``chunk_s`` simulated seconds.
+
+    ``station``: another station for ``MakeSimulation`` (the LCM station, a replay station);
+    ``realtime_rate``: pace simulated time to this many times wall-clock time (the LCM station
+    runs at ``scenario.hardware.realtime_rate``; None: the scenario's simulator settings).
     """
     log_path = folder.drive_log if folder is not None and write_outputs else None
     if folder is not None:
         folder.root.mkdir(parents=True, exist_ok=True)
-    parts = MakeSimulation(scenario, meshcat, log_path=log_path, debug_layers=debug_layers)
+    parts = MakeSimulation(
+        scenario, meshcat, log_path=log_path, debug_layers=debug_layers, station=station
+    )
     diagram, course, run_log = parts.diagram, parts.course, parts.run_log
     simulator = Simulator(diagram)
     ApplySimulatorConfig(simulator_config(scenario), simulator)
+    if realtime_rate is not None:
+        simulator.set_target_realtime_rate(realtime_rate)
     if meshcat is not None:
         meshcat.StartRecording(frames_per_second=1.0 / scenario.rates.view_period_s)
     panel = None
     if meshcat is not None and controls:
-        panel = MeshcatControls(meshcat, LAYERS if debug_layers else ())
+        panel = MeshcatControls(
+            meshcat, LAYERS if debug_layers else (), realtime_rate=realtime_rate or 0.0
+        )
     stop_t = scenario.stop_time_s()
     laps_goal = scenario.laps if scenario.duration_s is None else None
     lap_progress = LapProgress(course)
@@ -172,6 +185,9 @@ def run_simulation(
     cpu = 0.0
     try:
         simulator.Initialize()
+        # Pace from here: the LCM station's initialization may have waited for the vehicle's
+        # first message, and catching up on that wait would run ahead of the messages.
+        simulator.ResetStatistics()
         t = 0.0
         while t < stop_t - 1e-9:
             if panel is not None:
@@ -239,6 +255,12 @@ def run_simulation(
     summary["seed"] = scenario.seed
     if error is not None:
         summary["error"] = error
+    station_system = diagram.GetSubsystemByName("station")
+    status = station_system.GetOutputPort("station_status").Eval(
+        station_system.GetMyContextFromRoot(context)
+    )
+    summary["station_status"] = status.to_dict()
+    summary["rows_skipped_state_not_finite"] = diagram.GetSubsystemByName("run_logger").skipped_rows
     nmpc = diagram.GetSubsystemByName("nmpc")
     diag = nmpc.GetOutputPort("diagnostics").Eval(nmpc.GetMyContextFromRoot(context))
     summary["nmpc_fallbacks"] = int(getattr(diag, "fallback_count", 0))

@@ -10,7 +10,9 @@
 
 plus a ``run_logger`` (drive log written as the run goes), ``VectorLogSink`` loggers on the
 signals the summary needs (``log_state``, ``log_context_id``, ``log_theta_hat``,
-``log_true_mu``), and, with a Meshcat, the ``meshcat_view``.
+``log_true_mu`` where the station has truth), and, with a Meshcat, the ``meshcat_view``. Any
+station works (simulated, LCM, replay): consumers connect a sim-only port only where
+``station.HasOutputPort(name)``.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from pydrake.systems.primitives import LogVectorOutput
 
 from pcvfe_drake.control.course import Course, load_course
 from pcvfe_drake.diagrams.debug_layers import AddDebugLayers
-from pcvfe_drake.diagrams.station import MakeVehicleStation
+from pcvfe_drake.diagrams.station import SIM_ONLY_OUTPUTS, MakeVehicleStation
 from pcvfe_drake.perception.terrain import TerrainMap
 from pcvfe_drake.runs.runlog import RunLog
 from pcvfe_drake.runs.scenario import Scenario, build_terrain_map
@@ -54,6 +56,7 @@ def MakeSimulation(
     *,
     log_path: str | Path | None = None,
     debug_layers: bool = True,
+    station: Diagram | None = None,
 ) -> SimulationParts:
     """The closed loop of ``scenario`` as a diagram named ``pcvfe_simulation``.
 
@@ -63,6 +66,12 @@ def MakeSimulation(
         log_path: CSV drive log the ``run_logger`` appends to as the run goes (None: in memory).
         debug_layers: with a Meshcat, also the debugging layers under ``/pcvfe/`` (plan,
             friction circle, camera, features; ``debug_layers.AddDebugLayers``).
+        station: a station diagram with the station ports (``station.py``): the LCM station
+            (``MakeVehicleStation(..., hardware=True)``) or a replay station; None: the
+            simulated station of ``scenario``. Sim-only ports (``true_mu``, ``true_terrain``)
+            are connected only where the station has them; a replay station's
+            ``logged_actuation`` (the input recorded with the drive) feeds the fitter and the
+            log instead of the NMPC's command, which then drives nothing.
 
     Systems (names): ``station`` (exports actuation / state / image / true_mu / true_terrain),
     ``features``, ``clustering``, ``fitter``, ``nmpc``, ``run_logger``, the ``log_*`` vector
@@ -75,9 +84,9 @@ def MakeSimulation(
     rates = scenario.rates
 
     builder = DiagramBuilder()
-    station = builder.AddNamedSystem(
-        "station", MakeVehicleStation(scenario, terrain_map=terrain_map, course=course)
-    )
+    if station is None:
+        station = MakeVehicleStation(scenario, terrain_map=terrain_map, course=course)
+    station = builder.AddNamedSystem("station", station)
     features = builder.AddNamedSystem(
         "features",
         ClipFeatures(
@@ -112,7 +121,13 @@ def MakeSimulation(
     builder.Connect(station.GetOutputPort("image"), features.GetInputPort("image"))
     builder.Connect(features.GetOutputPort("features"), clustering.GetInputPort("features"))
     builder.Connect(state, fitter.GetInputPort("state"))
-    builder.Connect(nmpc.GetOutputPort("actuation"), fitter.GetInputPort("actuation"))
+    # What the car did: the NMPC's command, or on a replay the input recorded with the drive.
+    applied = (
+        station.GetOutputPort("logged_actuation")
+        if station.HasOutputPort("logged_actuation")
+        else nmpc.GetOutputPort("actuation")
+    )
+    builder.Connect(applied, fitter.GetInputPort("actuation"))
     builder.Connect(clustering.GetOutputPort("context_id"), fitter.GetInputPort("context_id"))
     builder.Connect(state, nmpc.GetInputPort("state"))
     builder.Connect(fitter.GetOutputPort("theta_hat"), nmpc.GetInputPort("theta_hat"))
@@ -122,17 +137,20 @@ def MakeSimulation(
     logger = builder.AddNamedSystem("run_logger", RunLogger(run_log, rates.log_period_s))
     sources = {
         "state": state,
-        "actuation": nmpc.GetOutputPort("actuation"),
+        "actuation": applied,
         "features": features.GetOutputPort("features"),
         "context_id": clustering.GetOutputPort("context_id"),
         "theta_hat": fitter.GetOutputPort("theta_hat"),
-        "true_mu": station.GetOutputPort("true_mu"),
-        "true_terrain": station.GetOutputPort("true_terrain"),
         "image": station.GetOutputPort("image"),
     }
+    for name in SIM_ONLY_OUTPUTS:  # truth only where the station has it
+        if station.HasOutputPort(name):
+            sources[name] = station.GetOutputPort(name)
     for name, port in sources.items():
         builder.Connect(port, logger.GetInputPort(name))
     for name in ("state", "context_id", "theta_hat", "true_mu"):
+        if name not in sources:
+            continue
         sink = LogVectorOutput(sources[name], builder, publish_period=rates.log_period_s)
         sink.set_name(f"log_{name}")
 
@@ -149,7 +167,8 @@ def MakeSimulation(
             ),
         )
         for name in ("state", "context_id", "theta_hat", "true_mu"):
-            builder.Connect(sources[name], view.GetInputPort(name))
+            if name in sources:
+                builder.Connect(sources[name], view.GetInputPort(name))
         if debug_layers:
             AddDebugLayers(
                 builder,

@@ -17,6 +17,7 @@ COMMANDS = [
     "terrain_map",
     "diagnose",
     "evaluate",
+    "vehicle_bridge",
 ]
 
 

@@ -4,6 +4,7 @@ station's image."""
 from __future__ import annotations
 
 import math
+import time
 
 from drake import lcmt_image_array
 from pydrake.common.value import AbstractValue
@@ -46,7 +47,8 @@ class CameraReceiver(LeafSystem):
 
     Rate: a periodic unrestricted update every ``period_s`` decodes a frame it has not seen
     (another timestamp); one that does not decode is rejected as ``malformed``, and the
-    watchdog rejects ``out_of_order`` and ``late`` frames (``max_delay_s``).
+    watchdog rejects ``out_of_order`` and ``late`` frames (``max_delay_s``; measured on the wall
+    clock with ``wall_clock=True``, as on hardware, else on the context time).
 
     Drake's ``LcmImageArrayToImages`` decodes the same message, but it raises on a malformed
     message (a crash of the loop) and drops the timestamps the watchdog needs; this receiver
@@ -61,6 +63,7 @@ class CameraReceiver(LeafSystem):
         period_s: float,
         timeout_s: float,
         max_delay_s: float,
+        wall_clock: bool = False,
     ) -> None:
         super().__init__()
         for name, value in (
@@ -72,6 +75,7 @@ class CameraReceiver(LeafSystem):
                 raise ValueError(f"CameraReceiver: {name} must be > 0 s, got {value!r}")
         self.timeout_s = float(timeout_s)
         self.max_delay_s = float(max_delay_s)
+        self.wall_clock = bool(wall_clock)
         self._blank = ImageRgba8U(int(width_px), int(height_px))
         self._message_port = self.DeclareAbstractInputPort(
             "message", AbstractValue.Make(lcmt_image_array())
@@ -103,7 +107,12 @@ class CameraReceiver(LeafSystem):
             except ImageMessageError:
                 problem = "malformed"
             status, accepted = check_message(
-                status, t, utime, problem=problem, max_delay_s=self.max_delay_s
+                status,
+                t,
+                utime,
+                problem=problem,
+                max_delay_s=self.max_delay_s,
+                arrival_s=time.monotonic() if self.wall_clock else None,
             )
             if accepted:
                 state.get_mutable_abstract_state(self._frame_index).set_value(to_drake_image(rgb))

@@ -47,6 +47,8 @@ class MeshcatView(LeafSystem):
         - theta_hat
         - true_mu
 
+    ``true_mu`` is the station's sim-only truth: leave it unconnected where the station has none.
+
     Rate: one periodic publish event every ``period_s`` (default 0.1 s, 10 Hz).
     """
 
@@ -157,7 +159,12 @@ class MeshcatView(LeafSystem):
             return
         ctx = int(round(float(self._context_port.Eval(context)[0])))
         mu_hat = float(self._theta_port.Eval(context)[0])
-        mu_true = float(self._true_mu_port.Eval(context)[0])
+        # Sim-only truth: unconnected on a hardware or replay station (no bar drawn).
+        mu_true = (
+            float(self._true_mu_port.Eval(context)[0])
+            if self._true_mu_port.HasValue(context)
+            else float("nan")
+        )
         mc = self._meshcat
         pose = RigidTransform(RotationMatrix.MakeZRotation(float(x[PSI])), [x[SX], x[SY], 0.0])
         mc.SetTransform(f"{ROOT}/car", pose, t)

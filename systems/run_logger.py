@@ -30,7 +30,10 @@ class RunLogger(LeafSystem):
     All inputs are read at the publish only (no output, no state). ``image`` (abstract
     ``ImageRgba8U``) is optional: when connected, a frame is saved every
     ``run_log.frame_period_s`` for the paper's Fig. 4. ``true_mu`` and ``true_terrain`` are the
-    plant's sim-only truth ports.
+    station's sim-only truth ports, optional too: unconnected (a hardware or replay station) the
+    rows have ``mu_true`` NaN and no terrain. A row whose ``state`` is not finite (a hardware
+    station whose state stream is lost) is not a measurement: it is skipped and counted in
+    ``skipped_rows``, so the drive log on disk stays valid.
 
     Rate: one periodic publish event every ``period_s`` (the scenario's log period). The RunLog
     is the run's output sink, owned by the caller (its rows are written to disk in chunks, so an
@@ -64,6 +67,8 @@ class RunLogger(LeafSystem):
         # The row waiting for the input applied from it (see "Input timing"); an output sink's
         # bookkeeping like the RunLog itself, not part of the simulated state.
         self._held_row: dict | None = None
+        self.skipped_rows = 0
+        """Rows not written because their state was not finite."""
 
     def _log(self, context) -> None:
         actuation = np.array(self._actuation_port.Eval(context), dtype=float)
@@ -79,14 +84,21 @@ class RunLogger(LeafSystem):
             "features": np.array(self._features_port.Eval(context), dtype=float),
             "context_id": float(self._context_port.Eval(context)[0]),
             "theta_hat": np.array(self._theta_port.Eval(context), dtype=float),
-            "mu_true": float(self._true_mu_port.Eval(context)[0]),
-            "terrain_index": float(self._true_terrain_port.Eval(context)[0]),
+            "mu_true": self._optional(self._true_mu_port, context, np.nan),
+            "terrain_index": self._optional(self._true_terrain_port, context, -1.0),
             "image_rgb": image,
         }
+
+    @staticmethod
+    def _optional(port, context, default: float) -> float:
+        return float(port.Eval(context)[0]) if port.HasValue(context) else default
 
     def _write_held(self, actuation: np.ndarray | None) -> None:
         row, self._held_row = self._held_row, None
         if row is None:
+            return
+        if not np.all(np.isfinite(row["state"])):
+            self.skipped_rows += 1
             return
         if actuation is not None:
             row["actuation"] = actuation

@@ -4,6 +4,7 @@ vector."""
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -45,11 +46,15 @@ class VehicleStateReceiver(LeafSystem):
 
     Rate: a periodic unrestricted update every ``period_s`` looks at the input; a message it has
     not seen (another ``utime``) is checked by :func:`pcvfe_drake.hardware.watchdog.check_message`
-    (non-finite, invalid, out of order, late by more than ``max_delay_s``). A default message
+    (non-finite, invalid, out of order, late by more than ``max_delay_s``; the delay on the
+    wall clock with ``wall_clock=True``, as on hardware, else on the context time). A default
+    message
     (``utime`` 0, what the subscriber holds before the first message) is never taken.
     """
 
-    def __init__(self, *, period_s: float, timeout_s: float, max_delay_s: float) -> None:
+    def __init__(
+        self, *, period_s: float, timeout_s: float, max_delay_s: float, wall_clock: bool = False
+    ) -> None:
         super().__init__()
         for name, value in (
             ("period_s", period_s),
@@ -60,6 +65,7 @@ class VehicleStateReceiver(LeafSystem):
                 raise ValueError(f"VehicleStateReceiver: {name} must be > 0 s, got {value!r}")
         self.timeout_s = float(timeout_s)
         self.max_delay_s = float(max_delay_s)
+        self.wall_clock = bool(wall_clock)
         self._message_port = self.DeclareAbstractInputPort(
             "message", AbstractValue.Make(lcmt_vehicle_state())
         )
@@ -94,7 +100,12 @@ class VehicleStateReceiver(LeafSystem):
             elif not msg.valid:
                 problem = "invalid"
             status, accepted = check_message(
-                status, t, msg.utime, problem=problem, max_delay_s=self.max_delay_s
+                status,
+                t,
+                msg.utime,
+                problem=problem,
+                max_delay_s=self.max_delay_s,
+                arrival_s=time.monotonic() if self.wall_clock else None,
             )
             if accepted:
                 state.get_mutable_discrete_state(self._state_index).set_value(

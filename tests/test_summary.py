@@ -247,3 +247,25 @@ def test_mu_error_after_the_first_20_s_of_a_context(course):
     assert agg["worst_mean"] == pytest.approx(max(b["abs_error_after_settle_mean"], 0.02))
     text = summary_table(s)
     assert "mu error after 20 s, worst context" in text and "not scored: 2" in text
+
+
+def test_a_log_without_truth_is_scored_only_where_truth_is_not_needed(course):
+    log = planted_log(course)
+    log["terrain"] = ""
+    log["mu_true"] = np.nan
+    log["final_context"] = log["context"]
+    s = summarize(log, course)
+    assert s["ground_truth"] is False and "no ground truth" in s["ground_truth_note"]
+    assert s["ari"] is None and s["final_clustering"]["ari"] is None
+    assert s["mu_abs_error_time_weighted"] is None and s["reidentification_latency_s"] == []
+    # What needs no truth is still there: contexts, estimates, tracking.
+    assert s["contexts_discovered"] == 3 and s["laps_completed"] == 1
+    assert all(e["true_mu"] is None and e["mu_hat"] > 0 for e in s["mu_estimates"])
+    s["station_status"] = {
+        "source": "lcm",
+        "streams": {"state": {"rejected": {"late": 2}, "timeouts": 1}, "camera": {}},
+    }
+    table = summary_table(s)
+    assert "ground truth" in table and "none:" in table
+    assert "lcm (state: late 2, timeouts 1)" in table
+    assert summarize(planted_log(course), course)["ground_truth"] is True

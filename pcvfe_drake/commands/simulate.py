@@ -61,6 +61,17 @@ def register(subparsers) -> None:
     )
     parser.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
     parser.add_argument(
+        "--hardware",
+        action="store_true",
+        help=(
+            "drive the car over LCM (the hardware station; rehearse with `pcvfe vehicle-bridge`) "
+            "instead of simulating it; paced to wall-clock time"
+        ),
+    )
+    parser.add_argument(
+        "--lcm-url", default=None, help="with --hardware: LCM URL (default: the scenario's bus)"
+    )
+    parser.add_argument(
         "--no-progress", action="store_true", help="no progress bar (e.g. in CI logs)"
     )
     parser.set_defaults(func=run)
@@ -96,10 +107,30 @@ def run(args: argparse.Namespace) -> int:
         meshcat = StartLocalMeshcat()
         print(f"Meshcat: {meshcat.web_url()} (localhost only)")
 
+    station, realtime_rate = None, None
+    if args.hardware:
+        from pcvfe_drake.commands.vehicle_bridge import with_lcm_url
+        from pcvfe_drake.diagrams.station import MakeVehicleStation
+
+        scenario = with_lcm_url(scenario, args.lcm_url)
+        save_scenario(scenario, out / "scenario.yaml")
+        hw = scenario.hardware
+        print(f"hardware station on {hw.lcm_buses[hw.bus].lcm_url}")
+        station = MakeVehicleStation(scenario, meshcat, hardware=True)
+        realtime_rate = hw.realtime_rate
+    elif args.lcm_url is not None:
+        raise ValueError("--lcm-url needs --hardware")
+
     folder = RunFolder(out)
     t0 = time.perf_counter()
     result = run_simulation(
-        scenario, folder, meshcat=meshcat, progress=not args.no_progress, chunk_s=CHUNK_S
+        scenario,
+        folder,
+        meshcat=meshcat,
+        progress=not args.no_progress,
+        chunk_s=CHUNK_S,
+        station=station,
+        realtime_rate=realtime_rate,
     )
     from pcvfe_drake.runs.summary import summary_table
 

@@ -39,14 +39,19 @@ class HardwareSettings:
     image_channel: str = "PCVFE_IMAGE"
     state_period_s: float = 0.01
     """Period of the vehicle's state messages (100 Hz, the platform's)."""
-    watchdog_period_s: float = 0.005
-    """Period at which the station's receivers check for new messages (200 Hz)."""
+    watchdog_period_s: float = 0.01
+    """Period at which the station's receivers check for new messages (100 Hz: the state rate,
+    on the same ticks as the fitter's sampling, so the checks add no simulator steps)."""
     state_timeout_s: float = 0.05
     """No accepted state message for this long: the station's ``state`` becomes NaN (the NMPC's
     fallback: the last plan shifted, then braking) and ``station_status`` says ``timeout``."""
     state_max_delay_s: float = 0.05
     """A state message whose transport delay exceeds the smallest delay seen so far by more than
     this is rejected as ``late``."""
+    lateness_clock: str = "wall"
+    """Clock on which the receivers measure message delays: ``"wall"`` (hardware: a station
+    that fell behind real time and catches up does not take fresh messages for late ones) or
+    ``"sim"`` (the station's simulated time: deterministic, for tests in one process)."""
     image_timeout_s: float = 0.35
     """No accepted camera frame for this long: the station's ``image`` becomes blank (features
     NaN, context noise) and ``station_status`` says ``timeout``."""
@@ -57,7 +62,8 @@ class HardwareSettings:
     brake_decel_mps2: float = 3.0
     """Vehicle side (bridge): braking deceleration when the actuation is lost [m/s^2]."""
     first_message_timeout_s: float = 10.0
-    """The station's initialization waits this long (wall clock) for the first state message."""
+    """The station's initialization waits this long (wall clock) for the first state message
+    and fails with an error naming the channel and URL if none comes (0: do not wait)."""
     realtime_rate: float = 1.0
     """Simulated time per wall-clock second on hardware (1: paced to wall-clock time)."""
 
@@ -82,12 +88,20 @@ def hardware_problems(settings: HardwareSettings) -> list[str]:
     for name, value in zip(("state", "actuation", "image"), channels, strict=True):
         if not (isinstance(value, str) and value.strip()):
             problems.append(f"hardware.{name}_channel={value!r}: must not be empty")
+    if settings.lateness_clock not in ("wall", "sim"):
+        problems.append(
+            f"hardware.lateness_clock={settings.lateness_clock!r}: must be 'wall' or 'sim'"
+        )
     if len(set(channels)) != len(channels):
         problems.append(f"hardware channels {channels}: must be three different names")
     for f in dataclasses.fields(HardwareSettings):
         value = getattr(settings, f.name)
-        if f.type is float and not (
-            isinstance(value, int | float) and math.isfinite(value) and value > 0
-        ):
-            problems.append(f"hardware.{f.name}={value!r}: must be a finite number > 0")
+        if f.type is not float:
+            continue
+        least = 0.0 if f.name == "first_message_timeout_s" else None
+        ok = isinstance(value, int | float) and math.isfinite(value)
+        ok = ok and (value >= least if least is not None else value > 0)
+        if not ok:
+            bound = ">= 0" if least is not None else "> 0"
+            problems.append(f"hardware.{f.name}={value!r}: must be a finite number {bound}")
     return problems

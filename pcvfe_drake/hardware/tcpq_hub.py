@@ -31,9 +31,18 @@ PUBLISH, SUBSCRIBE, UNSUBSCRIBE = 1, 2, 3
 HOST = "127.0.0.1"
 
 
+_QUICKACK = getattr(socket, "TCP_QUICKACK", None)
+
+
 def _recv_exact(sock: socket.socket, n: int) -> bytes:
     chunks = []
     while n:
+        if _QUICKACK is not None:
+            # The LCM C client writes each message in several small send() calls without
+            # TCP_NODELAY; acknowledging at once keeps Nagle's algorithm from holding its tail
+            # back for a delayed ACK (tens of ms per message). Linux resets the flag after
+            # each receive, so it is set before every one.
+            sock.setsockopt(socket.IPPROTO_TCP, _QUICKACK, 1)
         chunk = sock.recv(n)
         if not chunk:
             raise ConnectionError("client closed the connection")

@@ -12,7 +12,10 @@ rejection           when
 ``out_of_order``    its timestamp is not newer than the newest accepted one (repeats too)
 ``late``            its transport delay exceeds the smallest delay seen so far by more than
                     ``max_delay_s`` (the sender's clock need not agree with the station's:
-                    only differences of delay count)
+                    only differences of delay count; the smallest delay may rise by
+                    ``DRIFT_ALLOWANCE`` per second, so two clocks whose rates differ by less
+                    than that, a simulated vehicle that runs slightly slower than real time,
+                    never make every message late)
 ==================  =====================================================================
 
 A rejected message never reaches the station's outputs; the output holds the last accepted one
@@ -35,6 +38,10 @@ than the timeout. The numeric code of a condition is its index."""
 REJECTIONS = ("non_finite", "invalid", "malformed", "out_of_order", "late")
 """Reasons a message is rejected."""
 
+DRIFT_ALLOWANCE = 0.05
+"""How fast [s/s] the reference (smallest) delay may rise: rate differences between the
+sender's and the station's clocks up to 5 %."""
+
 
 @dataclass(frozen=True)
 class StreamStatus:
@@ -51,7 +58,10 @@ class StreamStatus:
     accepted_t_s: float = math.nan
     """Station time at which the newest accepted message was taken."""
     min_delay_s: float = math.inf
-    """Smallest (station time - sender time) of the accepted messages [s]."""
+    """Reference delay: the smallest (station time - sender time) of the accepted messages,
+    allowed to rise by ``DRIFT_ALLOWANCE`` per second since ``min_delay_t_s`` [s]."""
+    min_delay_t_s: float = math.nan
+    """Arrival time (the delay's clock) at which ``min_delay_s`` was set [s]."""
     last_delay_s: float = math.nan
     """Delay of the newest accepted message above ``min_delay_s`` [s]."""
     accepted: int = 0
@@ -104,12 +114,15 @@ def check_message(
     *,
     problem: str = "",
     max_delay_s: float,
+    arrival_s: float | None = None,
 ) -> tuple[StreamStatus, bool]:
     """Decide on a new message with timestamp ``utime`` [us] taken at station time ``t_s``.
 
     ``problem`` is a rejection reason the caller found in the payload (``"non_finite"``,
-    ``"invalid"``, ``"malformed"``; empty: none). Returns the new status and whether the message
-    is accepted.
+    ``"invalid"``, ``"malformed"``; empty: none). ``arrival_s`` is the clock the delay is
+    measured on (default ``t_s``; the LCM station uses the wall clock, so a station that fell
+    behind real time and catches up does not mistake fresh messages for late ones). Returns the
+    new status and whether the message is accepted.
     """
     utime = int(utime)
     status = replace(status, last_seen_utime=utime)
@@ -119,20 +132,32 @@ def check_message(
         return _with_rejection(status, problem, t_s), False
     if status.accepted_utime is not None and utime <= status.accepted_utime:
         return _with_rejection(status, "out_of_order", t_s), False
-    delay = t_s - utime * 1e-6
-    if math.isfinite(status.min_delay_s) and delay - status.min_delay_s > max_delay_s:
+    arrival = t_s if arrival_s is None else float(arrival_s)
+    delay = arrival - utime * 1e-6
+    reference = reference_delay(status, arrival)
+    if math.isfinite(reference) and delay - reference > max_delay_s:
         return _with_rejection(status, "late", t_s), False
+    reference = min(reference, delay)
     return (
         replace(
             status,
             accepted_utime=utime,
             accepted_t_s=t_s,
-            min_delay_s=min(status.min_delay_s, delay),
-            last_delay_s=max(0.0, delay - min(status.min_delay_s, delay)),
+            min_delay_s=reference,
+            min_delay_t_s=arrival,
+            last_delay_s=delay - reference,
             accepted=status.accepted + 1,
         ),
         True,
     )
+
+
+def reference_delay(status: StreamStatus, arrival_s: float) -> float:
+    """The delay a message arriving at ``arrival_s`` is compared with [s] (inf before the
+    first)."""
+    if not math.isfinite(status.min_delay_s):
+        return math.inf
+    return status.min_delay_s + DRIFT_ALLOWANCE * max(0.0, arrival_s - status.min_delay_t_s)
 
 
 def stream_condition(status: StreamStatus, t_s: float, timeout_s: float) -> str:

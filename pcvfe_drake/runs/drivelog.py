@@ -17,7 +17,8 @@ column         unit       meaning
 =============  =========  ==========================================================
 
 Optional columns: ``terrain`` (str, the terrain name; empty = unknown), ``context`` (int, a
-context/cluster id; -1 = noise), ``mu_true`` (friction coefficient, > 0), ``image`` (str, path of
+context/cluster id; -1 = noise), ``mu_true`` (friction coefficient, > 0; empty/NaN = unknown,
+as on a real car), ``image`` (str, path of
 a camera image; relative paths are relative to the log file's folder). Extra columns are allowed
 and kept.
 
@@ -115,8 +116,11 @@ def _rows(index: Iterable[int]) -> str:
     return f"row{'s' if len(idx) != 1 else ''} {shown}"
 
 
-def _numeric_column(df: pd.DataFrame, name: str, problems: list[str]) -> np.ndarray | None:
-    """The column as float (NaN where missing/inf, reported), or None if it is not numeric."""
+def _numeric_column(
+    df: pd.DataFrame, name: str, problems: list[str], *, missing_ok: bool = False
+) -> np.ndarray | None:
+    """The column as float (NaN where missing/inf, reported unless ``missing_ok`` for missing),
+    or None if it is not numeric."""
     raw = df[name]
     values = pd.to_numeric(raw, errors="coerce")
     not_numeric = values.isna() & raw.notna()
@@ -127,7 +131,7 @@ def _numeric_column(df: pd.DataFrame, name: str, problems: list[str]) -> np.ndar
         return None
     arr = values.to_numpy(dtype=float, copy=True)
     nan_rows = np.flatnonzero(np.isnan(arr))
-    if nan_rows.size:
+    if nan_rows.size and not missing_ok:
         problems.append(f"column '{name}': NaN/missing at {_rows(nan_rows)}")
     inf_rows = np.flatnonzero(np.isinf(arr))
     if inf_rows.size:
@@ -281,7 +285,9 @@ def validate_drive_log(
     cols: dict[str, np.ndarray | None] = {}
     for name in (*REQUIRED_COLUMNS, "mu_true"):
         if name in df.columns:
-            cols[name] = _numeric_column(df, name, problems)
+            # mu_true may be missing (empty/NaN) where the truth is unknown: a real car's log
+            # or a hardware run.
+            cols[name] = _numeric_column(df, name, problems, missing_ok=name == "mu_true")
 
     if cols.get("t") is not None:
         _time_checks(cols["t"], max_gap_s, problems)
@@ -317,7 +323,7 @@ def _optional_checks(
 ) -> None:
     mu = cols.get("mu_true")
     if mu is not None:
-        bad = np.flatnonzero((mu <= 0) | (mu > MAX_MU_TRUE))
+        bad = np.flatnonzero(~np.isnan(mu) & ((mu <= 0) | (mu > MAX_MU_TRUE)))
         if bad.size:
             problems.append(
                 f"column 'mu_true': values outside (0, {MAX_MU_TRUE:g}] at {_rows(bad)} "

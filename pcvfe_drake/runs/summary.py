@@ -224,6 +224,12 @@ def mu_estimates(
     return out
 
 
+NO_TRUTH_NOTE = (
+    "no ground truth on this station (hardware or a replayed real drive): ARI, terrain "
+    "latencies and friction errors are not scored; contexts, estimates and tracking are"
+)
+
+
 def summarize_run(
     log: pd.DataFrame,
     *,
@@ -246,12 +252,16 @@ def summarize_run(
     sim_time = float(t[-1] - t[0] + (w[-1] if len(t) > 1 else 0.0))
     wall = float(wall_time_s)
     excluded = tuple(excluded_terrains) + metrics.DEFAULT_EXCLUDED
-    terrain = log["terrain"].astype(str).to_numpy()
+    terrain = log["terrain"].fillna("").astype(str).to_numpy()
     ctx = log["context"].to_numpy(int)
-    m = metrics.context_metrics(t, terrain, ctx, excluded_labels=excluded)
-    reid = metrics.reidentification_latencies(t, terrain, ctx, excluded_labels=excluded)
-    visited = sorted({n for n in terrain if n and n not in set(excluded_terrains)})
     mu_true = log["mu_true"].to_numpy(float)
+    has_truth = bool(np.any(np.isfinite(mu_true)) or np.any(terrain != ""))
+    if has_truth:
+        m = metrics.context_metrics(t, terrain, ctx, excluded_labels=excluded)
+        reid = metrics.reidentification_latencies(t, terrain, ctx, excluded_labels=excluded)
+    else:
+        m, reid = None, []
+    visited = sorted({n for n in terrain if n and n not in set(excluded_terrains)})
     mu_hat = log["mu_hat"].to_numpy(float)
     ok = np.isfinite(mu_true) & np.isfinite(mu_hat)
     mu_err = float(np.average(np.abs(mu_hat - mu_true)[ok], weights=w[ok])) if ok.any() else None
@@ -265,16 +275,23 @@ def summarize_run(
         "realtime_factor": sim_time / wall if wall > 0 else None,
         "log_rows": len(log),
         "mean_speed_mps": float(np.average(speed[fin], weights=w[fin])) if fin.any() else None,
+        "ground_truth": has_truth,
     }
+    if not has_truth:
+        summary["ground_truth_note"] = NO_TRUTH_NOTE
     summary.update(course_tracking(log, course))
     lat = [r[2] for r in reid]
     summary.update(
         {
-            "contexts_discovered": int(m.n_contexts),
+            "contexts_discovered": (
+                int(m.n_contexts) if m is not None else len({int(c) for c in ctx if c >= 0})
+            ),
             "true_terrains_visited": visited,
             "excluded_terrains": sorted(set(excluded_terrains)),
-            "ari": _finite_or_none(m.ari),
-            "noise_fraction": _finite_or_none(m.noise_fraction),
+            "ari": _finite_or_none(m.ari) if m is not None else None,
+            "noise_fraction": (
+                _finite_or_none(m.noise_fraction) if m is not None else float(np.mean(ctx < 0))
+            ),
             "reidentification_latency_s": [
                 {"terrain": str(lab), "t_enter_s": t0, "latency_s": _finite_or_none(x)}
                 for lab, t0, x in reid
@@ -283,9 +300,11 @@ def summarize_run(
                 float(np.median(lat)) if lat else math.nan
             ),
             "reidentifications_missed": int(sum(not math.isfinite(x) for x in lat)),
-            "new_terrain_latency_s": {
-                k: _finite_or_none(v) for k, v in sorted(m.first_id_time_s.items())
-            },
+            "new_terrain_latency_s": (
+                {k: _finite_or_none(v) for k, v in sorted(m.first_id_time_s.items())}
+                if m is not None
+                else {}
+            ),
             "mu_estimates": mu_estimates(
                 log,
                 terrain_mu,
@@ -307,12 +326,19 @@ def summarize_run(
     }
     if "final_context" in log.columns:
         final = log["final_context"].to_numpy(int)
-        mf = metrics.context_metrics(t, terrain, final, excluded_labels=excluded)
-        summary["final_clustering"] = {
-            "ari": _finite_or_none(mf.ari),
-            "noise_fraction": _finite_or_none(mf.noise_fraction),
-            "contexts": int(mf.n_contexts),
-        }
+        if has_truth:
+            mf = metrics.context_metrics(t, terrain, final, excluded_labels=excluded)
+            summary["final_clustering"] = {
+                "ari": _finite_or_none(mf.ari),
+                "noise_fraction": _finite_or_none(mf.noise_fraction),
+                "contexts": int(mf.n_contexts),
+            }
+        else:
+            summary["final_clustering"] = {
+                "ari": None,
+                "noise_fraction": float(np.mean(final < 0)),
+                "contexts": len({int(c) for c in final if c >= 0}),
+            }
     return summary
 
 
@@ -324,6 +350,18 @@ def _settle_row(entry: Mapping[str, Any] | None) -> str:
     if entry.get("contexts_unscored"):
         text += f"; not scored: {', '.join(str(i) for i in entry['contexts_unscored'])}"
     return text + ")"
+
+
+def _station_faults(status: Mapping[str, Any]) -> str:
+    """``"no faults"`` or the rejections and timeouts per stream of a ``station_status`` dict."""
+    parts = []
+    for name, stream in status.get("streams", {}).items():
+        counts = dict(stream.get("rejected", {}))
+        if stream.get("timeouts"):
+            counts["timeouts"] = stream["timeouts"]
+        if counts:
+            parts.append(f"{name}: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
+    return "; ".join(parts) if parts else "no faults"
 
 
 def summary_table(summary: Mapping[str, Any]) -> str:
@@ -370,6 +408,11 @@ def summary_table(summary: Mapping[str, Any]) -> str:
             _settle_row(s.get("mu_error_after_settle")),
         ),
     ]
+    if s.get("ground_truth") is False:
+        rows.insert(1, ("ground truth", "none: " + NO_TRUTH_NOTE.split(": ", 1)[1]))
+    if s.get("station_status"):
+        st = s["station_status"]
+        rows.insert(1, ("station", f"{st.get('source')} ({_station_faults(st)})"))
     if s.get("interrupted"):
         rows.insert(1, ("status", "interrupted (summary of what was logged)"))
     width = max(len(r[0]) for r in rows)

@@ -26,6 +26,8 @@ from pcvfe_drake.vehicle.params import load_vehicle
 def memq_scenario() -> Scenario:
     scenario = Scenario(duration_s=2.0, laps=None)
     scenario.hardware.lcm_buses = {"default": LcmBusSettings(lcm_url="memq://")}
+    scenario.hardware.first_message_timeout_s = 0.0  # the messages come from the test itself
+    scenario.hardware.lateness_clock = "sim"  # one process, faster than real time
     return scenario
 
 
@@ -74,8 +76,9 @@ def test_station_against_the_bridge_in_one_process_sees_the_vehicle():
     br_ctx = bridge.GetMyContextFromRoot(ctx)
     truth = bridge.GetOutputPort("true_state").Eval(br_ctx)
     seen = station.GetOutputPort("state").Eval(st_ctx)
-    # The station's state is at most one state period (10 ms) plus a check (5 ms) old.
-    assert np.linalg.norm(seen[:2] - truth[:2]) < 0.015 * truth[3] + 1e-6
+    # The station's state is at most two state periods old (a message published at t is taken
+    # at the next check, 10 ms later, as checks at t see the subscriber before its update).
+    assert np.linalg.norm(seen[:2] - truth[:2]) < 0.0201 * truth[3]
     # The car accelerates at the commanded 0.5 m/s^2 (from 3 m/s), so the commands arrive.
     assert 3.4 < truth[3] < 3.5
     status = station.GetOutputPort("station_status").Eval(st_ctx)
@@ -88,7 +91,7 @@ def test_station_against_the_bridge_in_one_process_sees_the_vehicle():
     assert 19 <= len(commands) <= 21
     assert all(c.accel == 0.5 for c in commands)
     lag_us = [c.utime - c.state_utime for c in commands[1:]]
-    assert max(lag_us) <= 15_000
+    assert max(lag_us) <= 20_000
 
 
 def test_state_loss_makes_the_nmpc_brake_and_the_status_say_why():

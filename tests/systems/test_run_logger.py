@@ -116,3 +116,32 @@ def test_each_row_gets_the_input_applied_from_it():
     np.testing.assert_allclose(df["t"], [0.0, 0.1, 0.2, 0.3, 0.4, 0.5], atol=1e-12)
     # Rows 0..4 carry the value applied from them; the last row the value held into it.
     np.testing.assert_allclose(df["steer_rate"], [1.0, 2.0, 3.0, 4.0, 5.0, 5.0])
+
+
+def test_without_truth_ports_and_with_a_lost_state(tmp_path):
+    """A hardware station: no truth connected, and rows whose state is NaN are skipped."""
+    run_log = RunLog(tmp_path / "drive_log.csv", ["sand"], 3, chunk_rows=2)
+    builder = DiagramBuilder()
+    logger = builder.AddNamedSystem("run_logger", RunLogger(run_log, period_s=0.1))
+    values = {
+        "actuation": [0.05, 0.5],
+        "features": [0.1, 0.2, 0.3],
+        "context_id": [-1.0],
+        "theta_hat": [0.61, 20.0, 21.0],
+    }
+    for name, value in values.items():
+        source = builder.AddSystem(ConstantVectorSource(np.array(value)))
+        builder.Connect(source.get_output_port(), logger.GetInputPort(name))
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    ctx = logger.GetMyMutableContextFromRoot(simulator.get_mutable_context())
+    state = logger.GetInputPort("state")
+    state.FixValue(ctx, [1.0, 2.0, 0.0, 5.0, 0.0, 0.0, 0.0])
+    simulator.AdvanceTo(0.35)  # rows at 0.0, 0.1, 0.2, 0.3
+    state.FixValue(ctx, np.full(7, np.nan))
+    simulator.AdvanceTo(0.55)  # 0.4, 0.5 are lost
+    logger.finish()
+    run_log.close()
+    assert logger.skipped_rows == 2
+    df = read_drive_log(tmp_path / "drive_log.csv")
+    assert len(df) == 4 and df["mu_true"].isna().all() and (df["terrain"] == "").all()
