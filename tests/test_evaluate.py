@@ -17,6 +17,7 @@ from pcvfe_drake.evaluation.report import build_report
 from pcvfe_drake.evaluation.runner import open_client, run_sweep
 from pcvfe_drake.evaluation.stats import mean_ci, paired_differences
 from pcvfe_drake.evaluation.store import ResultStore
+from pcvfe_drake.evaluation.tables import failure_rows, metric_values
 
 TINY = """
 name: tiny
@@ -111,7 +112,7 @@ def test_runs_are_stored_and_a_raising_run_is_recorded(sweep):
         assert summary["seed"] == r.seed and summary["mean_speed_mps"] == r.mean_speed_mps
         log = pd.read_parquet(folder / "drive_log.parquet")
         assert log["t"].iloc[-1] == pytest.approx(3.0, abs=0.06)
-        assert "failure_events" in summary
+        assert len(failure_rows(summary)) == summary["catastrophic_failures"]
     for r in failed.itertuples():
         assert "Traceback" in (store.run_dir(r.run_id) / "error.txt").read_text()
     laps = pd.read_parquet(store.table_path("laps"))
@@ -188,3 +189,24 @@ def test_mean_ci_and_paired_differences_by_hand():
     )
     d = paired_differences(runs, "v", "a")
     assert d["seed"].tolist() == [0, 1] and d["diff"].tolist() == [0.5, -1.0]
+
+
+def test_metrics_and_failures_read_from_either_summary_layout():
+    old = {
+        "mu_error_after_settle": {"worst_mean": 0.1},
+        "failure_events": [{"t_s": 3.0, "sx_m": 1.0, "sy_m": 2.0, "kind": "spin"}],
+    }
+    new = {
+        "mu_error_after_entry": {"mean": 0.2},
+        "transition_response": {"median_s": 1.5},
+        "failures": [{"t_s": 3.0, "x_m": 1.0, "y_m": 2.0, "s_m": 5.0, "reason": "spin"}],
+    }
+    assert metric_values(old)["mu_error_settled"] == 0.1
+    assert metric_values(new)["mu_error_settled"] == 0.2
+    assert metric_values(new)["transition_response_s"] == 1.5
+    assert np.isnan(metric_values(old)["transition_response_s"])
+    assert (
+        failure_rows(old)
+        == failure_rows(new)
+        == [{"t_s": 3.0, "sx_m": 1.0, "sy_m": 2.0, "kind": "spin"}]
+    )

@@ -30,47 +30,54 @@ class Metric:
     unit: str
     better: str
     """``"higher"`` or ``"lower"``."""
-    path: tuple[str, ...]
-    """Where it is in summary.json (nested keys)."""
+    paths: tuple[tuple[str, ...], ...]
+    """Where it is in summary.json (nested keys); the first path present wins."""
 
 
 METRICS: tuple[Metric, ...] = (
-    Metric("mean_speed_mps", "mean speed", "m/s", "higher", ("mean_speed_mps",)),
-    Metric("lap_time_s", "lap time", "s", "lower", ("lap_time_s",)),
-    Metric("failures", "catastrophic failures", "", "lower", ("catastrophic_failures",)),
-    Metric("lateral_error_rms_m", "lateral error RMS", "m", "lower", ("lateral_error_rms_m",)),
-    Metric("mu_error", "mu error (time-weighted)", "", "lower", ("mu_abs_error_time_weighted",)),
+    Metric("mean_speed_mps", "mean speed", "m/s", "higher", (("mean_speed_mps",),)),
+    Metric("lap_time_s", "lap time", "s", "lower", (("lap_time_s",),)),
+    Metric("failures", "catastrophic failures", "", "lower", (("catastrophic_failures",),)),
+    Metric("lateral_error_rms_m", "lateral error RMS", "m", "lower", (("lateral_error_rms_m",),)),
+    Metric("mu_error", "mu error (time-weighted)", "", "lower", (("mu_abs_error_time_weighted",),)),
     Metric(
         "mu_error_settled",
-        "mu error after 20 s (worst context)",
+        "mu error after entry",
         "",
         "lower",
-        ("mu_error_after_settle", "worst_mean"),
+        (("mu_error_after_entry", "mean"), ("mu_error_after_settle", "worst_mean")),
     ),
     Metric(
         "transition_response_s",
-        "transition response",
+        "transition response (median)",
         "s",
         "lower",
-        ("transition_response_s",),
+        (("transition_response", "median_s"), ("transition_response_s",)),
     ),
-    Metric("friction_utilisation", "friction utilisation", "", "higher", ("friction_utilisation",)),
+    Metric(
+        "above_friction_limit",
+        "time above the friction limit (fraction)",
+        "",
+        "lower",
+        (("friction_utilisation", "fraction_above_limit"),),
+    ),
 )
 """The metrics of the report, in its column order. A metric a run's summary lacks is NaN."""
 
 
-def _get(summary: Mapping[str, Any], path: Sequence[str]) -> float:
-    node: Any = summary
-    for key in path:
-        if not isinstance(node, Mapping) or key not in node:
-            return math.nan
-        node = node[key]
-    if isinstance(node, Mapping):
-        node = node.get("mean", math.nan)
-    try:
-        return float(node) if node is not None else math.nan
-    except (TypeError, ValueError):
-        return math.nan
+def _get(summary: Mapping[str, Any], paths: Sequence[Sequence[str]]) -> float:
+    for path in paths:
+        node: Any = summary
+        for key in path:
+            if not isinstance(node, Mapping) or key not in node:
+                break
+            node = node[key]
+        else:
+            try:
+                return float(node) if node is not None else math.nan
+            except (TypeError, ValueError):
+                return math.nan
+    return math.nan
 
 
 def _number(x) -> float:
@@ -79,7 +86,7 @@ def _number(x) -> float:
 
 def metric_values(summary: Mapping[str, Any]) -> dict[str, float]:
     """The :data:`METRICS` of one summary.json as ``{column: value}`` (NaN where missing)."""
-    return {m.column: _get(summary, m.path) for m in METRICS}
+    return {m.column: _get(summary, m.paths) for m in METRICS}
 
 
 def run_row(spec: Mapping[str, Any], result: Mapping[str, Any]) -> dict[str, Any]:
@@ -170,8 +177,16 @@ def context_rows(summary: Mapping[str, Any]) -> list[dict]:
 
 
 def failure_rows(summary: Mapping[str, Any]) -> list[dict]:
-    """One row per failure event of ``summary["failure_events"]`` (t_s, sx_m, sy_m, kind)."""
-    return [
-        {k: e.get(k) for k in ("t_s", "sx_m", "sy_m", "kind")}
-        for e in summary.get("failure_events") or []
-    ]
+    """One row per catastrophic failure of the summary (t_s, sx_m, sy_m, kind), from its
+    ``failures`` list (x_m, y_m, reason) or its ``failure_events`` list (sx_m, sy_m, kind)."""
+    rows = []
+    for e in summary.get("failures") or summary.get("failure_events") or []:
+        rows.append(
+            {
+                "t_s": e.get("t_s"),
+                "sx_m": e.get("x_m", e.get("sx_m")),
+                "sy_m": e.get("y_m", e.get("sy_m")),
+                "kind": e.get("reason", e.get("kind")),
+            }
+        )
+    return rows
