@@ -12,8 +12,14 @@ from pydrake.systems.framework import LeafSystem
 from pydrake.systems.sensors import ImageRgba8U
 
 from pcvfe_drake.runs.palette import context_rgb
-from pcvfe_drake.systems.meshcat_layer import ROOT, TextLabel, VisibleChoice, set_image_quad
-from pcvfe_drake.vehicle.single_track import NX, SX, SY
+from pcvfe_drake.systems.meshcat_layer import (
+    ROOT,
+    TextLabel,
+    VisibleChoice,
+    follow_car,
+    set_image_quad,
+)
+from pcvfe_drake.vehicle.single_track import NX
 from pcvfe_drake.views.labels import thumbnail
 
 PATH = f"{ROOT}/camera"
@@ -103,10 +109,8 @@ class CameraView(LeafSystem):
     def _draw(self, context) -> None:
         t = context.get_time()
         mc = self._meshcat
-        x = self._state_port.Eval(context)
-        if not np.all(np.isfinite(x[[SX, SY]])):
+        if not follow_car(mc, PATH, self._state_port.Eval(context), self._offset, t):
             return
-        mc.SetTransform(PATH, RigidTransform(np.array([x[SX], x[SY], 0.0]) + self._offset), t)
         image = self._image_port.Eval(context)
         rgb = np.asarray(image.data)
         if rgb.size and rgb.ndim == 3:

@@ -9,8 +9,8 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
 from pcvfe_drake.control.plan import NmpcPlan
-from pcvfe_drake.systems.meshcat_layer import ROOT, TextLabel, VisibleChoice
-from pcvfe_drake.vehicle.single_track import NU, NX, SX, SY
+from pcvfe_drake.systems.meshcat_layer import ROOT, TextLabel, VisibleChoice, follow_car
+from pcvfe_drake.vehicle.single_track import NU, NX
 from pcvfe_drake.views.plan_geometry import (
     G_MPS2,
     actual_acceleration,
@@ -137,10 +137,8 @@ class FrictionCircleView(LeafSystem):
         t = context.get_time()
         mc = self._meshcat
         x = self._state_port.Eval(context)
-        if not np.all(np.isfinite(x[[SX, SY]])):
+        if not follow_car(mc, PATH, x, self._offset, t):
             return
-        centre = np.array([x[SX], x[SY], 0.0]) + self._offset
-        mc.SetTransform(PATH, RigidTransform(centre), t)
         mu_hat = float(self._theta_port.Eval(context)[0])
         self._set_circle("mu_hat", mu_hat, t)
         mu_limit = mu_hat

@@ -19,6 +19,7 @@ import numpy as np
 from pydrake.geometry import Mesh, Meshcat
 from pydrake.math import RigidTransform
 
+from pcvfe_drake.vehicle.single_track import SX, SY
 from pcvfe_drake.views.labels import text_image
 
 ROOT = "/pcvfe"
@@ -66,6 +67,17 @@ def set_image_quad(
     # Meshcat reads the files (and embeds the texture) during SetObject.
     meshcat.SetObject(path, Mesh(str(folder / "quad.obj")))
     return 2 * h
+
+
+def follow_car(meshcat: Meshcat, path: str, x: np.ndarray, offset_m, t: float) -> bool:
+    """Key ``path`` at the car's position (state ``x``, ST order) plus ``offset_m`` [m], without
+    its rotation (panels keep facing the camera); False (nothing set) if the position is not
+    finite."""
+    if not np.all(np.isfinite(x[[SX, SY]])):
+        return False
+    position = np.array([x[SX], x[SY], 0.0]) + np.asarray(offset_m, dtype=float)
+    meshcat.SetTransform(path, RigidTransform(position), t)
+    return True
 
 
 def packed_translation(meshcat: Meshcat, path: str) -> np.ndarray | None:
