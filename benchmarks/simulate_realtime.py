@@ -11,7 +11,8 @@ budget the estimator and controller take. The loop runs twice in the process: th
 headline figure. With ``--meshcat`` it also times the loop with Meshcat recording, twice each
 way, alternating: the view of the run alone (ground, car, paths, friction bars: the view before
 the debugging layers) and with the ``/pcvfe/`` debugging layers (plan, friction circle, camera,
-features); it reports the best of each and the layers' drop in real-time factor (target <= 15 %).
+features); it reports the best of each and the layers' drop in real-time factor (target <= 15 %),
+judged by CPU time (all threads of the process) and reported by wall time beside it.
 
 Usage: python benchmarks/simulate_realtime.py [--quick] [--duration S] [--meshcat]
 Last stdout line: one JSON object.
@@ -109,6 +110,7 @@ def main() -> int:
         params.host = "localhost"
         meshcat = Meshcat(params)
         best = {False: 0.0, True: 0.0}
+        best_cpu = {False: 0.0, True: 0.0}
         for layers in (False, True, False, True):
             what = "with the debugging layers" if layers else "view only"
             print(f"full loop with Meshcat recording, {what} ...", flush=True)
@@ -120,18 +122,28 @@ def main() -> int:
                 write_outputs=False,
                 debug_layers=layers,
             )
-            rtf = run.summary["realtime_factor"]
+            rtf, rtf_cpu = run.summary["realtime_factor"], run.summary["realtime_factor_cpu"]
             best[layers] = max(best[layers], rtf)
-            print(f"  real-time factor {rtf:.2f}x", flush=True)
+            best_cpu[layers] = max(best_cpu[layers], rtf_cpu)
+            print(f"  real-time factor {rtf:.2f}x wall, {rtf_cpu:.2f}x CPU time", flush=True)
             meshcat.Delete()
             meshcat.DeleteRecording()
         out["realtime_factor_with_meshcat_view_only"] = best[False]
         out["realtime_factor_with_meshcat"] = best[True]
-        drop = 1.0 - best[True] / best[False]
-        out["meshcat_layers_rtf_drop"] = drop
+        out["realtime_factor_cpu_with_meshcat_view_only"] = best_cpu[False]
+        out["realtime_factor_cpu_with_meshcat"] = best_cpu[True]
+        # CPU time (all threads of the process, Meshcat's server included) is the fair measure
+        # when other jobs share the cores; the wall-clock drop is reported beside it.
+        drop_cpu = 1.0 - best_cpu[True] / best_cpu[False]
+        out["meshcat_layers_rtf_drop_wall"] = 1.0 - best[True] / best[False]
+        out["meshcat_layers_rtf_drop_cpu"] = drop_cpu
         out["meshcat_layers_target_drop"] = 0.15
-        out["meshcat_layers_meet_target"] = bool(drop <= 0.15)
-        print(f"  debugging layers: real-time factor drop {100 * drop:.1f} %", flush=True)
+        out["meshcat_layers_meet_target"] = bool(drop_cpu <= 0.15)
+        print(
+            f"  debugging layers: real-time factor drop {100 * drop_cpu:.1f} % by CPU time, "
+            f"{100 * out['meshcat_layers_rtf_drop_wall']:.1f} % by wall time",
+            flush=True,
+        )
     print(json.dumps(out))
     return 0
 
