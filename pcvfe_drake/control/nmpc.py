@@ -22,8 +22,8 @@ sequential quadratic programming in multiple-shooting form:
    discretised exactly for a zero-order-held input with the matrix exponential of the augmented
    matrix ``[[A, B, f], [0, 0, 0]] dt`` (one batched ``expm``). The ST model's yaw/slip modes
    scale like 1/v (Ford Escort: about -215 1/s at 1 m/s), so an explicit RK4 step of 50 ms is
-   unstable below about 4 m/s; the exponential is exact for the linear model at every speed and
-   costs about a third of four RK4 sub-steps with Jacobians.
+   unstable below about 4 m/s; the exponential is exact for the linear model at every speed
+   (its cost against RK4 sub-steps and against SciPy's ``expm``: ``docs/nmpc.md``).
 4. *QP* in deviations ``dz = (dx_0..dx_N, du_0..du_{N-1}, slacks)`` with
    ``dx_{k+1} = Ad_k dx_k + Bd_k du_k + (defect)``, ``dx_0 = 0``; bounds on steering rate,
    acceleration (CommonRoad's limits) and steering angle; a soft friction polygon per stage
