@@ -185,6 +185,29 @@ def test_failing_solver_from_the_start_and_bad_inputs(course, params):
     assert diag.mode == "braking" and u[1] == 0.0
 
 
+def test_ctrl_c_during_the_osqp_solve_is_raised_not_a_fallback(course, params):
+    """OSQP catches SIGINT during a solve and returns the status 'interrupted' (checked by hand:
+    osqp 1.1.3 prints "Solver interrupted"); the controller must raise KeyboardInterrupt, not
+    brake one step and carry on."""
+    from types import SimpleNamespace
+
+    ctrl = NmpcController(course, params, dataclasses.replace(CFG, horizon=10))
+    real = ctrl._solver
+
+    class InterruptedSolver:
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+        def solve(self, raise_error=False):
+            res = real.solve(raise_error=raise_error)
+            return SimpleNamespace(x=res.x, y=res.y, info=SimpleNamespace(status="interrupted"))
+
+    ctrl._solver = InterruptedSolver()
+    with pytest.raises(KeyboardInterrupt):
+        ctrl.update(offset_start(course, params), params.theta)
+    assert ctrl.memory.fallback_count == 0
+
+
 def test_wall_clock_limit_triggers_the_fallback(course, params):
     ctrl = NmpcController(course, params, dataclasses.replace(CFG, time_limit_s=1e-9))
     ctrl.update(offset_start(course, params), params.theta)

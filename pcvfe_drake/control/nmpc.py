@@ -95,6 +95,8 @@ __all__ = [
 ]
 
 _ACCEPTED = ("solved", "solved inaccurate")
+OSQP_INTERRUPTED = "interrupted"
+"""OSQP's status when Ctrl-C arrived during a solve (it catches SIGINT and returns)."""
 _MU_RANGE = (0.05, 2.0)
 _NO_TIME_LIMIT = 1e10  # OSQP's own default: no wall-clock limit
 _PROJ = ("s", "lateral_error", "heading_error", "x", "y", "heading", "curvature")
@@ -523,7 +525,8 @@ class NmpcController:
         return th, ""
 
     def step(self, x, theta, memory: NmpcMemory):
-        """One controller update: ``(u (2,), new memory, NmpcDiagnostics)``; never raises."""
+        """One controller update: ``(u (2,), new memory, NmpcDiagnostics)``. Never raises, but
+        for ``KeyboardInterrupt`` when Ctrl-C interrupted the OSQP solve."""
         t_start = time.perf_counter()
         th, note = self._theta(theta)
         x = np.asarray(x, dtype=float).reshape(-1)
@@ -542,6 +545,10 @@ class NmpcController:
             self._solver.warm_start(x=z0, y=y0)
             res = self._solver.solve(raise_error=False)
             status = str(res.info.status)
+            if status == OSQP_INTERRUPTED:
+                # OSQP catches Ctrl-C during a solve and returns instead of raising: the
+                # interrupt is the user's, not a failed solve (no fallback step).
+                raise KeyboardInterrupt("OSQP solve interrupted (Ctrl-C)")
             ok = status in _ACCEPTED and np.all(np.isfinite(res.x))
         except Exception as exc:  # the loop must never raise
             return self._fallback(x, th, memory, f"error: {type(exc).__name__}: {exc}", t_start)
