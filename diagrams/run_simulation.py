@@ -1,20 +1,33 @@
-"""Running a scenario end to end: simulate in chunks, record Meshcat, write the run folder.
+"""Running a scenario end to end: the simulation loop (the run folder is written by the core).
 
-:func:`run_simulation` builds ``MakeSimulation``, advances the simulator in chunks of simulated
-time (progress bar with simulated time and real-time factor), stops at the scenario's duration or
-lap count, and on any ending (done, Ctrl-C, or an error inside the simulation) closes the drive
-log, saves the Meshcat recording as ``playback.html``, and writes ``summary.json`` and the
-figures from what was logged.
+:func:`run_simulation` builds ``MakeSimulation``, applies the scenario's ``simulator`` settings
+(Drake's ``SimulatorConfig`` through ``ApplySimulatorConfig``), and advances the simulator in
+chunks of simulated time for the progress bar (simulated time, real-time factor, laps, context).
+It stops
+
+- at ``scenario.duration_s`` (``AdvanceTo`` the exact time), or
+- when ``scenario.laps`` laps are done: a ``Simulator.set_monitor`` monitor (:class:`LapMonitor`)
+  follows the drive log's rows as they are written and ends ``AdvanceTo`` at the step that
+  writes the row completing the goal (the same rows and course projection the summary counts
+  laps with, so the run never overshoots and the summary agrees), at ``max_duration_s`` at the
+  latest, or
+- at Ctrl-C or SIGTERM (``summary["interrupted"]``, ``summary["interrupt_signal"]``; an
+  interrupt that OSQP catches during a solve is raised again by the NMPC), or
+- when the simulation raises (``summary["error"]``), the drive log's disk included.
+
+On every ending it closes the drive log, stops the Meshcat recording and hands the data to
+``pcvfe_drake.runs.run_folder.write_run_outputs`` (Drake-free), which writes ``playback.html``,
+the figures and ``summary.json``. While those are written, Ctrl-C and SIGTERM are held back (the
+writer finishes; the interrupt is noted in the summary).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
+import signal
+import threading
 import time
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any
+from contextlib import contextmanager
 
 import numpy as np
 from pydrake.geometry import Meshcat, MeshcatParams
@@ -23,45 +36,38 @@ from pydrake.systems.analysis import (
     GetIntegrationSchemes,
     Simulator,
     SimulatorConfig,
+    SimulatorStatus,
 )
-from pydrake.systems.framework import Diagram
+from pydrake.systems.framework import Diagram, EventStatus
 
 from pcvfe_drake.control.course import Course
 from pcvfe_drake.diagrams.debug_layers import LAYERS
 from pcvfe_drake.diagrams.meshcat_controls import MeshcatControls
 from pcvfe_drake.diagrams.simulation import MakeSimulation, course_xy
-from pcvfe_drake.perception.ground_render import render_topdown
-from pcvfe_drake.runs.figures import write_figures
-from pcvfe_drake.runs.runlog import feature_columns
-from pcvfe_drake.runs.scenario import Scenario, excluded_terrains
-from pcvfe_drake.runs.summary import summarize_run
+from pcvfe_drake.runs.run_folder import (
+    RunFolder,
+    RunRecord,
+    SimulationResult,
+    write_run_outputs,
+)
+from pcvfe_drake.runs.runlog import RunLog, feature_columns
+from pcvfe_drake.runs.scenario import Scenario
 
-
-class RunFolder:
-    """File names of a run folder."""
-
-    def __init__(self, root: str | Path) -> None:
-        self.root = Path(root)
-        self.drive_log = self.root / "drive_log.csv"
-        self.summary = self.root / "summary.json"
-        self.playback = self.root / "playback.html"
-        self.figures = self.root / "figures"
-        self.scenario = self.root / "scenario.yaml"
-
-
-@dataclass
-class SimulationResult:
-    summary: dict[str, Any]
-    figures: dict[str, str | None] = field(default_factory=dict)
-    figure_notes: dict[str, str] = field(default_factory=dict)
-    playback: Path | None = None
-    log_errors: list[str] = field(default_factory=list)
-    log: Any = None
-    """The run log as a pandas DataFrame (drive-log columns, ``final_context`` included)."""
+__all__ = [
+    "LapMonitor",
+    "LapProgress",
+    "RunFolder",
+    "SimulationResult",
+    "StartLocalMeshcat",
+    "run_simulation",
+    "simulator_config",
+]
 
 
 class LapProgress:
-    """Progress along the course [m] from a stream of positions (wrap-around aware)."""
+    """Progress along the course [m] from a stream of positions (wrap-around aware): the same
+    projection and unwrapping as the summary's lap count
+    (``pcvfe_drake.runs.summary.course_tracking``)."""
 
     def __init__(self, course: Course) -> None:
         self.course = course
@@ -80,6 +86,59 @@ class LapProgress:
                 self.travelled_m += float(self.course.unwrap_progress(s)[-1] - s[0])
             self._s_prev = float(s[-1])
         return self.travelled_m / self.course.length
+
+    @property
+    def laps(self) -> float:
+        return self.travelled_m / self.course.length
+
+
+class LapMonitor:
+    """``Simulator.set_monitor`` callback: ends ``AdvanceTo`` when the drive log's rows have
+    covered ``laps_goal`` laps.
+
+    It looks at the run log after every step; new rows are projected onto the course in batches
+    of ``batch_rows`` while the goal is farther than the car can drive in a batch (at
+    ``v_bound_mps``), and one by one once it is near, so the check costs a few projections per
+    simulated second and the run stops at the row that reaches the goal.
+    """
+
+    def __init__(
+        self,
+        system,
+        course: Course,
+        run_log: RunLog,
+        laps_goal: float,
+        *,
+        log_period_s: float,
+        v_bound_mps: float,
+        batch_rows: int = 20,
+    ) -> None:
+        self.system = system
+        self.run_log = run_log
+        self.laps_goal = float(laps_goal)
+        self.progress = LapProgress(course)
+        self.rows_seen = 0
+        self.batch_rows = int(batch_rows)
+        self.near_m = 1.5 * float(v_bound_mps) * self.batch_rows * float(log_period_s) + 1.0
+        self.reached = False
+        self._xy_columns = (run_log.columns.index("sx"), run_log.columns.index("sy"))
+
+    def _remaining_m(self) -> float:
+        return self.laps_goal * self.progress.course.length - self.progress.travelled_m
+
+    def __call__(self, context) -> EventStatus:
+        n = len(self.run_log)
+        new = n - self.rows_seen
+        if new <= 0 or (new < self.batch_rows and self._remaining_m() > self.near_m):
+            return EventStatus.DidNothing()
+        ix, iy = self._xy_columns
+        for row in self.run_log.rows_since(self.rows_seen):
+            self.progress.update(np.array([[row[ix], row[iy]]]))
+            self.rows_seen += 1
+            if self.progress.travelled_m / self.progress.course.length >= self.laps_goal - 1e-9:
+                self.reached = True
+                return EventStatus.ReachedTermination(self.system, "lap goal reached")
+        return EventStatus.Succeeded()
 
 
 def simulator_config(scenario: Scenario) -> SimulatorConfig:
@@ -120,6 +179,35 @@ def _estimate_table(diagram, context) -> list[dict]:
     ]
 
 
+class _Interrupt(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C so that both end the run the same way."""
+
+
+@contextmanager
+def _signals(mode: str, received: list[str]):
+    """Within the block, SIGINT and SIGTERM either raise (``mode="raise"``: SIGTERM as a
+    KeyboardInterrupt) or are held back (``"defer"``); each one received is appended to
+    ``received``. Outside the main thread nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        name = signal.Signals(signum).name
+        received.append(name)
+        if mode == "raise":
+            if signum == signal.SIGINT:
+                raise KeyboardInterrupt
+            raise _Interrupt(name)
+
+    previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
 def run_simulation(
     scenario: Scenario,
     folder: RunFolder | None,
@@ -136,8 +224,10 @@ def run_simulation(
     """Simulate ``scenario``; write drive log, playback, summary and figures into ``folder``.
 
     The run stops at ``scenario.duration_s``, or when ``scenario.laps`` laps are completed (at
-    ``scenario.max_duration_s`` at the latest), or at Ctrl-C (``summary["interrupted"]``), or
-    when the simulation raises (``summary["error"]``; the outputs are still written).
+    ``scenario.max_duration_s`` at the latest), or at Ctrl-C / SIGTERM
+    (``summary["interrupted"]``), or when the simulation raises (``summary["error"]``; the
+    outputs are still written). ``folder`` must exist or be creatable (the CLI prepares it with
+    ``RunFolder.prepare``); write errors after the start are reported, not raised.
 
     With a ``meshcat``: ``debug_layers`` adds the ``/pcvfe/`` debugging layers
     (``MakeSimulation``), and ``controls`` the Meshcat controls (show/hide layers, pause/resume,
@@ -148,17 +238,34 @@ def run_simulation(
     ``realtime_rate``: pace simulated time to this many times wall-clock time (the LCM station
     runs at ``scenario.hardware.realtime_rate``; None: the scenario's simulator settings).
     """
-    log_path = folder.drive_log if folder is not None and write_outputs else None
-    if folder is not None:
+    writing = folder is not None and write_outputs
+    if writing:
         folder.root.mkdir(parents=True, exist_ok=True)
     parts = MakeSimulation(
-        scenario, meshcat, log_path=log_path, debug_layers=debug_layers, station=station
+        scenario,
+        meshcat,
+        log_path=folder.drive_log if writing else None,
+        debug_layers=debug_layers,
+        station=station,
     )
     diagram, course, run_log = parts.diagram, parts.course, parts.run_log
     simulator = Simulator(diagram)
     ApplySimulatorConfig(simulator_config(scenario), simulator)
     if realtime_rate is not None:
         simulator.set_target_realtime_rate(realtime_rate)
+    stop_t = scenario.stop_time_s()
+    laps_goal = scenario.laps if scenario.duration_s is None else None
+    monitor = None
+    if laps_goal is not None:
+        monitor = LapMonitor(
+            diagram,
+            course,
+            run_log,
+            laps_goal,
+            log_period_s=scenario.rates.log_period_s,
+            v_bound_mps=max(abs(parts.params.v_max), abs(parts.params.v_min)),
+        )
+        simulator.set_monitor(monitor)
     if meshcat is not None:
         meshcat.StartRecording(frames_per_second=1.0 / scenario.rates.view_period_s)
     panel = None
@@ -166,9 +273,6 @@ def run_simulation(
         panel = MeshcatControls(
             meshcat, LAYERS if debug_layers else (), realtime_rate=realtime_rate or 0.0
         )
-    stop_t = scenario.stop_time_s()
-    laps_goal = scenario.laps if scenario.duration_s is None else None
-    lap_progress = LapProgress(course)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -178,116 +282,108 @@ def run_simulation(
             unit="s sim",
             bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}{postfix}]",
         )
+    received: list[str] = []
     interrupted = False
     error = None
-    rows_seen = 0
+    write_errors: list[str] = []
+    stop_reason = "duration" if laps_goal is None else "max_duration"
     wall = 0.0
     cpu = 0.0
+    lap_display = LapProgress(course) if bar is not None else None
+    rows_shown = 0
     try:
-        simulator.Initialize()
-        # Pace from here: the LCM station's initialization may have waited for the vehicle's
-        # first message, and catching up on that wait would run ahead of the messages.
-        simulator.ResetStatistics()
-        t = 0.0
-        while t < stop_t - 1e-9:
-            if panel is not None:
-                panel.poll(simulator)
-            target = min(t + chunk_s, stop_t)
-            w0, c0 = time.perf_counter(), time.process_time()
-            simulator.AdvanceTo(target)
-            wall += time.perf_counter() - w0
-            cpu += time.process_time() - c0
-            t = simulator.get_context().get_time()
-            rows = run_log.rows_since(rows_seen)
-            rows_seen += len(rows)
-            laps = lap_progress.update(np.array([[r[1], r[2]] for r in rows]).reshape(-1, 2))
-            if bar is not None:
-                bar.update(target - bar.n)
-                ctx = int(rows[-1][run_log.columns.index("context")]) if rows else -1
-                bar.set_postfix_str(
-                    f"t={t:.0f}s rtf={t / max(wall, 1e-9):.1f}x laps={laps:.2f} ctx={ctx}"
-                )
-            if laps_goal is not None and laps >= laps_goal:
-                break
+        with _signals("raise", received):
+            simulator.Initialize()
+            # Pace from here: the LCM station's initialization may have waited for the
+            # vehicle's first message, and catching up on that wait would run ahead of them.
+            simulator.ResetStatistics()
+            t = 0.0
+            while t < stop_t - 1e-9:
+                if panel is not None:
+                    panel.poll(simulator)
+                target = min(t + chunk_s, stop_t)
+                w0, c0 = time.perf_counter(), time.process_time()
+                status = simulator.AdvanceTo(target)
+                wall += time.perf_counter() - w0
+                cpu += time.process_time() - c0
+                t = simulator.get_context().get_time()
+                if bar is not None:
+                    rows = run_log.rows_since(rows_shown)
+                    rows_shown += len(rows)
+                    laps = lap_display.update(np.array([[r[1], r[2]] for r in rows]))
+                    bar.update(t - bar.n)
+                    ctx = int(rows[-1][run_log.columns.index("context")]) if rows else -1
+                    bar.set_postfix_str(
+                        f"t={t:.0f}s rtf={t / max(wall, 1e-9):.1f}x laps={laps:.2f} ctx={ctx}"
+                    )
+                if status.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition:
+                    stop_reason = "laps"
+                    break
     except KeyboardInterrupt:
         interrupted = True
+        stop_reason = "interrupted"
+    except OSError as exc:  # the drive log's disk (RunLogWriteError names the path)
+        error = f"{type(exc).__name__}: {exc}"
+        stop_reason = "error"
     except (RuntimeError, ValueError, ArithmeticError) as exc:
         error = f"{type(exc).__name__}: {exc}"
-    finally:
+        stop_reason = "error"
+    with _signals("defer", received):
         if bar is not None:
             bar.close()
         diagram.GetSubsystemByName("run_logger").finish()
         run_log.close()
-    context = simulator.get_context()
-    result = SimulationResult(summary={}, log_errors=list(run_log.errors))
-    if meshcat is not None:
-        view = diagram.GetSubsystemByName("meshcat_view")
-        view.flush(view.GetMyContextFromRoot(context))
-        meshcat.StopRecording()
-        if panel is not None:
-            panel.remove()
-        meshcat.PublishRecording()
-        if folder is not None and write_outputs:
-            folder.playback.write_text(meshcat.StaticHtml())
-            result.playback = folder.playback
-    log = run_log.to_frame()
-    if len(log) == 0:
-        raise ValueError(f"scenario {scenario.name!r}: nothing was logged ({error or 'stopped'})")
-    terrain_map = parts.terrain_map
-    clustering = diagram.GetSubsystemByName("clustering")
-    clusterer = clustering.clusterer(clustering.GetMyContextFromRoot(context))
-    log["final_context"] = clusterer.predict(log[feature_columns(run_log.feature_dim)].to_numpy())
-    table = _estimate_table(diagram, context)
-    summary = summarize_run(
-        log,
-        scenario=scenario.name,
-        wall_time_s=wall,
-        terrain_mu={t.name: t.mu for t in terrain_map.terrains},
-        excluded_terrains=excluded_terrains(scenario),
-        course=course,
-        estimate_table=table,
-        interrupted=interrupted,
-    )
-    summary["cpu_time_s"] = cpu
-    summary["realtime_factor_cpu"] = summary["sim_time_s"] / cpu if cpu > 0 else None
-    summary["truth_model"] = scenario.truth_model
-    summary["feature_backend"] = scenario.features.backend
-    summary["seed"] = scenario.seed
-    if error is not None:
-        summary["error"] = error
-    station_system = diagram.GetSubsystemByName("station")
-    status = station_system.GetOutputPort("station_status").Eval(
-        station_system.GetMyContextFromRoot(context)
-    )
-    summary["station_status"] = status.to_dict()
-    summary["rows_skipped_state_not_finite"] = diagram.GetSubsystemByName("run_logger").skipped_rows
-    nmpc = diagram.GetSubsystemByName("nmpc")
-    diag = nmpc.GetOutputPort("diagnostics").Eval(nmpc.GetMyContextFromRoot(context))
-    summary["nmpc_fallbacks"] = int(getattr(diag, "fallback_count", 0))
-    summary["nmpc_updates"] = int(getattr(diag, "updates", 0))
-    result.summary = summary
-    result.log = log
-    if folder is not None and write_outputs:
-        x0, x1, y0, y1 = terrain_map.bounds_m
-        map_image = render_topdown(terrain_map, px_per_m=2.0)
-        result.figures = write_figures(
-            log,
-            folder.figures,
-            summary,
-            map_image=map_image,
-            map_bounds_m=(x0, x1, y0, y1),
-            reference_xy=course_xy(course),
-            log_dir=folder.root,
+        if run_log.write_error is not None:
+            write_errors.append(run_log.write_error)
+        context = simulator.get_context()
+        playback_html = None
+        if meshcat is not None:
+            view = diagram.GetSubsystemByName("meshcat_view")
+            view.flush(view.GetMyContextFromRoot(context))
+            meshcat.StopRecording()
+            if panel is not None:
+                panel.remove()
+            meshcat.PublishRecording()
+            playback_html = meshcat.StaticHtml() if writing else None
+        log = run_log.to_frame()
+        if len(log) == 0:
+            raise ValueError(
+                f"scenario {scenario.name!r}: nothing was logged ({error or 'stopped'})"
+            )
+        clustering = diagram.GetSubsystemByName("clustering")
+        clusterer = clustering.clusterer(clustering.GetMyContextFromRoot(context))
+        features = log[feature_columns(run_log.feature_dim)].to_numpy()
+        log["final_context"] = clusterer.predict(features)
+        nmpc = diagram.GetSubsystemByName("nmpc")
+        diag = nmpc.GetOutputPort("diagnostics").Eval(nmpc.GetMyContextFromRoot(context))
+        station_system = diagram.GetSubsystemByName("station")
+        station_status = station_system.GetOutputPort("station_status").Eval(
+            station_system.GetMyContextFromRoot(context)
         )
-        if result.figures.get("fig7_reidentification") is None:
-            result.figure_notes["fig7_reidentification"] = "no re-identification in this run"
-        summary["files"] = {
-            "drive_log": folder.drive_log.name,
-            "playback": folder.playback.name if result.playback else None,
-            "figures": {
-                k: (Path(v).relative_to(folder.root).as_posix() if v else None)
-                for k, v in result.figures.items()
-            },
-        }
-        folder.summary.write_text(json.dumps(summary, indent=2, allow_nan=False))
+        record = RunRecord(
+            scenario=scenario,
+            log=log,
+            course=course,
+            terrain_map=parts.terrain_map,
+            estimate_table=_estimate_table(diagram, context),
+            wall_time_s=wall,
+            cpu_time_s=cpu,
+            nmpc_updates=int(getattr(diag, "updates", 0)),
+            nmpc_fallbacks=int(getattr(diag, "fallback_count", 0)),
+            interrupted=interrupted,
+            interrupt_signal=received[0] if interrupted and received else None,
+            error=error,
+            stop_reason=stop_reason,
+            log_errors=list(run_log.errors),
+            write_errors=write_errors,
+            station_status=station_status.to_dict(),
+            rows_skipped_state_not_finite=diagram.GetSubsystemByName("run_logger").skipped_rows,
+        )
+        result = write_run_outputs(
+            record,
+            folder if writing else None,
+            playback_html=playback_html,
+            reference_xy=course_xy(course),
+        )
+        result.held_signals = list(received[1:] if interrupted else received)
     return result

@@ -186,5 +186,5 @@ def _resolve_vehicle(scenario: Scenario, path: Path) -> Scenario:
 def save_scenario(scenario: Scenario, path: str | Path) -> Path:
     """Write ``scenario`` as YAML (every field but the derived ones) to ``path``; returns it."""
     path = Path(path)
-    path.write_text(yaml.safe_dump(scenario.to_dict(), sort_keys=False))
+    path.write_text(scenario.to_yaml())
     return path

@@ -8,9 +8,8 @@
     station.state ------------------------------------------------------------> nmpc
     nmpc.actuation -> station.actuation (and fitter.actuation)
 
-plus a ``run_logger`` (drive log written as the run goes), ``VectorLogSink`` loggers on the
-signals the summary needs (``log_state``, ``log_context_id``, ``log_theta_hat``,
-``log_true_mu`` where the station has truth), and, with a Meshcat, the ``meshcat_view``. Any
+plus a ``run_logger`` (the drive log written as the run goes: the one record of the run, from
+which the summary and the figures are computed) and, with a Meshcat, the ``meshcat_view``. Any
 station works (simulated, LCM, replay): consumers connect a sim-only port only where
 ``station.HasOutputPort(name)``.
 """
@@ -22,7 +21,6 @@ from pathlib import Path
 
 from pydrake.geometry import Meshcat
 from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import LogVectorOutput
 
 from pcvfe_drake.control.course import Course, load_course
 from pcvfe_drake.diagrams.debug_layers import AddDebugLayers
@@ -74,9 +72,9 @@ def MakeSimulation(
             log instead of the NMPC's command, which then drives nothing.
 
     Systems (names): ``station`` (exports actuation / state / image / true_mu / true_terrain),
-    ``features``, ``clustering``, ``fitter``, ``nmpc``, ``run_logger``, the ``log_*`` vector
-    loggers, and ``meshcat_view`` when a Meshcat is given (with ``debug_layers``, also
-    ``plan_view``, ``friction_circle_view``, ``camera_view``, ``feature_view``).
+    ``features``, ``clustering``, ``fitter``, ``nmpc``, ``run_logger``, and ``meshcat_view``
+    when a Meshcat is given (with ``debug_layers``, also ``plan_view``,
+    ``friction_circle_view``, ``camera_view``, ``feature_view``).
     """
     params = load_vehicle(scenario.vehicle)
     terrain_map = build_terrain_map(scenario)
@@ -148,11 +146,6 @@ def MakeSimulation(
             sources[name] = station.GetOutputPort(name)
     for name, port in sources.items():
         builder.Connect(port, logger.GetInputPort(name))
-    for name in ("state", "context_id", "theta_hat", "true_mu"):
-        if name not in sources:
-            continue
-        sink = LogVectorOutput(sources[name], builder, publish_period=rates.log_period_s)
-        sink.set_name(f"log_{name}")
 
     if meshcat is not None:
         view = builder.AddNamedSystem(

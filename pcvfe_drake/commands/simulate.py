@@ -28,7 +28,7 @@ def register(subparsers) -> None:
             "(drive_log.csv, written as the run goes, plus camera frames), summary.json, "
             "playback.html (Meshcat recording, opens in a browser without a server) and "
             "figures/ (the paper's Fig. 4, 5 and 7). Ctrl-C stops cleanly and keeps what was "
-            f"logged. Shipped scenarios: {', '.join(shipped_scenarios())}."
+            f"logged (so does SIGTERM). Shipped scenarios: {', '.join(shipped_scenarios())}."
         ),
     )
     parser.add_argument(
@@ -49,6 +49,13 @@ def register(subparsers) -> None:
     )
     parser.add_argument(
         "--out", type=Path, default=None, help="run folder (default: runs/<scenario>-<time>)"
+    )
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace a run already in --out (removes its drive_log.csv, summary.json, "
+        "playback.html, scenario.yaml, figures/ and frames/; other files stay); without it such "
+        "a folder is refused",
     )
     length = parser.add_mutually_exclusive_group()
     length.add_argument("--laps", type=float, default=None, help="stop after N laps")
@@ -90,8 +97,9 @@ def run(args: argparse.Namespace) -> int:
     _check_args(args)
     import dataclasses
 
-    from pcvfe_drake.diagrams.run_simulation import RunFolder, StartLocalMeshcat, run_simulation
-    from pcvfe_drake.diagrams.scenario_io import load_scenario, save_scenario
+    from pcvfe_drake.diagrams.run_simulation import StartLocalMeshcat, run_simulation
+    from pcvfe_drake.diagrams.scenario_io import load_scenario
+    from pcvfe_drake.runs.run_folder import RunFolder
 
     scenario = load_scenario(args.scenario, *args.overrides)
     if args.laps is not None or args.duration is not None:
@@ -99,8 +107,11 @@ def run(args: argparse.Namespace) -> int:
     if args.seed is not None:
         scenario = dataclasses.replace(scenario, seed=args.seed)
     out = args.out or Path("runs") / f"{scenario.name}-{datetime.now():%Y%m%d-%H%M%S}"
-    out.mkdir(parents=True, exist_ok=True)
-    save_scenario(scenario, out / "scenario.yaml")
+    folder = RunFolder(out)
+    removed = folder.prepare(overwrite=args.overwrite)
+    if removed:
+        print(f"--overwrite: removed the previous run in {out}: {', '.join(removed)}")
+    folder.write_text(folder.scenario, scenario.to_yaml())
 
     meshcat = None
     if args.meshcat:
@@ -113,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
         from pcvfe_drake.diagrams.station import MakeVehicleStation
 
         scenario = with_lcm_url(scenario, args.lcm_url)
-        save_scenario(scenario, out / "scenario.yaml")
+        folder.write_text(folder.scenario, scenario.to_yaml())
         hw = scenario.hardware
         print(f"hardware station on {hw.lcm_buses[hw.bus].lcm_url}")
         station = MakeVehicleStation(scenario, meshcat, hardware=True)
@@ -121,7 +132,6 @@ def run(args: argparse.Namespace) -> int:
     elif args.lcm_url is not None:
         raise ValueError("--lcm-url needs --hardware")
 
-    folder = RunFolder(out)
     t0 = time.perf_counter()
     result = run_simulation(
         scenario,
@@ -148,7 +158,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"  the simulation stopped early: {result.summary['error']}")
     if result.log_errors:
         print(f"  note: {len(result.log_errors)} log chunk(s) rejected by the drive-log format")
+    for message in result.write_errors:
+        print(f"  not written: {message}")
     print(f"total {time.perf_counter() - t0:.1f} s")
-    if result.summary.get("interrupted"):
+    if result.summary.get("interrupted") or result.held_signals:
         return 130
     return 1 if result.summary.get("error") else 0

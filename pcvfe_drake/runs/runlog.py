@@ -27,6 +27,12 @@ from pcvfe_drake.vehicle.single_track import INPUT_NAMES, NX, STATE_NAMES
 ESTIMATE_COLUMNS = ("mu_hat", "C_Sf_hat", "C_Sr_hat")
 
 
+class RunLogWriteError(OSError):
+    """The drive log (or a camera frame) could not be written; the message names the path and
+    the reason. The rows stay in memory (the summary still sees them); nothing more is written
+    to disk."""
+
+
 def feature_columns(n: int) -> list[str]:
     """Names of the feature columns: f_00, f_01, ..."""
     return [f"f_{i:02d}" for i in range(n)]
@@ -77,6 +83,8 @@ class RunLog:
         self._pending: list[list] = []
         self._next_frame_t = 0.0
         self.errors: list[str] = []
+        self.write_error: str | None = None
+        """Why the log stopped being written to disk (``"path: reason"``), or None."""
         self._writer = DriveLogWriter(self.path) if self.path is not None else None
         self.frame_dir = self.path.parent / "frames" if self.path is not None else None
 
@@ -110,12 +118,19 @@ class RunLog:
         k = int(round(float(terrain_index)))
         terrain = self.terrain_names[k] if 0 <= k < len(self.terrain_names) else ""
         image = ""
-        if image_rgb is not None and self.wants_frame(t_s):
-            self.frame_dir.mkdir(parents=True, exist_ok=True)
+        if image_rgb is not None and self.write_error is None and self.wants_frame(t_s):
             name = f"frame_{int(round(t_s * 1000)):08d}.png"
             bgr = cv2.cvtColor(np.ascontiguousarray(image_rgb[..., :3]), cv2.COLOR_RGB2BGR)
-            if cv2.imwrite(str(self.frame_dir / name), bgr):
-                image = f"frames/{name}"
+            try:
+                self.frame_dir.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:  # no frames; the log itself goes on
+                from pcvfe_drake.runs.run_folder import os_error_text
+
+                self.errors.append(f"no camera frames: {os_error_text(exc, self.frame_dir)}")
+                self.frame_period_s = 0.0
+            else:
+                if cv2.imwrite(str(self.frame_dir / name), bgr):
+                    image = f"frames/{name}"
             self._next_frame_t = t_s + self.frame_period_s - 1e-9
         row = [
             float(t_s),
@@ -146,12 +161,36 @@ class RunLog:
             self._writer.append(chunk)
         except DriveLogError as exc:
             self.errors.append(str(exc))
+        except OSError as exc:
+            self._fail(exc, self.path)
+
+    def _fail(self, exc: OSError, path: Path) -> None:
+        """Stop writing to disk after an OS error (a full disk) and raise RunLogWriteError."""
+        from pcvfe_drake.runs.run_folder import os_error_text
+
+        self.write_error = f"cannot write {os_error_text(exc, path)}"
+        writer, self._writer = self._writer, None
+        if writer is not None:
+            try:
+                writer.close()
+            except OSError:
+                pass  # the same error again: the rows are kept in memory
+        raise RunLogWriteError(exc.errno, self.write_error) from exc
 
     def close(self) -> None:
         """Write the pending rows and close the file (idempotent)."""
-        self.flush()
-        if self._writer is not None:
-            self._writer.close()
+        try:
+            self.flush()
+        except RunLogWriteError:
+            return  # noted in write_error
+        writer, self._writer = self._writer, None
+        if writer is not None:
+            try:
+                writer.close()
+            except OSError as exc:
+                from pcvfe_drake.runs.run_folder import os_error_text
+
+                self.write_error = f"cannot write {os_error_text(exc, self.path)}"
 
     def rows_since(self, start: int) -> list[list]:
         """The rows logged from row index ``start`` on (for progress reports)."""

@@ -229,6 +229,12 @@ class Scenario:
         """``nmpc`` with its step (``rates.nmpc_period_s``) filled in."""
         return dataclasses.replace(self.nmpc, dt_s=self.rates.nmpc_period_s)
 
+    def to_yaml(self) -> str:
+        """:meth:`to_dict` as YAML text (what a run folder's ``scenario.yaml`` holds)."""
+        import yaml
+
+        return yaml.safe_dump(self.to_dict(), sort_keys=False)
+
     def to_dict(self) -> dict:
         """Every field as plain data, without the :data:`DERIVED_FIELDS` (a file that can be
         loaded again)."""

@@ -1,0 +1,278 @@
+"""The run folder of ``pcvfe simulate``: preparing it and writing what a run leaves (no pydrake).
+
+The simulation loop (``pcvfe_drake.diagrams.run_simulation``) drives the diagram; everything that
+touches the disk after it lives here, so it can be tested without Drake and so every OS error
+has one place where it becomes a message naming the path and the reason:
+
+- :meth:`RunFolder.prepare` creates the folder, refuses one that already holds a run unless
+  ``overwrite`` (then it removes the old run's files, and only those: :data:`RUN_FILES` and
+  :data:`RUN_DIRS`), and turns "is a file", "under a file", "permission denied" into a
+  :class:`RunFolderError` (a ``ValueError``, so the CLI prints it as a clean error).
+- :func:`write_run_outputs` writes ``playback.html``, the figures and ``summary.json`` (last, so
+  it can list what was written); a write that fails (a full disk) is noted in
+  ``summary["write_errors"]`` as ``"path: reason"`` and the other files are still written.
+
+A run folder holds::
+
+    drive_log.csv    the drive log, appended as the run goes (pcvfe_drake.runs.runlog)
+    frames/          camera frames referenced by the log's image column
+    scenario.yaml    the scenario as run (every field, so the run can be repeated)
+    summary.json     pcvfe_drake.runs.summary.summarize_run plus run facts (below)
+    playback.html    the Meshcat recording (with a Meshcat)
+    figures/         the paper's Fig. 4, 5, 7 (pcvfe_drake.runs.figures)
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from pcvfe_drake.runs.figures import write_figures
+from pcvfe_drake.runs.summary import summarize_run
+
+RUN_FILES = ("drive_log.csv", "summary.json", "playback.html", "scenario.yaml")
+"""Files a run writes into its folder."""
+RUN_DIRS = ("figures", "frames")
+"""Folders a run writes into its folder."""
+
+
+class RunFolderError(ValueError):
+    """The run folder cannot be used or written; the message names the path and the reason."""
+
+
+def os_error_text(exc: OSError, path: str | Path) -> str:
+    """``"path: reason"`` for an OS error met while writing ``path``."""
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    if exc.errno == errno.ENOSPC:
+        reason += " (the disk is full)"
+    return f"{path}: {reason}"
+
+
+class RunFolder:
+    """File names of a run folder, and its preparation (see the module docstring)."""
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+        self.drive_log = self.root / "drive_log.csv"
+        self.summary = self.root / "summary.json"
+        self.playback = self.root / "playback.html"
+        self.figures = self.root / "figures"
+        self.frames = self.root / "frames"
+        self.scenario = self.root / "scenario.yaml"
+
+    def run_entries(self) -> list[Path]:
+        """The entries of a previous run in the folder (files of :data:`RUN_FILES`, folders of
+        :data:`RUN_DIRS`)."""
+        if not self.root.is_dir():
+            return []
+        names = [*RUN_FILES, *RUN_DIRS]
+        return [self.root / n for n in names if os.path.lexists(self.root / n)]
+
+    def prepare(self, *, overwrite: bool = False) -> list[str]:
+        """Create the folder for a new run; returns the names of an old run's entries removed
+        (``overwrite``). Raises :class:`RunFolderError` naming the path and the reason when the
+        folder cannot be created or written, or already holds a run and ``overwrite`` is False.
+        """
+        root = self.root
+        if root.exists() and not root.is_dir():
+            raise RunFolderError(f"{root}: is a file, not a folder; give a folder for the run")
+        for parent in root.parents:
+            if parent.exists():
+                if not parent.is_dir():
+                    raise RunFolderError(
+                        f"{root}: cannot create the run folder: {parent} is a file, not a folder"
+                    )
+                break
+        try:
+            root.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise RunFolderError(
+                f"cannot create the run folder {os_error_text(exc, root)}"
+            ) from exc
+        old = self.run_entries()
+        if old and not overwrite:
+            raise RunFolderError(
+                f"{root}: already holds a run ({', '.join(p.name for p in old)}); give another "
+                "folder, or --overwrite to replace that run (removes those entries only)"
+            )
+        removed = []
+        for entry in old:
+            try:
+                if entry.is_dir() and not entry.is_symlink():
+                    shutil.rmtree(entry)
+                else:
+                    entry.unlink()
+            except OSError as exc:
+                raise RunFolderError(
+                    f"cannot remove the previous run's {os_error_text(exc, entry)}"
+                ) from exc
+            removed.append(entry.name)
+        probe = root / ".pcvfe-write-test"
+        try:
+            probe.write_text("")
+            probe.unlink()
+        except OSError as exc:
+            raise RunFolderError(f"cannot write into the run folder {os_error_text(exc, root)}") from exc
+        return removed
+
+    def write_text(self, path: Path, text: str) -> None:
+        """Write ``text`` to ``path`` (in the folder); raise :class:`RunFolderError` naming the
+        path and the reason on an OS error (a partly written file is removed)."""
+        try:
+            path.write_text(text)
+        except OSError as exc:
+            try:
+                path.unlink(missing_ok=True)
+            except OSError:
+                pass
+            raise RunFolderError(f"cannot write {os_error_text(exc, path)}") from exc
+
+
+@dataclass
+class SimulationResult:
+    """What a run returns: the summary (as written to ``summary.json``), the figures written
+    (name: path, None when not drawable, with the reason in ``figure_notes``), the playback
+    page, drive-log chunks the format rejected, and files that could not be written."""
+
+    summary: dict[str, Any]
+    figures: dict[str, str | None] = field(default_factory=dict)
+    figure_notes: dict[str, str] = field(default_factory=dict)
+    playback: Path | None = None
+    log_errors: list[str] = field(default_factory=list)
+    write_errors: list[str] = field(default_factory=list)
+    held_signals: list[str] = field(default_factory=list)
+    """Ctrl-C / SIGTERM received while the outputs were written (held back until they were)."""
+    log: Any = None
+    """The run log as a pandas DataFrame (drive-log columns, ``final_context`` included)."""
+
+
+@dataclass
+class RunRecord:
+    """What the simulation loop hands to the writer (all plain data)."""
+
+    scenario: Any
+    """The ``pcvfe_drake.runs.scenario.Scenario`` that ran."""
+    log: pd.DataFrame
+    """The run log (``RunLog.to_frame()``) with the ``final_context`` column."""
+    course: Any
+    terrain_map: Any
+    estimate_table: list[dict]
+    wall_time_s: float
+    cpu_time_s: float
+    nmpc_updates: int
+    nmpc_fallbacks: int
+    interrupted: bool = False
+    interrupt_signal: str | None = None
+    error: str | None = None
+    stop_reason: str = "duration"
+    """``"duration"``, ``"laps"``, ``"max_duration"``, ``"interrupted"`` or ``"error"``."""
+    log_errors: list[str] = field(default_factory=list)
+    write_errors: list[str] = field(default_factory=list)
+    """Files the loop could not write (the drive log on a full disk), ``"path: reason"``."""
+    station_status: dict | None = None
+    """The station's ``station_status`` at the end (``StationStatus.to_dict()``)."""
+    rows_skipped_state_not_finite: int = 0
+    """Rows the run logger skipped because the station's state was not finite."""
+
+
+def build_summary(record: RunRecord) -> dict[str, Any]:
+    """``summary.json``'s content: :func:`summarize_run` plus the run's facts."""
+    from pcvfe_drake.runs.scenario import excluded_terrains
+
+    scenario = record.scenario
+    summary = summarize_run(
+        record.log,
+        scenario=scenario.name,
+        wall_time_s=record.wall_time_s,
+        terrain_mu={t.name: t.mu for t in record.terrain_map.terrains},
+        excluded_terrains=excluded_terrains(scenario),
+        course=record.course,
+        estimate_table=record.estimate_table,
+        interrupted=record.interrupted,
+    )
+    cpu = record.cpu_time_s
+    summary["cpu_time_s"] = cpu
+    summary["realtime_factor_cpu"] = summary["sim_time_s"] / cpu if cpu > 0 else None
+    summary["truth_model"] = scenario.truth_model
+    summary["feature_backend"] = scenario.features.backend
+    summary["seed"] = scenario.seed
+    summary["stop_reason"] = record.stop_reason
+    if record.interrupt_signal is not None:
+        summary["interrupt_signal"] = record.interrupt_signal
+    if record.error is not None:
+        summary["error"] = record.error
+    if record.station_status is not None:
+        summary["station_status"] = record.station_status
+    summary["rows_skipped_state_not_finite"] = int(record.rows_skipped_state_not_finite)
+    summary["nmpc_fallbacks"] = int(record.nmpc_fallbacks)
+    summary["nmpc_updates"] = int(record.nmpc_updates)
+    return summary
+
+
+def write_run_outputs(
+    record: RunRecord,
+    folder: RunFolder | None,
+    *,
+    playback_html: str | None = None,
+    reference_xy: np.ndarray | None = None,
+) -> SimulationResult:
+    """Summarize ``record`` and write playback, figures and ``summary.json`` into ``folder``
+    (None: summarize only). Never raises for an OS error: each failed write is reported in
+    ``summary["write_errors"]`` (and the result's ``write_errors``) and the rest is written."""
+    summary = build_summary(record)
+    result = SimulationResult(
+        summary=summary,
+        log_errors=list(record.log_errors),
+        write_errors=list(record.write_errors),
+        log=record.log,
+    )
+    if folder is None:
+        return result
+    if playback_html is not None:
+        try:
+            folder.write_text(folder.playback, playback_html)
+            result.playback = folder.playback
+        except RunFolderError as exc:
+            result.write_errors.append(str(exc))
+    terrain_map = record.terrain_map
+    x0, x1, y0, y1 = terrain_map.bounds_m
+    try:
+        from pcvfe_drake.perception.ground_render import render_topdown
+
+        map_image = render_topdown(terrain_map, px_per_m=2.0)
+        result.figures = write_figures(
+            record.log,
+            folder.figures,
+            summary,
+            map_image=map_image,
+            map_bounds_m=(x0, x1, y0, y1),
+            reference_xy=reference_xy,
+            log_dir=folder.root,
+        )
+    except OSError as exc:
+        result.write_errors.append(f"cannot write the figures: {os_error_text(exc, folder.figures)}")
+    if result.figures.get("fig7_reidentification", "") is None:
+        result.figure_notes["fig7_reidentification"] = "no re-identification in this run"
+    summary["files"] = {
+        "drive_log": folder.drive_log.name if folder.drive_log.exists() else None,
+        "playback": folder.playback.name if result.playback else None,
+        "figures": {
+            k: (Path(v).relative_to(folder.root).as_posix() if v else None)
+            for k, v in result.figures.items()
+        },
+    }
+    if result.write_errors:
+        summary["write_errors"] = list(result.write_errors)
+    try:
+        folder.write_text(folder.summary, json.dumps(summary, indent=2, allow_nan=False))
+    except RunFolderError as exc:
+        result.write_errors.append(str(exc))
+    return result
