@@ -46,8 +46,8 @@ def test_a_folder_with_a_run_is_refused_unless_overwrite(tmp_path):
 @pytest.mark.parametrize(
     ("make", "message"),
     [
-        (lambda p: (p.write_text("x"), p)[1], "is a file, not a folder"),
-        (lambda p: (p.write_text("x"), p / "sub" / "run")[1], "is a file, not a folder"),
+        (lambda p: (p.write_text("x"), p)[1], "exists and is a file"),
+        (lambda p: (p.write_text("x"), p / "sub" / "run")[1], "so no folder can be made under it"),
     ],
 )
 def test_out_that_is_or_lies_under_a_file_is_named(tmp_path, capsys, make, message):
@@ -68,7 +68,7 @@ def test_an_unwritable_out_is_named_with_the_reason(tmp_path, capsys, monkeypatc
     code = main(["simulate", "--duration", "1", "--no-meshcat", "--no-progress", "--out", str(out)])
     err = capsys.readouterr().err
     assert code == 2 and "Traceback" not in err
-    assert f"cannot create the run folder {out}: Permission denied" in err
+    assert f"cannot create the run folder {out}: permission denied" in err
 
 
 def test_a_second_run_into_the_same_folder_is_refused_before_it_runs(tmp_path, capsys):

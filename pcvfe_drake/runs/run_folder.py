@@ -4,10 +4,11 @@ The simulation loop (``pcvfe_drake.diagrams.run_simulation``) drives the diagram
 touches the disk after it lives here, so it can be tested without Drake and so every OS error
 has one place where it becomes a message naming the path and the reason:
 
-- :meth:`RunFolder.prepare` creates the folder, refuses one that already holds a run unless
-  ``overwrite`` (then it removes the old run's files, and only those: :data:`RUN_FILES` and
-  :data:`RUN_DIRS`), and turns "is a file", "under a file", "permission denied" into a
-  :class:`RunFolderError` (a ``ValueError``, so the CLI prints it as a clean error).
+- :meth:`RunFolder.prepare` checks the path (``pcvfe_drake.runs.output_paths.check_output_dir``:
+  a file, a file among the parents, no permission), creates the folder, refuses one that
+  already holds a run unless ``overwrite`` (then it removes the old run's files, and only
+  those: :data:`RUN_FILES` and :data:`RUN_DIRS`); its errors are ``ValueError`` subclasses
+  naming the path and the reason, which the CLI prints as one line.
 - :func:`write_run_outputs` writes ``playback.html``, the figures and ``summary.json`` (last, so
   it can list what was written); a write that fails (a full disk) is noted in
   ``summary["write_errors"]`` as ``"path: reason"`` and the other files are still written.
@@ -24,7 +25,6 @@ A run folder holds::
 
 from __future__ import annotations
 
-import errno
 import json
 import os
 import shutil
@@ -36,6 +36,7 @@ import numpy as np
 import pandas as pd
 
 from pcvfe_drake.runs.figures import write_figures
+from pcvfe_drake.runs.output_paths import check_output_dir, describe_os_error
 from pcvfe_drake.runs.summary import summarize_run
 
 RUN_FILES = ("drive_log.csv", "summary.json", "playback.html", "scenario.yaml")
@@ -49,11 +50,11 @@ class RunFolderError(ValueError):
 
 
 def os_error_text(exc: OSError, path: str | Path) -> str:
-    """``"path: reason"`` for an OS error met while writing ``path``."""
-    reason = exc.strerror or str(exc) or type(exc).__name__
-    if exc.errno == errno.ENOSPC:
-        reason += " (the disk is full)"
-    return f"{path}: {reason}"
+    """``"path: reason[; hint]"`` for an OS error met while writing ``path`` (the wording of
+    ``pcvfe_drake.runs.output_paths.describe_os_error``)."""
+    if exc.errno is None:
+        return f"{path}: {exc}"
+    return describe_os_error(OSError(exc.errno, exc.strerror, str(path)))
 
 
 class RunFolder:
@@ -82,15 +83,7 @@ class RunFolder:
         folder cannot be created or written, or already holds a run and ``overwrite`` is False.
         """
         root = self.root
-        if root.exists() and not root.is_dir():
-            raise RunFolderError(f"{root}: is a file, not a folder; give a folder for the run")
-        for parent in root.parents:
-            if parent.exists():
-                if not parent.is_dir():
-                    raise RunFolderError(
-                        f"{root}: cannot create the run folder: {parent} is a file, not a folder"
-                    )
-                break
+        check_output_dir(root, "--out")  # a file, a file among the parents, no permission
         try:
             root.mkdir(parents=True, exist_ok=True)
         except OSError as exc:

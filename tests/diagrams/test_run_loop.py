@@ -122,7 +122,7 @@ def test_a_full_disk_mid_run_names_the_file_and_keeps_the_summary(tmp_path):
     result = run_simulation(short(duration_s=10.0), folder, progress=False)
     s = result.summary
     assert s["stop_reason"] == "error"
-    assert str(folder.drive_log) in s["error"] and "No space left on device" in s["error"]
+    assert str(folder.drive_log) in s["error"] and "the disk is full" in s["error"]
     # Stopped at the first chunk it could not write (50 rows); the rows stay in the summary.
     assert 50 <= s["log_rows"] < 60 and s["sim_time_s"] < 3.0
     assert json.loads(folder.summary.read_text())["error"] == s["error"]
