@@ -8,7 +8,7 @@ import sys
 
 from pcvfe_drake.runs.output_paths import check_output_dir, write_failed
 from pcvfe_drake.vehicle.params import load_vehicle
-from pcvfe_drake.workbench.data import load
+from pcvfe_drake.workbench.data import EXCERPTS, load
 from pcvfe_drake.workbench.effects import get_effect, known_effects
 
 
@@ -101,6 +101,13 @@ def run(args: argparse.Namespace) -> int:
         candidates = [get_effect(c.strip()).name for c in args.candidates.split(",") if c.strip()]
     vehicle = load_vehicle(args.vehicle)
     data = load(args.log, context_column=args.context_column)
+    if data.rows_in_log > data.n:
+        print(
+            f"note: {args.log} has {data.rows_in_log} samples; diagnose analyses {data.n} of "
+            f"them, {EXCERPTS} excerpts of {data.n // EXCERPTS} consecutive samples evenly "
+            "spaced over the log (bounded memory and time; docs/workbench.md)",
+            file=sys.stderr,
+        )
     report, wb = diagnose(data, vehicle, add=add, candidates=candidates)
     if args.json:
         print(json.dumps(to_jsonable(report)))

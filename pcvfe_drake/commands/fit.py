@@ -9,6 +9,7 @@ from pathlib import Path
 
 from pcvfe_drake.estimation.fit_dataset import (
     DEFAULT_HORIZON,
+    DEFAULT_MAX_WINDOWS,
     DEFAULT_STRIDE,
     DEFAULT_V_MIN_MPS,
     DEFAULT_X0_SMOOTHING_S,
@@ -68,6 +69,13 @@ def register(subparsers) -> None:
         help="half-width [s] of the initial-state smoothing (0 = raw measurement, eq. 5b)",
     )
     parser.add_argument(
+        "--max-windows",
+        type=int,
+        default=DEFAULT_MAX_WINDOWS,
+        help="most windows fitted per context, evenly spaced over the log (bounds memory and "
+        f"time on long logs; default {DEFAULT_MAX_WINDOWS}; 0 = all; docs/fitting.md)",
+    )
+    parser.add_argument(
         "--solver",
         choices=("gauss_newton", "adam"),
         default="gauss_newton",
@@ -91,6 +99,8 @@ def run(args: argparse.Namespace) -> int:
     params = load_vehicle(args.vehicle)
     if args.prior_rel < 0 or not math.isfinite(args.prior_rel):
         raise ValueError(f"--prior-rel must be >= 0, got {args.prior_rel}")
+    if args.max_windows < 0 or args.max_windows == 1:
+        raise ValueError(f"--max-windows must be 0 (all) or >= 2, got {args.max_windows}")
     log = read_drive_log(args.log, validate=not args.lenient, max_gap_s=math.inf)
     split = windows_from_log(
         log,
@@ -99,7 +109,10 @@ def run(args: argparse.Namespace) -> int:
         stride=args.stride,
         v_min=args.min_speed,
         x0_smoothing_s=args.x0_smoothing_s,
+        max_windows=args.max_windows or None,
     )
+    n_rows = len(log)
+    del log  # the windows hold what the fit needs; a long log's table is large
     if args.joint:
         options = joint_options(params, rel_sigma=args.prior_rel or None)
     else:
@@ -111,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
         for label, result in results.items():
             entry = result.to_dict()
             entry["samples"] = int(split.samples.get(label, 0))
+            entry["windows_available"] = int(split.available.get(label, 0))
             contexts[str(label)] = entry
         print(
             json.dumps(
@@ -119,11 +133,12 @@ def run(args: argparse.Namespace) -> int:
                     "vehicle": params.name,
                     "nominal_theta": dict(zip(THETA_NAMES, map(float, params.theta), strict=True)),
                     "context_column": args.context_column,
-                    "samples": int(len(log)),
+                    "samples": n_rows,
                     "dt_s": split.dt,
                     "horizon": split.horizon,
                     "stride": args.stride,
                     "min_speed_mps": args.min_speed,
+                    "max_windows": args.max_windows or None,
                     "solver": args.solver,
                     "free": list(options.free),
                     "prior_sigma": dict(options.prior_sigma or {}),
@@ -136,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
 
     print(
-        f"{args.log}: {len(log)} samples, dt {split.dt:.4g} s, vehicle {params.name}, "
+        f"{args.log}: {n_rows} samples, dt {split.dt:.4g} s, vehicle {params.name}, "
         f"H {split.horizon}, stride {args.stride}, v >= {args.min_speed:g} m/s, "
         f"fitted {', '.join(options.free)} ({args.solver})"
     )
@@ -153,6 +168,13 @@ def run(args: argparse.Namespace) -> int:
         print(row)
     skipped = ", ".join(f"{k} {v}" for k, v in split.skipped.items())
     print(f"candidate windows {split.n_candidates}; skipped: {skipped}")
+    for label, result in results.items():
+        available = split.available.get(label, 0)
+        if available > result.n_windows > 0:
+            print(
+                f"note [{label}]: {result.n_windows} of {available} windows fitted, evenly spaced "
+                "(--max-windows)"
+            )
     for label, result in results.items():
         for warning in result.warnings:
             print(f"warning [{label}]: {warning}")

@@ -394,6 +394,7 @@ class ContextEstimator:
             v_min=cfg.min_speed_mps,
             dt=cfg.sample_period_s,
             x0_smoothing_s=cfg.x0_smoothing_s,
+            max_windows=None,  # the most recent max_windows are taken below
         )
         data = split.by_context.get(0)
         n_windows = 0 if data is None else data.n_windows

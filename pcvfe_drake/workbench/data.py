@@ -19,6 +19,13 @@ stiff and its friction is unobservable near standstill; the paper filters the sa
 MAX_DT_JITTER = 0.05
 """Largest relative deviation of a time step from the median step."""
 LOG_SUFFIXES = (".csv", ".csv.gz", ".parquet", ".pq")
+MAX_SAMPLES = 30_000
+"""Most samples the workbench analyses (bounded memory and time; 5 min at 100 Hz). A longer log
+is analysed on ``EXCERPTS`` excerpts of ``MAX_SAMPLES // EXCERPTS`` consecutive samples, evenly
+spaced over the log (first and last included): see :func:`excerpt_rows`."""
+EXCERPTS = 6
+"""Excerpts of a long log; equal to the default number of time blocks, so that each excerpt is
+one block and no window, block or free run spans the gap between two excerpts."""
 
 
 def find_log(path: str | Path) -> Path:
@@ -69,6 +76,7 @@ class DriveData:
         source: a name for messages.
         x0: states used to *start* rollouts (n, 7): the measurements, with the steering angle
             denoised (see :func:`initial_state_estimates`).
+        rows_in_log: samples of the whole log (more than ``n`` when only excerpts are analysed).
     """
 
     t: np.ndarray
@@ -80,8 +88,11 @@ class DriveData:
     sigma: np.ndarray
     source: str = "<log>"
     x0: np.ndarray | None = None
+    rows_in_log: int | None = None
 
     def __post_init__(self) -> None:
+        if self.rows_in_log is None:
+            self.rows_in_log = int(self.t.size)
         if self.x0 is None:
             self.x0 = initial_state_estimates(self.x, self.u, self.dt)
 
@@ -119,6 +130,17 @@ def initial_state_estimates(x: np.ndarray, u: np.ndarray, dt: float) -> np.ndarr
     return x0
 
 
+def excerpt_rows(n: int, max_samples: int = MAX_SAMPLES, excerpts: int = EXCERPTS) -> np.ndarray:
+    """Row indices the workbench analyses of an ``n``-sample log: all rows if ``n <=
+    max_samples``, else ``excerpts`` runs of ``max_samples // excerpts`` consecutive rows whose
+    starts are evenly spaced from row 0 to the last possible start."""
+    if n <= max_samples:
+        return np.arange(n)
+    m = max_samples // excerpts
+    starts = np.linspace(0, n - m, excerpts).round().astype(np.int64)
+    return (starts[:, None] + np.arange(m)[None, :]).reshape(-1)
+
+
 def choose_context_column(df: pd.DataFrame, column: str | None) -> str | None:
     if column is not None:
         if column not in df.columns:
@@ -137,8 +159,13 @@ def prepare(
     source: str = "<DataFrame>",
     context_column: str | None = None,
     min_duration_s: float = MIN_DURATION_S,
+    max_samples: int | None = MAX_SAMPLES,
 ) -> DriveData:
     """Validate a drive-log table and convert it to :class:`DriveData`.
+
+    A log of more than ``max_samples`` rows is validated whole and analysed on the excerpts of
+    :func:`excerpt_rows` (initial states and noise scales come from the whole log); ``None``:
+    every row.
 
     Raises:
         ValueError: (a ``DriveLogError`` for format problems) with the input and value named.
@@ -175,7 +202,13 @@ def prepare(
     sigma = np.array([robust_noise_sigma(x[:, i]) for i in range(x.shape[1])])
     spread = np.maximum(np.ptp(x, axis=0), 1e-6)
     sigma = np.maximum(sigma, 1e-4 * spread)
-    return DriveData(t, dt, x, u, context, names, sigma, source)
+    x0 = initial_state_estimates(x, u, dt)
+    rows = excerpt_rows(t.size, max_samples) if max_samples else np.arange(t.size)
+    if rows.size == t.size:
+        return DriveData(t, dt, x, u, context, names, sigma, source, x0)
+    return DriveData(
+        t[rows], dt, x[rows], u[rows], context[rows], names, sigma, source, x0[rows], t.size
+    )
 
 
 def load(
@@ -216,8 +249,10 @@ def window_starts(
     if starts.size == 0:
         return starts
     idx = starts[:, None] + np.arange(horizon + 1)[None, :]
+    steady = np.abs(np.diff(data.t) - data.dt) <= 0.5 * data.dt  # no gap between excerpts
     ok = (
-        use[idx].all(axis=1)
+        steady[idx[:, :-1]].all(axis=1)
+        & use[idx].all(axis=1)
         & (blocks[idx] == blocks[idx[:, :1]]).all(axis=1)
         & (data.context[idx] == data.context[idx[:, :1]]).all(axis=1)
         & (data.x[idx, 3] >= MIN_SPEED_MPS).all(axis=1)
