@@ -43,6 +43,8 @@ from typing import IO
 import numpy as np
 import pandas as pd
 
+from pcvfe_drake.runs.drivelog_physics import consistency_checks, single_sample_checks
+
 REQUIRED_COLUMNS: tuple[str, ...] = (
     "t",
     "sx",
@@ -300,6 +302,7 @@ def validate_drive_log(
 
 
 def _unit_checks(cols: dict[str, np.ndarray | None], problems: list[str]) -> None:
+    first = len(problems)
     _check_range("delta", cols.get("delta"), MAX_ABS_DELTA_RAD, "degrees instead of rad?", problems)
     _check_range("beta", cols.get("beta"), MAX_ABS_BETA_RAD, "degrees instead of rad?", problems)
     _check_range(
@@ -316,6 +319,12 @@ def _unit_checks(cols: dict[str, np.ndarray | None], problems: list[str]) -> Non
     _check_range("accel", cols.get("accel"), MAX_ABS_ACCEL_MPS2, "wrong unit?", problems)
     _speed_consistency(cols, problems)
     _yaw_consistency(cols, problems)
+    # Columns already found in a wrong unit are left out of the physics checks (one cause, one
+    # message).
+    flagged = set(re.findall(r"column '([a-z_]+)'", " ".join(problems[first:])))
+    physics = {k: (None if k in flagged else a) for k, a in cols.items()}
+    single_sample_checks(physics, problems, _rows, MAX_ABS_STEER_RATE_RADPS)
+    consistency_checks(physics, problems)
 
 
 def _optional_checks(
@@ -357,8 +366,9 @@ def _format_of(path: Path) -> str:
 
 
 def _normalise(df: pd.DataFrame) -> pd.DataFrame:
-    """Float numeric columns, int contexts, text terrain/image (missing text -> '')."""
-    out = df.copy()
+    """Float numeric columns, int contexts, text terrain/image (missing text -> ''); converts the
+    columns of ``df`` in place (the reader's own table: no copy of a long log)."""
+    out = df
     for name in (*REQUIRED_COLUMNS, "mu_true"):
         if name in out.columns:
             out[name] = pd.to_numeric(out[name]).astype(float)
@@ -415,7 +425,8 @@ def _read_parquet(path: Path) -> tuple[pd.DataFrame, list[str]]:
         )
         text = [None if b is None else b.decode("utf-8", "replace") for b in raw]
         table = table.set_column(k, name, pa.array(text, type=pa.large_string()))
-    return table.to_pandas(), problems
+    # self_destruct frees each Arrow column once converted: a long log is not held twice.
+    return table.to_pandas(self_destruct=True, split_blocks=True), problems
 
 
 def read_drive_log(
