@@ -59,11 +59,11 @@ def register(subparsers) -> None:
     parser.set_defaults(func=run)
 
 
-def _environment(argv: list[str]) -> dict:
+def _environment() -> dict:
     from pcvfe_drake.diagrams.evaluate_run import package_versions
 
     return {
-        "command": " ".join(["pcvfe", "evaluate", *argv]),
+        "command": " ".join(sys.argv),
         "started_utc": datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "client_host": platform.node(),
         "client_versions": package_versions(),
@@ -96,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
     as_run["seeds"] = len({s.seed for s in specs})
     if args.quick:
         as_run["duration_s"], as_run["laps"] = exp.quick.duration_s, None
-    store.start(as_run, _environment(sys.argv[2:] if len(sys.argv) > 2 else []))
+    store.start(as_run, _environment())
     pending = store.pending(specs)
     where = f"scheduler {args.scheduler}" if args.scheduler else "a local Dask cluster"
     print(
