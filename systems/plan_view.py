@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import Box, Meshcat, Rgba, Sphere
@@ -100,7 +102,7 @@ class PlanView(LeafSystem):
         )
         mc.SetTransform(f"{PATH}/fallback/reason", RigidTransform([-2.0, 0.0, 5.5]))
 
-    def _sphere(self, rgb) -> callable:
+    def _sphere(self, rgb) -> Callable[[str], None]:
         def create(path: str) -> None:
             self._meshcat.SetObject(path, Sphere(self._radius), Rgba(*rgb, 1.0))
 
