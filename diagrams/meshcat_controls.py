@@ -39,7 +39,8 @@ class MeshcatControls:
     Args:
         meshcat: the live Meshcat.
         layers: layer names under ``/pcvfe/`` that get a show/hide slider.
-        realtime_rate: initial real-time rate (0: as fast as possible).
+        realtime_rate: the slider's initial real-time rate (0: as fast as possible); pass the
+            simulator's own target rate.
         poll_s: how often a paused run polls the controls [s of wall time].
     """
 
@@ -59,6 +60,7 @@ class MeshcatControls:
         meshcat.AddSlider(RATE, 0.0, 10.0, 0.25, float(realtime_rate))
         meshcat.AddButton(PAUSE, "Space")
         self._shown = {layer: True for layer in self.layers}
+        self._rate = meshcat.GetSliderValue(RATE)
 
     def layer_visible(self, layer: str) -> bool:
         """Whether the slider of ``layer`` shows it."""
@@ -76,17 +78,24 @@ class MeshcatControls:
         return self._meshcat.GetButtonClicks(PAUSE) % 2 == 1
 
     def poll(self, simulator, *, max_pause_s: float | None = None) -> None:
-        """Apply the controls to ``simulator``; while paused, wait here (at most
+        """Apply the controls to ``simulator`` (its target real-time rate only when the slider
+        moved, so a rate set elsewhere stands until then); while paused, wait here (at most
         ``max_pause_s`` [s] of wall time if given) applying visibility changes."""
         self._apply_visibility()
-        simulator.set_target_realtime_rate(max(0.0, self._meshcat.GetSliderValue(RATE)))
+        self._apply_rate(simulator)
         start = time.perf_counter()
         while self.paused():
             if max_pause_s is not None and time.perf_counter() - start >= max_pause_s:
                 break
             time.sleep(self._poll_s)
             self._apply_visibility()
-        simulator.set_target_realtime_rate(max(0.0, self._meshcat.GetSliderValue(RATE)))
+        self._apply_rate(simulator)
+
+    def _apply_rate(self, simulator) -> None:
+        rate = self._meshcat.GetSliderValue(RATE)
+        if rate != self._rate:
+            simulator.set_target_realtime_rate(max(0.0, rate))
+            self._rate = rate
 
     def remove(self) -> None:
         """Take the controls away and show every layer again (before saving a playback)."""

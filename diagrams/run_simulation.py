@@ -271,7 +271,9 @@ def run_simulation(
     panel = None
     if meshcat is not None and controls:
         panel = MeshcatControls(
-            meshcat, LAYERS if debug_layers else (), realtime_rate=realtime_rate or 0.0
+            meshcat,
+            LAYERS if debug_layers else (),
+            realtime_rate=simulator.get_target_realtime_rate(),
         )
     bar = None
     if progress:

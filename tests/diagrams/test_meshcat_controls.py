@@ -49,7 +49,8 @@ def test_show_hide_rate_and_pause(meshcat):
     assert PAUSE in meshcat.GetButtonNames()
     sim = FakeSimulator()
     controls.poll(sim)
-    assert sim.rate == 0.0 and visible(meshcat, "/pcvfe/plan") is None  # nothing changed
+    # Nothing moved: the simulator's own rate and the layers are left alone.
+    assert sim.rate is None and visible(meshcat, "/pcvfe/plan") is None
     meshcat.SetSliderValue(show_slider("plan"), 0.0)
     meshcat.SetSliderValue(RATE, 2.0)
     controls.poll(sim)

@@ -126,6 +126,29 @@ def test_debug_layers_are_named_and_connected():
             assert system.get_input_port(i).HasValue(context), (name, i)
     without = MakeSimulation(short_scenario(1.0), Meshcat(params), debug_layers=False).diagram
     assert not without.HasSubsystemNamed("plan_view")
+    circle = diagram.GetSubsystemByName("friction_circle_view")
+    assert circle.HasInputPort("true_mu")  # the simulated station has truth
+
+
+def test_debug_layers_on_a_station_without_truth():
+    from pcvfe_drake.diagrams.station import MakeVehicleStation
+    from pcvfe_drake.hardware.settings import LcmBusSettings
+
+    scenario = short_scenario(1.0)
+    scenario.hardware.lcm_buses = {"default": LcmBusSettings(lcm_url="memq://")}
+    station = MakeVehicleStation(scenario, hardware=True)
+    assert not station.HasOutputPort("true_mu")
+    params = MeshcatParams()
+    params.host = "localhost"
+    diagram = MakeSimulation(scenario, Meshcat(params), station=station).diagram
+    circle = diagram.GetSubsystemByName("friction_circle_view")
+    assert not circle.HasInputPort("true_mu")  # no true circle without truth
+    root = diagram.CreateDefaultContext()
+    for name in ("plan_view", "friction_circle_view", "camera_view", "feature_view"):
+        system = diagram.GetSubsystemByName(name)
+        context = system.GetMyContextFromRoot(root)
+        for i in range(system.num_input_ports()):
+            assert system.get_input_port(i).HasValue(context), (name, i)
 
 
 @pytest.mark.parametrize("stop", [KeyboardInterrupt, RuntimeError])
