@@ -131,7 +131,9 @@ def MakeSimulation(
     builder.Connect(fitter.GetOutputPort("theta_hat"), nmpc.GetInputPort("theta_hat"))
     builder.Connect(nmpc.GetOutputPort("actuation"), station.GetInputPort("actuation"))
 
-    run_log = RunLog(log_path, terrain_map.names, feature_dim)
+    run_log = RunLog(
+        log_path, terrain_map.names, feature_dim, frame_period_s=rates.frame_log_period_s
+    )
     logger = builder.AddNamedSystem("run_logger", RunLogger(run_log, rates.log_period_s))
     sources = {
         "state": state,

@@ -18,6 +18,7 @@ COMMANDS = [
     "diagnose",
     "evaluate",
     "vehicle_bridge",
+    "replay",
 ]
 
 

@@ -78,6 +78,11 @@ class Rates:
     ``steer_rate`` and ``accel`` are the input held from that row to the next, which is what an
     offline fit of the drive log assumes; a log period longer than the NMPC period samples the
     input and biases such a fit)."""
+    frame_log_period_s: float = 2.0
+    """Period at which camera frames are saved with the drive log (``frames/``, for the
+    figures). ``pcvfe replay`` needs every frame to rerun the perception: set it to
+    ``camera_period_s`` (and ``log_period_s`` to ``fitter_sample_period_s``) for a run that
+    replays exactly (docs/hardware.md)."""
     view_period_s: float = 0.1
     """Period of the Meshcat view's updates and of its recording's frames (10 Hz)."""
     clustering_frame_offset_s: float = 0.001

@@ -1,0 +1,160 @@
+"""A recorded drive as a time-indexed source: what the replay station plays (no pydrake).
+
+:class:`ReplayLog` holds a drive log (``t``, the ST state, the inputs, optional ``mu_true``,
+``terrain_index``/``terrain`` and camera frames) and answers, for any time ``t``:
+
+- ``state_at(t)``: the state of the newest row at or before ``t`` (zero-order hold);
+- ``actuation_before(t)``: the input applied just before ``t`` (the row's input is held from that
+  row to the next, so this is the input of the newest row strictly before ``t``; zero before
+  the first row, as a controller's output before its first update);
+- ``frame_at(t)``: the index of the newest camera frame captured before ``t``.
+
+Frame capture times: a frame saved by ``pcvfe simulate`` with the row at time r was taken at the
+newest camera tick strictly before r (the run logger reads the camera just before the camera's
+update at r; at r = 0 the initial frame), so :meth:`from_run_folder` maps frames back to their
+capture times with the run's camera period. A drive log imported from a bag
+(``pcvfe import-bag``) has one row per frame at its capture time (``frame_times="row"``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pcvfe_drake.runs.drivelog import read_drive_log
+from pcvfe_drake.vehicle.single_track import INPUT_NAMES, STATE_NAMES
+
+_EPS_S = 1e-9
+
+
+@dataclass
+class ReplayLog:
+    """A drive as arrays: ``t_s`` (N,), ``states`` (N, 7), ``actuations`` (N, 2), optional
+    ``mu_true`` (N,) and ``terrain_index`` (N,) (None: no truth), and frames (capture times
+    ``frame_t_s`` (M,), absolute ``frame_paths``)."""
+
+    t_s: np.ndarray
+    states: np.ndarray
+    actuations: np.ndarray
+    frame_t_s: np.ndarray
+    frame_paths: list[Path]
+    mu_true: np.ndarray | None = None
+    terrain_index: np.ndarray | None = None
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        if len(self.t_s) == 0:
+            raise ValueError(f"replay {self.source}: the drive log has no rows")
+        if np.any(np.diff(self.t_s) <= 0):
+            raise ValueError(f"replay {self.source}: times are not increasing")
+
+    @property
+    def duration_s(self) -> float:
+        """Time of the last row [s]."""
+        return float(self.t_s[-1])
+
+    @property
+    def has_truth(self) -> bool:
+        return self.mu_true is not None
+
+    def _row_at(self, t_s: float) -> int:
+        return max(0, int(np.searchsorted(self.t_s, t_s + _EPS_S, side="right")) - 1)
+
+    def state_at(self, t_s: float) -> np.ndarray:
+        return self.states[self._row_at(t_s)]
+
+    def actuation_before(self, t_s: float) -> np.ndarray:
+        k = int(np.searchsorted(self.t_s, t_s - _EPS_S, side="left")) - 1
+        return self.actuations[k] if k >= 0 else np.zeros(self.actuations.shape[1])
+
+    def truth_at(self, t_s: float) -> tuple[float, float]:
+        """(mu_true, terrain_index) of the row at ``t_s`` (NaN, -1 without truth)."""
+        if self.mu_true is None:
+            return math.nan, -1.0
+        k = self._row_at(t_s)
+        terrain = self.terrain_index[k] if self.terrain_index is not None else -1.0
+        return float(self.mu_true[k]), float(terrain)
+
+    def frame_at(self, t_s: float) -> int:
+        """Index of the newest frame captured strictly before ``t_s`` (the first frame from its
+        own capture time on; -1: none yet). Strictly: a camera's output at the instant of a
+        frame still holds the previous frame until the camera's update at that instant, and
+        whatever reads the camera after the update (the features, 1 ms later) sees the new
+        one."""
+        k = int(np.searchsorted(self.frame_t_s, t_s - _EPS_S, side="left")) - 1
+        if k < 0 and len(self.frame_t_s) and t_s >= self.frame_t_s[0] - _EPS_S:
+            return 0
+        return k
+
+    @classmethod
+    def from_frame(
+        cls,
+        log: pd.DataFrame,
+        folder: Path,
+        *,
+        camera_period_s: float | None = None,
+        source: str = "",
+    ) -> ReplayLog:
+        """From a validated drive-log DataFrame whose ``image`` paths are relative to
+        ``folder``; ``camera_period_s`` given: frames saved by ``pcvfe simulate`` (capture time
+        from the logger's rule), None: frames at their row's time."""
+        t = log["t"].to_numpy(float)
+        states = log[list(STATE_NAMES)].to_numpy(float)
+        actuations = log[list(INPUT_NAMES)].to_numpy(float)
+        mu_true = terrain_index = None
+        if "mu_true" in log.columns and np.isfinite(log["mu_true"].to_numpy(float)).any():
+            mu_true = log["mu_true"].to_numpy(float)
+            if "terrain_index" in log.columns:
+                terrain_index = log["terrain_index"].to_numpy(float)
+        frame_t, paths = [], []
+        if "image" in log.columns:
+            for r, name in zip(t, log["image"].astype(str), strict=True):
+                if not name or name == "nan":
+                    continue
+                path = Path(name) if Path(name).is_absolute() else folder / name
+                if not path.is_file():
+                    raise FileNotFoundError(f"replay {source}: camera frame {path} is missing")
+                frame_t.append(capture_time(r, camera_period_s))
+                paths.append(path)
+        frame_t = np.asarray(frame_t, dtype=float)
+        # Two rows may carry the same capture (the first two of a run): keep the first.
+        keep = np.concatenate([[True], np.diff(frame_t) > _EPS_S]) if len(frame_t) else []
+        return cls(
+            t_s=t,
+            states=states,
+            actuations=actuations,
+            frame_t_s=frame_t[keep] if len(frame_t) else frame_t,
+            frame_paths=[p for p, k in zip(paths, keep, strict=True) if k],
+            mu_true=mu_true,
+            terrain_index=terrain_index,
+            source=source,
+        )
+
+    @classmethod
+    def from_run_folder(cls, folder: str | Path, camera_period_s: float) -> ReplayLog:
+        """The drive of a ``pcvfe simulate`` (or ``pcvfe replay``) run folder."""
+        folder = Path(folder)
+        path = folder / "drive_log.csv"
+        if not path.is_file():
+            raise FileNotFoundError(f"replay: {folder} has no drive_log.csv (not a run folder?)")
+        return cls.from_frame(
+            read_drive_log(path), folder, camera_period_s=camera_period_s, source=str(folder)
+        )
+
+    @classmethod
+    def from_drive_log(cls, path: str | Path) -> ReplayLog:
+        """A drive log file (e.g. from ``pcvfe import-bag``): frames at their rows' times."""
+        path = Path(path)
+        return cls.from_frame(read_drive_log(path), path.parent, source=str(path))
+
+
+def capture_time(row_t_s: float, camera_period_s: float | None) -> float:
+    """When the frame saved with the row at ``row_t_s`` was taken (see the module doc)."""
+    if camera_period_s is None or row_t_s <= _EPS_S:
+        return float(row_t_s)
+    k = math.ceil(row_t_s / camera_period_s - 1e-6) - 1
+    return max(0.0, k * camera_period_s)
