@@ -19,6 +19,7 @@ COMMANDS = [
     "evaluate",
     "vehicle_bridge",
     "replay",
+    "import_bag",
 ]
 
 

@@ -1,0 +1,230 @@
+"""Hardware-in-the-loop rehearsal against the all-in-one simulation, and end-to-end latency.
+
+Runs, in one go:
+
+1. the all-in-one simulation of the scenario (``pcvfe simulate``, no Meshcat): the baseline;
+2. ``pcvfe vehicle-bridge`` (the simulated car behind LCM, with a localhost tcpq hub) in one
+   process and ``pcvfe simulate --hardware`` (the pipeline on the LCM station) in another, both
+   paced at ``--rate`` times wall-clock time (1.0: real time).
+
+It reports, for both: contexts discovered, the per-context friction estimates scored against the
+truth (for the rehearsal the truth comes from the bridge's ``truth.csv``, matched to the
+station's rows by position along time), lap time; and for the rehearsal the latency from each
+state message to the actuation computed after it (median, p99), the station's watchdog counts
+(late, out of order, timeouts) and the share of 100 Hz states it accepted. The load average is
+printed: timings on a shared machine depend on it.
+
+Usage: python benchmarks/hardware_rehearsal.py [--duration S | --laps N] [--rate R] [--quick]
+Last stdout line: one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def pcvfe(*args: str) -> list[str]:
+    return [sys.executable, "-m", "pcvfe_drake.cli", *args]
+
+
+def length_args(args) -> list[str]:
+    return ["--laps", str(args.laps)] if args.laps else ["--duration", str(args.duration)]
+
+
+def contexts_vs_truth(log: pd.DataFrame, truth: pd.DataFrame, terrain_mu: dict) -> list[dict]:
+    """Per context id: rows, majority true terrain (nearest truth sample in space, searched
+    within 2 s of the time-aligned truth) and its mu, and the last mu_hat."""
+    xy_t = truth[["sx", "sy"]].to_numpy()
+    tt = truth["t"].to_numpy()
+    # The station's clock starts when it first hears the car: align by the best time offset.
+    offsets = np.arange(0.0, 30.0, 0.05)
+    sample = log.iloc[:: max(1, len(log) // 200)]
+    errs = []
+    for off in offsets:
+        idx = np.clip(np.searchsorted(tt, sample["t"].to_numpy() + off), 0, len(tt) - 1)
+        errs.append(np.nanmean(np.hypot(*(sample[["sx", "sy"]].to_numpy() - xy_t[idx]).T)))
+    off = float(offsets[int(np.nanargmin(errs))])
+    idx = np.clip(np.searchsorted(tt, log["t"].to_numpy() + off), 0, len(tt) - 1)
+    terrain = truth["terrain"].fillna("").to_numpy()[idx]
+    out = []
+    for cid in sorted(int(c) for c in log["context"].unique() if c >= 0):
+        rows = np.flatnonzero(log["context"].to_numpy() == cid)
+        names, counts = np.unique(terrain[rows], return_counts=True)
+        major = str(names[np.argmax(counts)])
+        mu_hat = float(log["mu_hat"].to_numpy()[rows[-1]])
+        mu = terrain_mu.get(major)
+        out.append(
+            {
+                "id": cid,
+                "terrain": major,
+                "time_s": len(rows) * float(np.median(np.diff(log["t"]))),
+                "mu_true": mu,
+                "mu_hat": mu_hat,
+                "abs_error": abs(mu_hat - mu) if mu is not None else None,
+            }
+        )
+    return out, off
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenario", default="paper_sim")
+    parser.add_argument("--duration", type=float, default=60.0)
+    parser.add_argument("--laps", type=float, default=None)
+    parser.add_argument("--rate", type=float, default=1.0, help="pace (1.0: real time)")
+    parser.add_argument("--quick", action="store_true", help="15 s of driving")
+    args = parser.parse_args()
+    if args.quick:
+        args.duration, args.laps = 15.0, None
+    from pcvfe_drake.diagrams.scenario_io import load_scenario
+    from pcvfe_drake.runs.scenario import build_terrain_map
+
+    scenario = load_scenario(args.scenario)
+    terrain_mu = {t.name: t.mu for t in build_terrain_map(scenario).terrains}
+    work = Path(tempfile.mkdtemp(prefix="hw_rehearsal_"))
+    load0 = os.getloadavg()[0]
+    print(f"load average {load0:.1f}; work folder {work}", flush=True)
+
+    print("all-in-one simulation ...", flush=True)
+    t0 = time.perf_counter()
+    subprocess.run(
+        pcvfe(
+            "simulate",
+            args.scenario,
+            *length_args(args),
+            "--no-meshcat",
+            "--no-progress",
+            "--out",
+            str(work / "sim"),
+        ),  # fmt: skip
+        check=True,
+        stdout=subprocess.DEVNULL,
+    )
+    sim_wall = time.perf_counter() - t0
+    sim_summary = json.loads((work / "sim" / "summary.json").read_text())
+
+    print(f"rehearsal at {args.rate}x real time ...", flush=True)
+    url = f"tcpq://127.0.0.1:{free_port()}"
+    bridge_duration = (args.duration if not args.laps else scenario.max_duration_s) + 60.0
+    bridge = subprocess.Popen(
+        pcvfe(
+            "vehicle-bridge",
+            args.scenario,
+            "--lcm-url",
+            url,
+            "--duration",
+            str(bridge_duration),
+            "--idle-stop",
+            "3",
+            "--quiet",
+            "--realtime-rate",
+            str(args.rate),
+            "--out",
+            str(work / "bridge"),
+        ),  # fmt: skip
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    override = work / "rate.yaml"
+    override.write_text(f"hardware:\n  realtime_rate: {args.rate}\n")
+    try:
+        subprocess.run(
+            pcvfe(
+                "simulate",
+                args.scenario,
+                str(override),
+                *length_args(args),
+                "--hardware",
+                "--lcm-url",
+                url,
+                "--no-meshcat",
+                "--no-progress",
+                "--out",
+                str(work / "hw"),
+            ),  # fmt: skip
+            check=True,
+            stdout=subprocess.DEVNULL,
+        )
+        out, _ = bridge.communicate(timeout=120)
+    finally:
+        if bridge.poll() is None:
+            bridge.kill()
+    bridge_report = json.loads(out.strip().splitlines()[-1])
+    hw_summary = json.loads((work / "hw" / "summary.json").read_text())
+    hw_log = pd.read_csv(work / "hw" / "drive_log.csv")
+    truth = pd.read_csv(work / "bridge" / "truth.csv")
+    hw_contexts, offset = contexts_vs_truth(hw_log, truth, terrain_mu)
+    state = hw_summary["station_status"]["streams"]["state"]
+    expected_states = hw_summary["sim_time_s"] / scenario.hardware.state_period_s
+    sim_contexts = [
+        {
+            "id": e["id"],
+            "terrain": e["majority_terrain"],
+            "mu_true": e["true_mu"],
+            "mu_hat": e["mu_hat"],
+            "abs_error": e["abs_error"],
+        }  # fmt: skip
+        for e in sim_summary["mu_estimates"]
+    ]
+    result = {
+        "benchmark": "hardware_rehearsal",
+        "scenario": args.scenario,
+        "rate": args.rate,
+        "load_average_start": load0,
+        "load_average_end": os.getloadavg()[0],
+        "all_in_one": {
+            "sim_time_s": sim_summary["sim_time_s"],
+            "wall_s": sim_wall,
+            "contexts": sim_summary["contexts_discovered"],
+            "laps": sim_summary.get("laps_completed"),
+            "lap_time_s": sim_summary.get("lap_time_s"),
+            "estimates": sim_contexts,
+        },
+        "rehearsal": {
+            "sim_time_s": hw_summary["sim_time_s"],
+            "wall_s": hw_summary["wall_time_s"],
+            "realtime_factor": hw_summary["realtime_factor"],
+            "contexts": hw_summary["contexts_discovered"],
+            "laps": hw_summary.get("laps_completed"),
+            "lap_time_s": hw_summary.get("lap_time_s"),
+            "estimates": hw_contexts,
+            "truth_time_offset_s": offset,
+            "latency_ms": bridge_report["latency"],
+            "station_status": hw_summary["station_status"],
+            "states_accepted_share": state["accepted"] / max(expected_states, 1.0),
+            "rows_lost": hw_summary.get("rows_skipped_state_not_finite"),
+            "nmpc_fallbacks": hw_summary.get("nmpc_fallbacks"),
+            "bridge_actuation": bridge_report["actuation"],
+        },
+    }
+    for name in ("all_in_one", "rehearsal"):
+        r = result[name]
+        print(f"{name}: {r['contexts']} contexts, laps {r['laps']}, lap time {r['lap_time_s']}")
+        for e in r["estimates"]:
+            print(f"   context {e['id']} {e['terrain']:<13} mu_true {e['mu_true']} "
+                  f"mu_hat {e['mu_hat']:.3f}")  # fmt: skip
+    lat = result["rehearsal"]["latency_ms"]
+    print(f"latency state -> actuation: median {lat['median_ms']} ms, p99 {lat['p99_ms']} ms")
+    print(json.dumps(result))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
