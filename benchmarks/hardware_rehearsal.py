@@ -113,7 +113,7 @@ def main() -> int:
             "--no-progress",
             "--out",
             str(work / "sim"),
-        ),  # fmt: skip
+        ),
         check=True,
         stdout=subprocess.DEVNULL,
     )
@@ -138,7 +138,7 @@ def main() -> int:
             str(args.rate),
             "--out",
             str(work / "bridge"),
-        ),  # fmt: skip
+        ),
         stdout=subprocess.PIPE,
         text=True,
     )
@@ -149,6 +149,7 @@ def main() -> int:
             pcvfe(
                 "simulate",
                 args.scenario,
+                "--with",
                 str(override),
                 *length_args(args),
                 "--hardware",
@@ -158,7 +159,7 @@ def main() -> int:
                 "--no-progress",
                 "--out",
                 str(work / "hw"),
-            ),  # fmt: skip
+            ),
             check=True,
             stdout=subprocess.DEVNULL,
         )
@@ -201,6 +202,7 @@ def main() -> int:
             "sim_time_s": hw_summary["sim_time_s"],
             "wall_s": hw_summary["wall_time_s"],
             "realtime_factor": hw_summary["realtime_factor"],
+            "realtime_factor_cpu": hw_summary.get("realtime_factor_cpu"),
             "contexts": hw_summary["contexts_discovered"],
             "laps": hw_summary.get("laps_completed"),
             "lap_time_s": hw_summary.get("lap_time_s"),
