@@ -128,3 +128,42 @@ def test_a_full_disk_mid_run_names_the_file_and_keeps_the_summary(tmp_path):
     assert json.loads(folder.summary.read_text())["error"] == s["error"]
     assert result.figures["fig5_mu_over_time"]
     assert any("drive_log.csv" in e for e in result.write_errors)
+
+
+def test_the_lap_monitor_stops_at_the_goal_row_with_few_projections():
+    """Fed a log row by row (as the run logger writes it), the monitor terminates exactly at the
+    first row whose progress reaches the goal, projecting rows in batches far from it."""
+    from pydrake.systems.framework import EventStatus
+    from pydrake.systems.primitives import ConstantVectorSource
+
+    from pcvfe_drake.diagrams.run_simulation import LapMonitor
+    from pcvfe_drake.runs.runlog import RunLog
+
+    course = load_course("slalom")
+    run_log = RunLog(None, ["a"], 1)
+    system = ConstantVectorSource([0.0])
+    dt, v = 0.05, 6.0
+    monitor = LapMonitor(
+        system, course, run_log, 0.1, log_period_s=dt, v_max_mps=50.0, a_max_mps2=11.5
+    )
+    calls = []
+    update = monitor.progress.update
+    monitor.progress.update = lambda xy: calls.append(len(xy)) or update(xy)
+    s_start = 100.0
+    for k in range(2000):
+        s = s_start + v * dt * k
+        x, y, _, _ = course.sample(np.array([s]))
+        state = np.zeros(7)
+        state[0], state[1], state[3] = x[0], y[0], v
+        run_log.append(k * dt, state, np.zeros(2), np.zeros(1), 0, np.ones(3), 1.0, 0)
+        status = monitor(None)
+        if status.severity() == EventStatus.Severity.kReachedTermination:
+            break
+    goal_row = int(np.ceil(0.1 * course.length / (v * dt) - 1e-9))
+    assert abs(k - goal_row) <= 1  # the sampled path is a chord shorter or longer by a hair
+    progress = course.unwrap_progress(
+        course.project(np.array([[r[1], r[2]] for r in run_log.rows_since(0)])).s
+    )
+    travelled = progress - progress[0]
+    assert travelled[-1] >= 0.1 * course.length > travelled[-2]  # stopped at the goal row
+    assert sum(calls) == len(run_log) and len(calls) < len(run_log) / 8
