@@ -163,7 +163,8 @@ def test_cli_runs_on_a_scheduler_by_address_and_resumes(tmp_path, capsys):
         "quick: {seeds: 1, duration_s: 1.0}\n"
     )
     out = tmp_path / "out"
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False) as cluster:
+    local = dict(dashboard_address="127.0.0.1:0", worker_dashboard_address="127.0.0.1:0")
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, **local) as cluster:
         address = cluster.scheduler_address
         args = ["evaluate", str(path), "--out", str(out), "--scheduler", address, "--no-progress"]
         assert main(args) == 0

@@ -64,8 +64,9 @@ def open_client(
     """A Dask client: on ``scheduler`` (an address) or on a new LocalCluster of ``workers``.
 
     The local cluster has single-threaded workers (a run is one diagram simulation; Dask's
-    nanny also pins the BLAS/OpenMP threads to 1), listens on 127.0.0.1 only and has no
-    dashboard. ``processes=False`` keeps the workers as threads of this process (tests).
+    nanny also pins the BLAS/OpenMP threads to 1), listens on 127.0.0.1 only (its HTTP
+    endpoints too) and has no dashboard. ``processes=False`` keeps the workers as threads of
+    this process (tests).
     """
     from distributed import Client, LocalCluster
 
@@ -91,7 +92,9 @@ def open_client(
         "n_workers": n,
         "threads_per_worker": 1,
         "processes": processes,
-        "dashboard_address": None,
+        # Dask's HTTP endpoints (health, metrics; no dashboard without bokeh) on loopback only.
+        "dashboard_address": "127.0.0.1:0",
+        "worker_dashboard_address": "127.0.0.1:0",
     }
     if processes:
         kwargs.update(host="127.0.0.1", memory_limit=memory_limit)
