@@ -320,11 +320,11 @@ def test_a_10_hz_log_is_fitted_with_rk4_substeps(params):
 
 def test_short_noise_keeps_the_last_context_estimate_then_falls_back_to_the_prior():
     params = ford_escort()
-    est = ContextEstimator(params, LiveFitConfig(noise_hold_s=0.5))
+    est = ContextEstimator(params, LiveFitConfig(noise_hold_s=0.5, unknown_context="prior"))
     state = np.array([0.0, 0.0, 0.0, 5.0, 0.0, 0.0, 0.0])
     est.add_sample(0.0, state, [0.0, 0.0], [3])
     slot = est._slots[3]
-    slot.estimate = replace(slot.estimate, theta=(0.45, params.C_Sf, params.C_Sr))
+    slot.estimate = replace(slot.estimate, theta=(0.45, params.C_Sf, params.C_Sr), fits=1)
     np.testing.assert_allclose(est.theta_for(), [0.45, params.C_Sf, params.C_Sr])
     est.add_sample(0.3, state, [0.0, 0.0], [-1])  # 0.3 s of noise: still the context's estimate
     assert est.theta_for()[0] == 0.45

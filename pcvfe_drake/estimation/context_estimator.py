@@ -12,9 +12,12 @@ Rules (the "bad input" behaviour):
 * samples with non-finite values are not stored (counted in ``rejected_samples``);
 * noise/unknown contexts (id < 0, or non-finite) are not stored; they map to the estimate of the
   last known context while the noise has lasted at most ``noise_hold_s`` (a stray noise frame
-  inside a known terrain does not throw the controller back to the prior), then to the prior;
+  inside a known terrain does not throw the controller back to the prior), then to the
+  unknown-context policy's theta (``pcvfe_drake.estimation.unknown_context``: ``prior``,
+  ``last_known`` or, by default, ``conservative``);
 * a context with fewer than ``min_windows`` usable windows keeps the prior theta and its table
-  entry says so (status ``"too_little_data"``);
+  entry says so (status ``"too_little_data"``); while it is the current context the controller
+  gets the unknown-context policy's theta;
 * a refit whose solver diverges (non-finite loss or estimate) keeps the last good estimate and
   increments the context's ``diverged`` count;
 * :meth:`ContextEstimator.theta_for` always returns finite numbers.
@@ -45,6 +48,13 @@ from pcvfe_drake.estimation.fit_options import (
     joint_options,
 )
 from pcvfe_drake.estimation.fitting import fit_gauss_newton
+from pcvfe_drake.estimation.unknown_context import (
+    DEFAULT_FLOOR_MU,
+    DEFAULT_POLICY,
+    DEFAULT_SIGMAS,
+    check_policy,
+    unknown_context_theta,
+)
 from pcvfe_drake.vehicle.params import THETA_NAMES, VehicleParams
 from pcvfe_drake.vehicle.single_track import NU, NX
 
@@ -203,7 +213,12 @@ class LiveFitConfig:
         prior_theta: theta for noise/unknown contexts and contexts with too little data
             (default: the vehicle's nominal [mu, C_Sf, C_Sr]).
         noise_hold_s: how long [s] a noise/unknown context keeps the last known context's
-            theta before falling back to the prior (0: the prior at once).
+            theta before the unknown-context policy takes over (0: at once).
+        unknown_context: what the controller gets while the context is unknown (noise beyond
+            ``noise_hold_s``, or a context with no fit yet): ``"prior"``, ``"last_known"`` or
+            ``"conservative"`` (``pcvfe_drake.estimation.unknown_context``).
+        unknown_floor_mu: ``conservative``'s ceiling on mu (the lowest mu expected).
+        unknown_sigmas: ``conservative``'s lower confidence bound, in standard deviations.
         min_windows: fewer usable windows than this: keep the prior.
         buffer_s: seconds of data kept per context (at ``sample_period_s``).
         sample_period_s: the data rate [s] (sets the buffer capacity).
@@ -226,8 +241,14 @@ class LiveFitConfig:
     max_iterations: int = 5
     max_contexts_per_update: int = 2
     noise_hold_s: float = 1.0
+    unknown_context: str = DEFAULT_POLICY
+    unknown_floor_mu: float = DEFAULT_FLOOR_MU
+    unknown_sigmas: float = DEFAULT_SIGMAS
 
     def __post_init__(self) -> None:
+        check_policy(
+            self.unknown_context, self.unknown_floor_mu, self.unknown_sigmas, "LiveFitConfig"
+        )
         positive_ints = (
             "horizon_steps",
             "stride_steps",
@@ -281,6 +302,7 @@ class ContextEstimator:
     last_known_context: int = -1
     last_known_time_s: float = -math.inf
     last_sample_time_s: float = -math.inf
+    last_fitted_context: int = -1
 
     def __post_init__(self) -> None:
         prior = self.params.theta if self.config.prior_theta is None else self.config.prior_theta
@@ -342,13 +364,17 @@ class ContextEstimator:
             )
             self._slots[ident] = slot
         slot.buffer.append(t, state, inputs)
+        if slot.estimate.fitted:
+            self.last_fitted_context = ident
         return ident
 
     def theta_for(self, context_id: int | None = None) -> np.ndarray:
         """theta in use for ``context_id`` (default: the current one): always finite.
 
-        For the current context, noise within ``noise_hold_s`` of the last known context keeps
-        that context's theta.
+        An explicit id gets its own theta (the prior until fitted). The current context: noise
+        within ``noise_hold_s`` of the last known context keeps that context's theta; longer
+        noise, or a current context without a fit, gets the unknown-context policy's theta
+        (``LiveFitConfig.unknown_context``).
         """
         ident = self.current_context if context_id is None else int(context_id)
         if (
@@ -358,7 +384,26 @@ class ContextEstimator:
         ):
             ident = self.last_known_context
         slot = self._slots.get(ident)
+        if context_id is None and (slot is None or not slot.estimate.fitted):
+            return self.unknown_theta()
         theta = np.array(self._prior if slot is None else slot.estimate.theta)
+        return theta if np.all(np.isfinite(theta)) else np.array(self._prior)
+
+    def unknown_theta(self) -> np.ndarray:
+        """theta the controller gets while the context is unknown (the configured policy)."""
+        cfg = self.config
+        fitted = [
+            (s.estimate.mu, s.estimate.mu_std) for s in self._slots.values() if s.estimate.fitted
+        ]
+        last = self._slots.get(self.last_fitted_context)
+        theta = unknown_context_theta(
+            cfg.unknown_context,
+            self._prior,
+            fitted,
+            None if last is None else last.estimate.theta,
+            floor_mu=cfg.unknown_floor_mu,
+            sigmas=cfg.unknown_sigmas,
+        )
         return theta if np.all(np.isfinite(theta)) else np.array(self._prior)
 
     def pending(self) -> list[int]:

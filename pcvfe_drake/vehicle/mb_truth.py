@@ -14,7 +14,11 @@ spin) is wrapped here with three additions:
   ``mu C_S F_z alpha``, exactly the single-track model's parametrisation (``VehicleParams``), so a
   single-track fit of mu on MB data recovers the terrain's mu. With ``friction_scaling="peak"``
   only the peak factors change (the brush-model view: friction limits the peak force, the
-  stiffness at small slip is unchanged), and mu shows only near saturation.
+  stiffness at small slip is unchanged), and mu shows only near saturation. With
+  ``friction_scaling="lateral_peak"`` (the public PC-VFE simulator's mapping,
+  ``nandantumu/common_road_sim``) only the lateral peak factor is set, ``p_dy1 = mu``; the
+  longitudinal peak (1.1739) and every stiffness keep their nominal values, so "mu" is the
+  lateral friction peak only: braking and driving grip stay those of dry asphalt.
 * **State in single-track order.** :meth:`MbTruth.st_state` reports
   ``[sx, sy, delta, v, psi, psi_dot, beta]`` with ``v = sign(v_x) hypot(v_x, v_y)`` and
   ``beta = atan(v_y / v_x)`` (0 when ``|v_x| < 0.1`` m/s, as in the package), from the MB body
@@ -55,7 +59,8 @@ VX, VY = 3, 10
 WHEEL_SPEEDS = slice(23, 27)
 """Indices of the four wheel angular speeds [rad/s] in the MB state."""
 
-FRICTION_SCALINGS = ("peak_and_stiffness", "peak")
+FRICTION_SCALINGS = ("peak_and_stiffness", "peak", "lateral_peak")
+"""Tire friction mappings (module docstring): what a terrain's mu changes in the MB tire."""
 
 
 def _vehicle1():
@@ -103,7 +108,7 @@ class MbTruth:
 
     Args:
         vehicle: a preset name with CommonRoad parameters (``MB_VEHICLES``).
-        friction_scaling: ``"peak_and_stiffness"`` (default) or ``"peak"``.
+        friction_scaling: ``"peak_and_stiffness"`` (default), ``"peak"`` or ``"lateral_peak"``.
     """
 
     def __init__(
@@ -128,7 +133,8 @@ class MbTruth:
             base = self.base_parameters.tire
             s = mu / self.mu_nominal
             p.tire.p_dy1 = base.p_dy1 * s
-            p.tire.p_dx1 = base.p_dx1 * s
+            if self.friction_scaling != "lateral_peak":
+                p.tire.p_dx1 = base.p_dx1 * s
             if self.friction_scaling == "peak_and_stiffness":
                 p.tire.p_ky1 = base.p_ky1 * s
                 p.tire.p_kx1 = base.p_kx1 * s

@@ -1,0 +1,127 @@
+"""The one definition of a catastrophic failure, shared by the run summary and the NMPC's loop.
+
+A state of the car is a **catastrophic failure** when any of these holds:
+
+* ``non-finite``: a state entry is NaN or infinite (the simulation broke down);
+* ``left the course``: the distance to the reference path exceeds the course's ``half_width``
+  (3 m on the shipped courses: the car is off the track);
+* ``spinning``: the side-slip angle ``|beta|`` exceeds :data:`SPIN_BETA_RAD` (30 deg), or the
+  course angle (direction of travel, ``psi + beta``) deviates from the path heading by more
+  than :data:`SPIN_COURSE_ANGLE_RAD` (60 deg): the car slides sideways or has turned away.
+
+A failure *event* starts where the flag rises (``failure_events``); the run summary counts
+events, the closed loop (``pcvfe simulate`` with ``stop_on_failure``) ends at the first one and
+records its time, place and reason. Plain numpy, no pydrake.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+SPIN_BETA_RAD = math.radians(30.0)
+"""Side-slip angle beyond which the car counts as spinning [rad]."""
+SPIN_COURSE_ANGLE_RAD = math.radians(60.0)
+"""Course-angle error (``psi + beta`` vs the path heading) beyond which the car counts as spinning
+or turned away [rad]."""
+
+NON_FINITE, OFF_COURSE, SPINNING = "non-finite state", "left the course", "spinning"
+
+
+@dataclass(frozen=True)
+class FailureEvent:
+    """One catastrophic failure: when [s], where (``x_m``, ``y_m``, arc length ``s_m`` along the
+    course, or NaN) and why (``reason``: one of the three kinds, ``detail``: the numbers)."""
+
+    t_s: float
+    x_m: float
+    y_m: float
+    s_m: float
+    reason: str
+    detail: str
+
+    def to_dict(self) -> dict:
+        def num(v):
+            return float(v) if math.isfinite(v) else None
+
+        return {
+            "t_s": num(self.t_s),
+            "x_m": num(self.x_m),
+            "y_m": num(self.y_m),
+            "s_m": num(self.s_m),
+            "reason": self.reason,
+            "detail": self.detail,
+        }
+
+
+def _wrap(angle):
+    return np.angle(np.exp(1j * np.asarray(angle, dtype=float)))
+
+
+def failure_kinds(
+    half_width_m: float, lateral_error_m, course_angle_error_rad, beta_rad, finite=None
+) -> np.ndarray:
+    """Per sample the failure kind ("" where none): arrays of equal shape in, strings out.
+
+    ``course_angle_error_rad`` is the direction of travel minus the path heading (wrapped here);
+    ``finite`` (optional bool array) marks samples whose whole state is finite.
+    """
+    lat = np.asarray(lateral_error_m, dtype=float)
+    cae = _wrap(np.nan_to_num(np.asarray(course_angle_error_rad, dtype=float), nan=0.0))
+    beta = np.asarray(beta_rad, dtype=float)
+    ok = np.isfinite(lat) & np.isfinite(beta)
+    if finite is not None:
+        ok &= np.asarray(finite, dtype=bool)
+    out = np.full(lat.shape, "", dtype=object)
+    spin = ok & ((np.abs(beta) > SPIN_BETA_RAD) | (np.abs(cae) > SPIN_COURSE_ANGLE_RAD))
+    off = ok & (np.abs(lat) > half_width_m)
+    out[spin] = SPINNING
+    out[off] = OFF_COURSE
+    out[~ok] = NON_FINITE
+    return out
+
+
+def failure_reason(
+    half_width_m: float, lateral_error_m: float, course_angle_error_rad: float, beta_rad: float
+) -> str:
+    """Why one state counts as failed, with its numbers ("" if it does not)."""
+    kind = failure_kinds(half_width_m, [lateral_error_m], [course_angle_error_rad], [beta_rad])[0]
+    return _detail(kind, lateral_error_m, course_angle_error_rad, beta_rad)
+
+
+def _detail(kind: str, lat: float, cae: float, beta: float) -> str:
+    if kind == OFF_COURSE:
+        return f"{OFF_COURSE}: lateral error {lat:.2f} m"
+    if kind == SPINNING:
+        return f"{SPINNING}: course-angle error {float(_wrap(cae)):.2f} rad, beta {beta:.2f} rad"
+    if kind == NON_FINITE:
+        return NON_FINITE
+    return ""
+
+
+def failure_events(
+    t_s, xy_m, s_m, half_width_m: float, lateral_error_m, course_angle_error_rad, beta_rad, finite
+) -> list[FailureEvent]:
+    """The failure events of a run: one per rising edge of the failure flag, in time order."""
+    kinds = failure_kinds(half_width_m, lateral_error_m, course_angle_error_rad, beta_rad, finite)
+    failed = kinds != ""
+    starts = np.flatnonzero(failed & ~np.concatenate([[False], failed[:-1]]))
+    t = np.asarray(t_s, dtype=float)
+    xy = np.asarray(xy_m, dtype=float).reshape(-1, 2)
+    s = np.asarray(s_m, dtype=float)
+    lat = np.asarray(lateral_error_m, dtype=float)
+    cae = np.asarray(course_angle_error_rad, dtype=float)
+    beta = np.asarray(beta_rad, dtype=float)
+    return [
+        FailureEvent(
+            float(t[i]),
+            float(xy[i, 0]),
+            float(xy[i, 1]),
+            float(s[i]),
+            str(kinds[i]),
+            _detail(kinds[i], float(lat[i]), float(cae[i]), float(beta[i])),
+        )
+        for i in starts
+    ]

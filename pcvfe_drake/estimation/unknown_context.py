@@ -1,0 +1,76 @@
+"""What PC-VFE hands the controller while it does not know the terrain (no pydrake).
+
+The friction estimate is unknown while the camera frame is noise (a new terrain waits for the
+next re-clustering; a stray frame) for longer than ``noise_hold_s``, or while the current
+context has no fit yet (too little data). The policy decides the friction used meanwhile:
+
+* ``prior``: the prior theta (the vehicle's nominal mu, 1.05 for the Ford Escort): optimistic
+  on every terrain of the paper's map; the behaviour before this choice existed.
+* ``last_known``: the estimate of the last context that had one (the prior if none yet): right
+  while the car is still on the terrain it came from, wrong by the full step after a transition.
+* ``conservative`` (default): the lowest lower confidence bound ``mu - sigmas * std`` over the
+  contexts fitted so far, and never above ``floor_mu`` (the lowest friction the operator expects
+  on the course; 0.3 by default, the paper map's patchy grass). Safe by construction: slower on
+  a new terrain until it has its own fit.
+
+Only mu changes; the stiffnesses stay at the prior's values.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+
+import numpy as np
+
+UNKNOWN_CONTEXT_POLICIES = ("prior", "last_known", "conservative")
+DEFAULT_POLICY = "conservative"
+DEFAULT_FLOOR_MU = 0.3
+DEFAULT_SIGMAS = 2.0
+
+
+def check_policy(policy: str, floor_mu: float, sigmas: float, where: str = "policy") -> None:
+    """Raise ValueError naming ``where`` when the policy or its numbers are invalid."""
+    if policy not in UNKNOWN_CONTEXT_POLICIES:
+        raise ValueError(f"{where}: unknown_context={policy!r}; choose {UNKNOWN_CONTEXT_POLICIES}")
+    if not (math.isfinite(floor_mu) and floor_mu > 0):
+        raise ValueError(f"{where}: unknown_floor_mu={floor_mu!r} must be > 0")
+    if not (math.isfinite(sigmas) and sigmas >= 0):
+        raise ValueError(f"{where}: unknown_sigmas={sigmas!r} must be >= 0")
+
+
+def unknown_context_theta(
+    policy: str,
+    prior_theta,
+    fitted: Iterable[tuple[float, float]],
+    last_known_theta=None,
+    *,
+    floor_mu: float = DEFAULT_FLOOR_MU,
+    sigmas: float = DEFAULT_SIGMAS,
+) -> np.ndarray:
+    """theta [mu, C_Sf, C_Sr] to use while the context is unknown.
+
+    Args:
+        policy: one of ``UNKNOWN_CONTEXT_POLICIES``.
+        prior_theta: the prior (3,).
+        fitted: ``(mu, mu_std)`` of every context fitted so far (std NaN: treated as 0).
+        last_known_theta: theta of the last context with an estimate (None: none yet).
+        floor_mu: ``conservative``'s upper limit on mu.
+        sigmas: ``conservative``'s confidence multiplier.
+    """
+    theta = np.array(prior_theta, dtype=float).reshape(3)
+    if policy == "prior":
+        return theta
+    if policy == "last_known":
+        if last_known_theta is None:
+            return theta
+        return np.array(last_known_theta, dtype=float).reshape(3)
+    if policy != "conservative":
+        raise ValueError(f"unknown_context={policy!r}; choose {UNKNOWN_CONTEXT_POLICIES}")
+    mu = float(floor_mu)
+    for m, std in fitted:
+        if math.isfinite(m):
+            lcb = m - sigmas * (std if math.isfinite(std) else 0.0)
+            mu = min(mu, lcb)
+    theta[0] = max(mu, 0.05)
+    return theta
