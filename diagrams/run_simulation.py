@@ -28,6 +28,8 @@ import signal
 import threading
 import time
 from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from pydrake.geometry import Meshcat, MeshcatParams
@@ -40,6 +42,7 @@ from pydrake.systems.analysis import (
 )
 from pydrake.systems.framework import Diagram, EventStatus
 
+from pcvfe_drake.control import failure
 from pcvfe_drake.control.course import Course
 from pcvfe_drake.diagrams.debug_layers import LAYERS
 from pcvfe_drake.diagrams.meshcat_controls import MeshcatControls
@@ -50,8 +53,9 @@ from pcvfe_drake.runs.run_folder import (
     SimulationResult,
     write_run_outputs,
 )
-from pcvfe_drake.runs.runlog import RunLog, feature_columns
+from pcvfe_drake.runs.runlog import TRUE_STATE_COLUMNS, RunLog, feature_columns
 from pcvfe_drake.runs.scenario import Scenario
+from pcvfe_drake.vehicle.single_track import BETA, PSI, STATE_NAMES, SX, SY
 
 __all__ = [
     "LapMonitor",
@@ -158,6 +162,72 @@ class LapMonitor:
             self.reached = True
             return EventStatus.ReachedTermination(self.system, "lap goal reached")
         return EventStatus.Succeeded()
+
+
+class FailureMonitor:
+    """``Simulator.set_monitor`` callback: ends ``AdvanceTo`` at the first catastrophic failure
+    (``pcvfe_drake.control.failure``) in the drive log's rows, checked on the true state where
+    the log has it (else the state), every ``batch_rows`` rows (1 s at 20 Hz). ``failure``
+    then holds its description (time, place, reason)."""
+
+    def __init__(self, system, course: Course, run_log: RunLog, *, batch_rows: int = 20) -> None:
+        self.system = system
+        self.course = course
+        self.run_log = run_log
+        self.batch_rows = int(batch_rows)
+        self.rows_seen = 0
+        columns = run_log.columns
+        self._state = [columns.index(n) for n in STATE_NAMES]
+        self._truth = [columns.index(n) for n in TRUE_STATE_COLUMNS if n in columns]
+        self._t = columns.index("t")
+        self.failure = ""
+        self._nothing = EventStatus.DidNothing()
+
+    def states(self, rows: list[list]) -> np.ndarray:
+        """(N, 7) states of the rows: the true state, or the state where a row has no truth."""
+        x = np.array([[r[c] for c in self._state] for r in rows], dtype=float).reshape(-1, 7)
+        if len(self._truth) == 7 and len(rows):
+            xt = np.array([[r[c] for c in self._truth] for r in rows], dtype=float)
+            has = np.all(np.isfinite(xt), axis=1)
+            x[has] = xt[has]
+        return x
+
+    def __call__(self, context) -> EventStatus:
+        if self.failure or len(self.run_log) - self.rows_seen < self.batch_rows:
+            return self._nothing
+        rows = self.run_log.rows_since(self.rows_seen)
+        self.rows_seen += len(rows)
+        x = self.states(rows)
+        finite = np.all(np.isfinite(x), axis=1)
+        lat = np.full(len(x), np.nan)
+        cae = np.zeros(len(x))
+        if finite.any():
+            pr = self.course.project(x[finite, :2], heading=x[finite, PSI] + x[finite, BETA])
+            lat[finite] = pr.lateral_error
+            cae[finite] = pr.heading_error
+        kinds = failure.failure_kinds(self.course.half_width, lat, cae, x[:, BETA], finite)
+        bad = np.flatnonzero(kinds != "")
+        if not bad.size:
+            return EventStatus.Succeeded()
+        i = bad[0]
+        self.failure = f"t={rows[i][self._t]:.2f} s at ({x[i, SX]:.1f}, {x[i, SY]:.1f}) m: " + (
+            failure.failure_reason(self.course.half_width, lat[i], cae[i], x[i, BETA])
+        )
+        return EventStatus.ReachedTermination(self.system, "catastrophic failure")
+
+
+def _first_termination(monitors):
+    """One ``set_monitor`` callback from several: the first that ends the run wins."""
+
+    def monitor(context) -> EventStatus:
+        status = EventStatus.DidNothing()
+        for m in monitors:
+            status = m(context)
+            if status.severity() == EventStatus.Severity.kReachedTermination:
+                return status
+        return status
+
+    return monitor
 
 
 def simulator_config(scenario: Scenario) -> SimulatorConfig:
@@ -286,7 +356,12 @@ def run_simulation(
             a_max_mps2=parts.params.a_max,
             v_start_mps=scenario.initial_speed_mps,
         )
-        simulator.set_monitor(monitor)
+    failure_monitor = None
+    if scenario.stop_on_failure:
+        failure_monitor = FailureMonitor(diagram, course, run_log)
+    monitors = [m for m in (monitor, failure_monitor) if m is not None]
+    if monitors:
+        simulator.set_monitor(_first_termination(monitors))
     if meshcat is not None:
         meshcat.StartRecording(frames_per_second=1.0 / scenario.rates.view_period_s)
     panel = None
@@ -340,7 +415,9 @@ def run_simulation(
                         f"t={t:.0f}s rtf={t / max(wall, 1e-9):.1f}x laps={laps:.2f} ctx={ctx}"
                     )
                 if status.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition:
-                    stop_reason = "laps"
+                    stop_reason = (
+                        "failure" if failure_monitor and failure_monitor.failure else "laps"
+                    )
                     break
     except KeyboardInterrupt:
         interrupted = True
@@ -373,10 +450,12 @@ def run_simulation(
             raise ValueError(
                 f"scenario {scenario.name!r}: nothing was logged ({error or 'stopped'})"
             )
-        clustering = diagram.GetSubsystemByName("clustering")
-        clusterer = clustering.clusterer(clustering.GetMyContextFromRoot(context))
-        features = log[feature_columns(run_log.feature_dim)].to_numpy()
-        log["final_context"] = clusterer.predict(features)
+        names = {s.get_name() for s in diagram.GetSystems()}
+        if "clustering" in names:  # the PC-VFE pipeline (other friction sources have none)
+            clustering = diagram.GetSubsystemByName("clustering")
+            clusterer = clustering.clusterer(clustering.GetMyContextFromRoot(context))
+            features = log[feature_columns(run_log.feature_dim)].to_numpy()
+            log["final_context"] = clusterer.predict(features)
         nmpc = diagram.GetSubsystemByName("nmpc")
         diag = nmpc.GetOutputPort("diagnostics").Eval(nmpc.GetMyContextFromRoot(context))
         station_system = diagram.GetSubsystemByName("station")
@@ -388,7 +467,7 @@ def run_simulation(
             log=log,
             course=course,
             terrain_map=parts.terrain_map,
-            estimate_table=_estimate_table(diagram, context),
+            estimate_table=_estimate_table(diagram, context) if "fitter" in names else None,
             wall_time_s=wall,
             cpu_time_s=cpu,
             nmpc_updates=int(getattr(diag, "updates", 0)),
@@ -410,3 +489,38 @@ def run_simulation(
         )
         result.held_signals = list(received[1:] if interrupted else received)
     return result
+
+
+def simulate_summary(
+    scenario: Scenario | str,
+    seed: int | None = None,
+    overrides: dict | None = None,
+    *,
+    out: str | Path | None = None,
+) -> dict[str, Any]:
+    """Run one whole simulation and return its summary dict (no Meshcat, no progress bar).
+
+    An entry point for scripts and experiment runners (picklable arguments, usable in a worker
+    process): ``scenario`` is a :class:`Scenario` or a shipped name / YAML path; ``seed``
+    replaces its seed; ``overrides`` replaces dotted fields (``{"estimator": "ukf",
+    "fixed.use": "nominal", "laps": 0.5}``, see
+    ``pcvfe_drake.runs.friction_sources.apply_overrides``); ``out`` is a run folder to write
+    (drive log, summary.json, figures, scenario.yaml), None writes nothing.
+    """
+    from pcvfe_drake.diagrams.scenario_io import load_scenario
+    from pcvfe_drake.runs.friction_sources import apply_overrides
+
+    if not isinstance(scenario, Scenario):
+        scenario = load_scenario(scenario)
+    if seed is not None:
+        scenario = dataclasses.replace(scenario, seed=int(seed))
+    scenario = apply_overrides(scenario, overrides).validate(f"scenario {scenario.name!r}")
+    folder = None
+    if out is not None:
+        folder = RunFolder(out)
+        folder.prepare(overwrite=True)
+        folder.write_text(folder.scenario, scenario.to_yaml())
+    result = run_simulation(
+        scenario, folder, progress=False, write_outputs=out is not None, debug_layers=False
+    )
+    return result.summary

@@ -1,12 +1,16 @@
 """The PC-VFE closed loop as one Drake diagram (paper Fig. 3).
 
-``MakeSimulation(scenario, meshcat)`` wires the vehicle station (plant + camera, see
-``station.py``) to the estimator and the controller::
+``MakeSimulation(scenario, meshcat)`` wires the vehicle station (plant + sensing + camera, see
+``station.py``) to the friction source and the controller; with ``estimator: pcvfe``::
 
     station.image -> features -> clustering --context_id--> fitter
     station.state ----------------------------------------> fitter --theta_hat--> nmpc
     station.state ------------------------------------------------------------> nmpc
     nmpc.actuation -> station.actuation (and fitter.actuation)
+
+Other friction sources replace clustering + fitter by one ``friction_source`` system with the
+same ``theta_hat`` output (``_add_friction_source``); ``kmpc`` also switches the NMPC to the
+kinematic model.
 
 plus a ``run_logger`` (the drive log written as the run goes: the one record of the run, from
 which the summary and the figures are computed) and, with a Meshcat, the ``meshcat_view``. Any
@@ -16,25 +20,36 @@ station works (simulated, LCM, replay): consumers connect a sim-only port only w
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
 from pydrake.geometry import Meshcat
 from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource
 
 from pcvfe_drake.control.course import Course, load_course
+from pcvfe_drake.control.nmpc import NmpcConfig
 from pcvfe_drake.diagrams.debug_layers import AddDebugLayers
 from pcvfe_drake.diagrams.station import SIM_ONLY_OUTPUTS, MakeVehicleStation
+from pcvfe_drake.estimation.lookup import build_lookup_table
+from pcvfe_drake.estimation.ukf import UkfConfig
+from pcvfe_drake.perception.features import make_extractor
 from pcvfe_drake.perception.terrain import TerrainMap
+from pcvfe_drake.runs.friction_sources import fixed_mu
 from pcvfe_drake.runs.runlog import RunLog
 from pcvfe_drake.runs.scenario import Scenario, build_terrain_map
 from pcvfe_drake.systems.clip_features import ClipFeatures
 from pcvfe_drake.systems.context_clustering import ContextClustering
 from pcvfe_drake.systems.context_fitter import ContextFitter
+from pcvfe_drake.systems.lookup_friction import LookupFriction
 from pcvfe_drake.systems.meshcat_view import MeshcatView
 from pcvfe_drake.systems.nmpc import Nmpc
+from pcvfe_drake.systems.oracle_friction import OracleFriction
 from pcvfe_drake.systems.run_logger import RunLogger
+from pcvfe_drake.systems.ukf_friction import UkfFriction
 from pcvfe_drake.vehicle.params import VehicleParams, load_vehicle
+from pcvfe_drake.vehicle.sensing import StateSensorModel
 
 
 @dataclass
@@ -46,6 +61,104 @@ class SimulationParts:
     terrain_map: TerrainMap
     params: VehicleParams
     run_log: RunLog
+
+
+def nmpc_config(scenario: Scenario) -> NmpcConfig:
+    """The scenario's NMPC settings; ``estimator: kmpc`` switches to the kinematic model."""
+    config = scenario.nmpc_config()
+    if scenario.estimator == "kmpc":
+        config = dataclasses.replace(config, model="ks")
+    return config
+
+
+def _add_friction_source(builder, scenario: Scenario, params, station, features, actuation):
+    """Add the scenario's friction source (``scenario.estimator``); returns its ``theta_hat``
+    output and the port logged as the run's ``context`` column.
+
+    ``pcvfe``: ``clustering`` (ContextClustering) and ``fitter`` (ContextFitter), the context id
+    from the clustering. ``oracle``: ``friction_source`` (OracleFriction on ``true_mu``).
+    ``lookup``: ``friction_source`` (LookupFriction on the features; its class is the context).
+    ``ukf``: ``friction_source`` (UkfFriction on the measured state and the actuation).
+    ``fixed`` and ``kmpc``: ``friction_source``, a ConstantVectorSource. Sources without
+    contexts log the context -1 (``no_context``).
+    """
+    rates = scenario.rates
+    kind = scenario.estimator
+    feature_dim = features.GetOutputPort("features").size()
+    if kind == "pcvfe":
+        clustering = builder.AddNamedSystem(
+            "clustering",
+            ContextClustering(
+                feature_dim,
+                scenario.clustering_params(),
+                frame_period_s=rates.camera_period_s,
+                recluster_period_s=rates.recluster_period_s,
+                frame_offset_s=rates.clustering_frame_offset_s,
+            ),
+        )
+        fitter = builder.AddNamedSystem(
+            "fitter",
+            ContextFitter(
+                params,
+                period_s=rates.fitter_period_s,
+                sample_period_s=rates.fitter_sample_period_s,
+                config=scenario.fit_config(),
+            ),
+        )
+        builder.Connect(features.GetOutputPort("features"), clustering.GetInputPort("features"))
+        builder.Connect(station.GetOutputPort("state"), fitter.GetInputPort("state"))
+        builder.Connect(actuation, fitter.GetInputPort("actuation"))
+        builder.Connect(clustering.GetOutputPort("context_id"), fitter.GetInputPort("context_id"))
+        return fitter.GetOutputPort("theta_hat"), clustering.GetOutputPort("context_id")
+    if kind == "lookup":
+        table = build_lookup_table(
+            make_extractor(
+                "clip" if scenario.uses_clip else "descriptor",
+                scenario.features.backend if scenario.uses_clip else None,
+                lambda_c=scenario.features.lambda_c,
+                threads=scenario.features.clip_threads,
+            ),
+            scenario.lookup.classes,
+            camera_config=scenario.camera,
+            frames_per_class=scenario.lookup.frames_per_class,
+            seed=scenario.seed,
+            default_mu=scenario.lookup.default_mu,
+            reject_factor=scenario.lookup.reject_factor,
+        )
+        source = builder.AddNamedSystem(
+            "friction_source",
+            LookupFriction(
+                table,
+                params,
+                period_s=rates.camera_period_s,
+                offset_s=rates.clustering_frame_offset_s,
+            ),
+        )
+        builder.Connect(features.GetOutputPort("features"), source.GetInputPort("features"))
+        return source.GetOutputPort("theta_hat"), source.GetOutputPort("terrain_class")
+    if kind == "oracle":
+        source = builder.AddNamedSystem(
+            "friction_source", OracleFriction(params, period_s=rates.fitter_sample_period_s)
+        )
+        builder.Connect(station.GetOutputPort("true_mu"), source.GetInputPort("true_mu"))
+    elif kind == "ukf":
+        sigma = StateSensorModel(scenario.sensing, scenario.seed).sigma
+        source = builder.AddNamedSystem(
+            "friction_source",
+            UkfFriction(params, sigma, UkfConfig(period_s=rates.fitter_sample_period_s)),
+        )
+        builder.Connect(station.GetOutputPort("state"), source.GetInputPort("state"))
+        builder.Connect(actuation, source.GetInputPort("actuation"))
+    else:  # fixed, kmpc
+        settings = scenario.fixed
+        if kind == "kmpc":
+            settings = dataclasses.replace(settings, use="nominal")
+        mu = fixed_mu(settings, params.mu)
+        source = builder.AddNamedSystem(
+            "friction_source", ConstantVectorSource([mu, params.C_Sf, params.C_Sr])
+        )
+    no_context = builder.AddNamedSystem("no_context", ConstantVectorSource([-1.0]))
+    return source.get_output_port(0), no_context.get_output_port()
 
 
 def MakeSimulation(
@@ -94,41 +207,20 @@ def MakeSimulation(
         ),
     )
     feature_dim = features.GetOutputPort("features").size()
-    clustering = builder.AddNamedSystem(
-        "clustering",
-        ContextClustering(
-            feature_dim,
-            scenario.clustering_params(),
-            frame_period_s=rates.camera_period_s,
-            recluster_period_s=rates.recluster_period_s,
-            frame_offset_s=rates.clustering_frame_offset_s,
-        ),
-    )
-    fitter = builder.AddNamedSystem(
-        "fitter",
-        ContextFitter(
-            params,
-            period_s=rates.fitter_period_s,
-            sample_period_s=rates.fitter_sample_period_s,
-            config=scenario.fit_config(),
-        ),
-    )
-    nmpc = builder.AddNamedSystem("nmpc", Nmpc(course, params, scenario.nmpc_config()))
-
+    nmpc = builder.AddNamedSystem("nmpc", Nmpc(course, params, nmpc_config(scenario)))
     state = station.GetOutputPort("state")
     builder.Connect(station.GetOutputPort("image"), features.GetInputPort("image"))
-    builder.Connect(features.GetOutputPort("features"), clustering.GetInputPort("features"))
-    builder.Connect(state, fitter.GetInputPort("state"))
     # What the car did: the NMPC's command, or on a replay the input recorded with the drive.
     applied = (
         station.GetOutputPort("logged_actuation")
         if station.HasOutputPort("logged_actuation")
         else nmpc.GetOutputPort("actuation")
     )
-    builder.Connect(applied, fitter.GetInputPort("actuation"))
-    builder.Connect(clustering.GetOutputPort("context_id"), fitter.GetInputPort("context_id"))
+    theta_hat, context_id = _add_friction_source(
+        builder, scenario, params, station, features, applied
+    )
     builder.Connect(state, nmpc.GetInputPort("state"))
-    builder.Connect(fitter.GetOutputPort("theta_hat"), nmpc.GetInputPort("theta_hat"))
+    builder.Connect(theta_hat, nmpc.GetInputPort("theta_hat"))
     builder.Connect(nmpc.GetOutputPort("actuation"), station.GetInputPort("actuation"))
 
     run_log = RunLog(
@@ -139,8 +231,8 @@ def MakeSimulation(
         "state": state,
         "actuation": applied,
         "features": features.GetOutputPort("features"),
-        "context_id": clustering.GetOutputPort("context_id"),
-        "theta_hat": fitter.GetOutputPort("theta_hat"),
+        "context_id": context_id,
+        "theta_hat": theta_hat,
         "image": station.GetOutputPort("image"),
     }
     for name in SIM_ONLY_OUTPUTS:  # truth only where the station has it
@@ -170,9 +262,13 @@ def MakeSimulation(
                 meshcat,
                 station=station,
                 nmpc=nmpc,
-                theta_hat=fitter.GetOutputPort("theta_hat"),
-                features=features,
-                clustering=clustering,
+                theta_hat=theta_hat,
+                features=features if builder.HasSubsystemNamed("clustering") else None,
+                clustering=(
+                    builder.GetSubsystemByName("clustering")
+                    if builder.HasSubsystemNamed("clustering")
+                    else None
+                ),
                 terrain_map=terrain_map,
                 view_period_s=rates.view_period_s,
             )

@@ -10,13 +10,15 @@ export the same ports, so ``MakeSimulation`` and any other consumer connect only
 port                  dir     meaning
 ====================  ======  ===============================================================
 ``actuation``         input   (2) [steer_rate rad/s, accel m/s^2]
-``state``             output  (7) ST state [sx, sy, delta, v, psi, psi_dot, beta] (SI units)
+``state``             output  (7) measured ST state [sx, sy, delta, v, psi, psi_dot, beta] (SI
+                              units): the scenario's ``sensing`` model applied to the truth
 ``image``             output  abstract Drake image of the downward camera (RGBA, 8 bit)
 ``station_status``    output  abstract ``pcvfe_drake.hardware.watchdog.StationStatus``: whether
                               ``state`` and ``image`` are live, and if not why (always ``ok``
                               in simulation; the LCM station's watchdog fills it)
 ``true_mu``           output  (1) **sim only**: true friction coefficient under the car
 ``true_terrain``      output  (1) **sim only**: index of the true terrain (-1: none)
+``true_state``        output  (7) **sim only**: the true ST state
 ====================  ======  ===============================================================
 
 The hardware station (``hardware_station.py``, ``hardware=True``) exports the same ports
@@ -38,6 +40,7 @@ from pcvfe_drake.hardware.watchdog import StationStatus
 from pcvfe_drake.perception.camera import CameraConfig
 from pcvfe_drake.perception.terrain import TerrainMap
 from pcvfe_drake.runs.scenario import Scenario, build_terrain_map
+from pcvfe_drake.systems.state_sensor import StateSensor
 from pcvfe_drake.systems.texture_camera import TextureCamera
 from pcvfe_drake.systems.vehicle_plant import VehiclePlant
 from pcvfe_drake.vehicle.params import load_vehicle
@@ -46,7 +49,7 @@ STATION_INPUTS = ("actuation",)
 """Input ports of every station variant."""
 STATION_OUTPUTS = ("state", "image", "station_status")
 """Output ports of every station variant."""
-SIM_ONLY_OUTPUTS = ("true_mu", "true_terrain")
+SIM_ONLY_OUTPUTS = ("true_mu", "true_terrain", "true_state")
 """Outputs of the simulated station only (ground truth a real car does not have)."""
 
 
@@ -77,8 +80,10 @@ def MakeVehicleStation(
             the scenario's ``hardware.lcm_buses``.
 
     Subsystems: ``plant`` (VehiclePlant, its default state on the course at the scenario's
-    start_s_m and initial speed), ``camera`` (TextureCamera) and ``status`` (a constant ``ok``
-    ``station_status``).
+    start_s_m and initial speed, the multi-body truth's tire mapping ``friction_mapping``),
+    ``camera`` (TextureCamera, on the true pose), ``status`` (a constant ``ok``
+    ``station_status``) and, with ``sensing.model`` other than ``none``, ``sensor``
+    (StateSensor) between the plant's state and the exported ``state``.
     """
     if hardware:
         from pcvfe_drake.diagrams.hardware_station import MakeHardwareStation
@@ -92,7 +97,13 @@ def MakeVehicleStation(
     builder = DiagramBuilder()
     plant = builder.AddNamedSystem(
         "plant",
-        VehiclePlant(params, terrain_map=terrain_map, truth=scenario.truth_model, x0=x0),
+        VehiclePlant(
+            params,
+            terrain_map=terrain_map,
+            truth=scenario.truth_model,
+            x0=x0,
+            friction_scaling=scenario.friction_mapping,
+        ),
     )
     camera = builder.AddNamedSystem(
         "camera",
@@ -108,11 +119,18 @@ def MakeVehicleStation(
     )
     builder.Connect(plant.GetOutputPort("state"), camera.GetInputPort("state"))
     builder.ExportInput(plant.GetInputPort("actuation"), "actuation")
-    builder.ExportOutput(plant.GetOutputPort("state"), "state")
+    true_state = plant.GetOutputPort("state")
+    state = true_state
+    if scenario.sensing.enabled:
+        sensor = builder.AddNamedSystem("sensor", StateSensor(scenario.sensing, scenario.seed))
+        builder.Connect(true_state, sensor.GetInputPort("true_state"))
+        state = sensor.GetOutputPort("state")
+    builder.ExportOutput(state, "state")
     builder.ExportOutput(camera.GetOutputPort("image"), "image")
     builder.ExportOutput(status.get_output_port(), "station_status")
     builder.ExportOutput(plant.GetOutputPort("true_mu"), "true_mu")
     builder.ExportOutput(plant.GetOutputPort("true_terrain"), "true_terrain")
+    builder.ExportOutput(true_state, "true_state")
     diagram = builder.Build()
     diagram.set_name("vehicle_station")
     return diagram

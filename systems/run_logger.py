@@ -25,6 +25,7 @@ class RunLogger(LeafSystem):
         - theta_hat
         - true_mu
         - true_terrain
+        - true_state
         - image
 
     All inputs are read at the publish only (no output, no state). ``image`` (abstract
@@ -34,6 +35,8 @@ class RunLogger(LeafSystem):
     rows have ``mu_true`` NaN and no terrain. A row whose ``state`` is not finite (a hardware
     station whose state stream is lost) is not a measurement: it is skipped and counted in
     ``skipped_rows``, so the drive log on disk stays valid.
+    ``true_state`` (7, sim-only, optional) is the true state, logged as the ``true_sx`` ...
+    ``true_beta`` columns when connected (``state`` is then the measured one).
 
     Rate: one periodic publish event every ``period_s`` (the scenario's log period). The RunLog
     is the run's output sink, owned by the caller (its rows are written to disk in chunks, so an
@@ -62,6 +65,7 @@ class RunLogger(LeafSystem):
         self._theta_port = self.DeclareVectorInputPort("theta_hat", NTHETA)
         self._true_mu_port = self.DeclareVectorInputPort("true_mu", 1)
         self._true_terrain_port = self.DeclareVectorInputPort("true_terrain", 1)
+        self._true_state_port = self.DeclareVectorInputPort("true_state", NX)
         self._image_port = self.DeclareAbstractInputPort("image", AbstractValue.Make(ImageRgba8U()))
         self.DeclarePeriodicPublishEvent(period_sec=period_s, offset_sec=0.0, publish=self._log)
         # The row waiting for the input applied from it (see "Input timing"); an output sink's
@@ -86,6 +90,11 @@ class RunLogger(LeafSystem):
             "theta_hat": np.array(self._theta_port.Eval(context), dtype=float),
             "mu_true": self._optional(self._true_mu_port, context, np.nan),
             "terrain_index": self._optional(self._true_terrain_port, context, -1.0),
+            "true_state": (
+                np.array(self._true_state_port.Eval(context), dtype=float)
+                if self._true_state_port.HasValue(context)
+                else None
+            ),
             "image_rgb": image,
         }
 

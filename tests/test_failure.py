@@ -30,6 +30,8 @@ def test_events_start_on_rising_edges_with_time_and_place():
     beta = np.array([0, 0, 0, 0, 0, 1.0, 1.0, 0, 0, 0], float)
     xy = np.column_stack([t * 10, -t])
     ev = failure_events(t, xy, t * 10, 3.0, lat, np.zeros(10), beta, np.ones(10, bool))
-    assert [(e.t_s, e.reason) for e in ev] == [(0.1, OFF_COURSE), (0.5, SPINNING)]
+    assert [(e.t_s, e.kind) for e in ev] == [(0.1, OFF_COURSE), (0.5, SPINNING)]
     assert ev[1].x_m == 5.0 and ev[1].y_m == -0.5 and ev[1].s_m == 5.0
-    assert ev[0].to_dict()["detail"] == "left the course: lateral error 4.00 m"
+    d = ev[0].to_dict()
+    assert d["detail"] == "left the course: lateral error 4.00 m" and d["kind"] == "off_course"
+    assert (d["t_s"], d["sx_m"], d["sy_m"]) == (0.1, 1.0, -0.1)

@@ -12,6 +12,7 @@ import time
 from datetime import datetime
 from pathlib import Path
 
+from pcvfe_drake.runs.friction_sources import ESTIMATORS
 from pcvfe_drake.runs.scenario_files import DEFAULT_SCENARIO, shipped_scenarios
 
 CHUNK_S = 1.0
@@ -68,6 +69,13 @@ def register(subparsers) -> None:
     )
     parser.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
     parser.add_argument(
+        "--estimator",
+        choices=ESTIMATORS,
+        default=None,
+        help="override the scenario's friction source (kmpc: the kinematic NMPC, no friction "
+        "input)",
+    )
+    parser.add_argument(
         "--hardware",
         action="store_true",
         help=(
@@ -106,7 +114,13 @@ def run(args: argparse.Namespace) -> int:
         scenario = scenario.with_run_length(laps=args.laps, duration_s=args.duration)
     if args.seed is not None:
         scenario = dataclasses.replace(scenario, seed=args.seed)
-    out = args.out or Path("runs") / f"{scenario.name}-{datetime.now():%Y%m%d-%H%M%S}"
+    if args.estimator is not None:
+        scenario = dataclasses.replace(scenario, estimator=args.estimator)
+        scenario.validate(f"scenario {args.scenario!r}")
+    tag = scenario.name
+    if scenario.estimator != "pcvfe":
+        tag += f"-{scenario.estimator}"
+    out = args.out or Path("runs") / f"{tag}-{datetime.now():%Y%m%d-%H%M%S}"
     folder = RunFolder(out)
     removed = folder.prepare(overwrite=args.overwrite)
     if removed:

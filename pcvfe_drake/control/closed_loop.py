@@ -8,13 +8,13 @@ under a zero-order hold and logs a :class:`ClosedLoopResult`.
 
 from __future__ import annotations
 
-import math
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
+from pcvfe_drake.control import failure
 from pcvfe_drake.control.course import Course
 from pcvfe_drake.control.nmpc import NmpcController
 from pcvfe_drake.vehicle.params import VehicleParams
@@ -63,13 +63,9 @@ class ClosedLoopResult:
 
 
 def failure_reason(course: Course, lateral_error: float, course_error: float, beta: float) -> str:
-    """Why a state counts as failed ("" if it does not): off the course (|lateral error| >
-    ``course.half_width``), or spinning (|course-angle error| > 60 deg or |beta| > 30 deg)."""
-    if abs(lateral_error) > course.half_width:
-        return f"left the course: lateral error {lateral_error:.2f} m"
-    if abs(course_error) > math.radians(60) or abs(beta) > math.radians(30):
-        return f"spinning: course-angle error {course_error:.2f} rad, beta {beta:.2f} rad"
-    return ""
+    """Why a state counts as failed ("" if it does not): the project's one definition
+    (``pcvfe_drake.control.failure``) with the course's half width."""
+    return failure.failure_reason(course.half_width, lateral_error, course_error, beta)
 
 
 class StTruth:

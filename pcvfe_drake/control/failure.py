@@ -2,10 +2,10 @@
 
 A state of the car is a **catastrophic failure** when any of these holds:
 
-* ``non-finite``: a state entry is NaN or infinite (the simulation broke down);
-* ``left the course``: the distance to the reference path exceeds the course's ``half_width``
+* ``non_finite``: a state entry is NaN or infinite (the simulation broke down);
+* ``off_course``: the distance to the reference path exceeds the course's ``half_width``
   (3 m on the shipped courses: the car is off the track);
-* ``spinning``: the side-slip angle ``|beta|`` exceeds :data:`SPIN_BETA_RAD` (30 deg), or the
+* ``spin``: the side-slip angle ``|beta|`` exceeds :data:`SPIN_BETA_RAD` (30 deg), or the
   course angle (direction of travel, ``psi + beta``) deviates from the path heading by more
   than :data:`SPIN_COURSE_ANGLE_RAD` (60 deg): the car slides sideways or has turned away.
 
@@ -27,19 +27,21 @@ SPIN_COURSE_ANGLE_RAD = math.radians(60.0)
 """Course-angle error (``psi + beta`` vs the path heading) beyond which the car counts as spinning
 or turned away [rad]."""
 
-NON_FINITE, OFF_COURSE, SPINNING = "non-finite state", "left the course", "spinning"
+NON_FINITE, OFF_COURSE, SPINNING = "non_finite", "off_course", "spin"
+"""The three kinds of failure (codes stored in ``summary.json``)."""
+_TEXT = {NON_FINITE: "non-finite state", OFF_COURSE: "left the course", SPINNING: "spinning"}
 
 
 @dataclass(frozen=True)
 class FailureEvent:
     """One catastrophic failure: when [s], where (``x_m``, ``y_m``, arc length ``s_m`` along the
-    course, or NaN) and why (``reason``: one of the three kinds, ``detail``: the numbers)."""
+    course, or NaN) and why (``kind``: one of the three codes, ``detail``: the numbers)."""
 
     t_s: float
     x_m: float
     y_m: float
     s_m: float
-    reason: str
+    kind: str
     detail: str
 
     def to_dict(self) -> dict:
@@ -48,10 +50,10 @@ class FailureEvent:
 
         return {
             "t_s": num(self.t_s),
-            "x_m": num(self.x_m),
-            "y_m": num(self.y_m),
+            "sx_m": num(self.x_m),
+            "sy_m": num(self.y_m),
             "s_m": num(self.s_m),
-            "reason": self.reason,
+            "kind": self.kind,
             "detail": self.detail,
         }
 
@@ -93,18 +95,19 @@ def failure_reason(
 
 def _detail(kind: str, lat: float, cae: float, beta: float) -> str:
     if kind == OFF_COURSE:
-        return f"{OFF_COURSE}: lateral error {lat:.2f} m"
+        return f"{_TEXT[kind]}: lateral error {lat:.2f} m"
     if kind == SPINNING:
-        return f"{SPINNING}: course-angle error {float(_wrap(cae)):.2f} rad, beta {beta:.2f} rad"
+        return f"{_TEXT[kind]}: course-angle error {float(_wrap(cae)):.2f} rad, beta {beta:.2f} rad"
     if kind == NON_FINITE:
-        return NON_FINITE
+        return _TEXT[kind]
     return ""
 
 
 def failure_events(
     t_s, xy_m, s_m, half_width_m: float, lateral_error_m, course_angle_error_rad, beta_rad, finite
 ) -> list[FailureEvent]:
-    """The failure events of a run: one per rising edge of the failure flag, in time order."""
+    """The failure events of a run: one per rising edge of the failure flag, in time order; the
+    place is the last finite position at or before the event."""
     kinds = failure_kinds(half_width_m, lateral_error_m, course_angle_error_rad, beta_rad, finite)
     failed = kinds != ""
     starts = np.flatnonzero(failed & ~np.concatenate([[False], failed[:-1]]))
@@ -114,14 +117,19 @@ def failure_events(
     lat = np.asarray(lateral_error_m, dtype=float)
     cae = np.asarray(course_angle_error_rad, dtype=float)
     beta = np.asarray(beta_rad, dtype=float)
-    return [
-        FailureEvent(
-            float(t[i]),
-            float(xy[i, 0]),
-            float(xy[i, 1]),
-            float(s[i]),
-            str(kinds[i]),
-            _detail(kinds[i], float(lat[i]), float(cae[i]), float(beta[i])),
+    finite_rows = np.flatnonzero(np.all(np.isfinite(xy), axis=1))
+    events = []
+    for i in starts:
+        before = finite_rows[finite_rows <= i]  # the place: the last finite position
+        j = int(before[-1]) if before.size else i
+        events.append(
+            FailureEvent(
+                float(t[i]),
+                float(xy[j, 0]),
+                float(xy[j, 1]),
+                float(s[j]),
+                str(kinds[i]),
+                _detail(kinds[i], float(lat[i]), float(cae[i]), float(beta[i])),
+            )
         )
-        for i in starts
-    ]
+    return events

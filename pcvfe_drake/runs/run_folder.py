@@ -197,6 +197,10 @@ def build_summary(record: RunRecord) -> dict[str, Any]:
     summary["truth_model"] = scenario.truth_model
     summary["feature_backend"] = scenario.features.backend
     summary["seed"] = scenario.seed
+    summary["estimator"] = scenario.estimator
+    summary["friction_mapping"] = scenario.friction_mapping
+    summary["sensing"] = scenario.sensing.model
+    summary["unknown_context"] = scenario.fitter.unknown_context
     summary["stop_reason"] = record.stop_reason
     if record.interrupt_signal is not None:
         summary["interrupt_signal"] = record.interrupt_signal

@@ -8,7 +8,8 @@ write the rest).
 
 Columns: the drive-log columns (``t``, the ST state, the inputs), then ``terrain`` (true terrain
 name; sim-only), ``terrain_index``, ``mu_true`` (sim-only), ``context`` (reported context id, -1 =
-noise), ``mu_hat``, ``C_Sf_hat``, ``C_Sr_hat`` (the estimate the controller was given), the
+noise), ``mu_hat``, ``C_Sf_hat``, ``C_Sr_hat`` (the estimate the controller was given),
+``true_sx`` ... ``true_beta`` (sim-only true state; the state columns are the measured state), the
 features ``f_00``... and ``image`` (path of a saved camera frame relative to the log's folder,
 empty on rows without one; a frame is saved every ``frame_period_s``).
 """
@@ -25,6 +26,8 @@ from pcvfe_drake.runs.drivelog import DriveLogError, DriveLogWriter
 from pcvfe_drake.vehicle.single_track import INPUT_NAMES, NX, STATE_NAMES
 
 ESTIMATE_COLUMNS = ("mu_hat", "C_Sf_hat", "C_Sr_hat")
+TRUE_STATE_COLUMNS = tuple(f"true_{name}" for name in STATE_NAMES)
+"""Sim-only columns of the true state (the drive-log state columns are the measured state)."""
 
 
 class RunLogWriteError(OSError):
@@ -73,6 +76,7 @@ class RunLog:
             "mu_true",
             "context",
             *ESTIMATE_COLUMNS,
+            *TRUE_STATE_COLUMNS,
             *feature_columns(feature_dim),
             "image",
         ]
@@ -106,8 +110,10 @@ class RunLog:
         mu_true: float,
         terrain_index: float,
         image_rgb: np.ndarray | None = None,
+        true_state: np.ndarray | None = None,
     ) -> None:
-        """Add one sample (``image_rgb``: an (H, W, 3) uint8 frame to save, or None)."""
+        """Add one sample (``image_rgb``: an (H, W, 3) uint8 frame to save, or None;
+        ``true_state``: the sim-only true state (7), None where the station has none: NaN)."""
         state = np.asarray(state, dtype=float).reshape(NX)
         actuation = np.asarray(actuation, dtype=float).reshape(len(INPUT_NAMES))
         features = np.asarray(features, dtype=float).reshape(-1)
@@ -141,6 +147,9 @@ class RunLog:
             float(mu_true),
             int(round(float(context_id))),
             *np.asarray(theta_hat, dtype=float).reshape(3).tolist(),
+            *(
+                np.full(NX, np.nan) if true_state is None else np.asarray(true_state, float)
+            ).reshape(NX).tolist(),
             *features.tolist(),
             image,
         ]

@@ -27,14 +27,21 @@ from pcvfe_drake.control.nmpc_config import NmpcConfig
 from pcvfe_drake.estimation.context_estimator import LiveFitConfig
 from pcvfe_drake.perception.camera import CameraConfig
 from pcvfe_drake.perception.features import DESCRIPTOR_BACKEND
+from pcvfe_drake.runs.friction_sources import (
+    FixedFrictionSettings,
+    LookupSettings,
+    friction_source_problems,
+)
 from pcvfe_drake.runs.scenario_files import (
     DEFAULT_SCENARIO,
     SCENARIO_DIR,
     resolve_scenario_path,
     shipped_scenarios,
 )
+from pcvfe_drake.vehicle.mb_truth import FRICTION_SCALINGS
 from pcvfe_drake.vehicle.params import TRUTH_MODELS
 from pcvfe_drake.hardware.settings import HardwareSettings, hardware_problems
+from pcvfe_drake.vehicle.sensing import SensingConfig
 
 __all__ = [
     "DEFAULT_SCENARIO",
@@ -191,6 +198,19 @@ class Scenario:
     hardware: HardwareSettings = field(default_factory=HardwareSettings)
     """LCM buses, channels and watchdog limits of the hardware station and the vehicle bridge
     (``pcvfe_drake.hardware.settings``; docs/hardware.md)."""
+    friction_mapping: str = "peak_and_stiffness"
+    """What a terrain's mu changes in the multi-body truth's tire
+    (``pcvfe_drake.vehicle.mb_truth``): ``peak_and_stiffness``, ``peak``, or ``lateral_peak``
+    (the public PC-VFE simulator's: only ``p_dy1 = mu``)."""
+    sensing: SensingConfig = field(default_factory=SensingConfig)
+    """State sensing: ``model: none`` (the true state) or ``ins`` (``vehicle/sensing.py``)."""
+    estimator: str = "pcvfe"
+    """The friction source feeding the NMPC: pcvfe | oracle | fixed | lookup | ukf | kmpc
+    (``pcvfe_drake.runs.friction_sources``)."""
+    fixed: FixedFrictionSettings = field(default_factory=FixedFrictionSettings)
+    lookup: LookupSettings = field(default_factory=LookupSettings)
+    stop_on_failure: bool = True
+    """End the run at the first catastrophic failure (``pcvfe_drake.control.failure``)."""
 
     def validate(self, source: str = "scenario") -> "Scenario":
         """Check every value; raise ValueError naming ``source`` and the field. Returns self."""
@@ -392,6 +412,14 @@ def scenario_problems(scenario: Scenario) -> list[str]:
         problems += _config_problems("fitter", s.fit_config)
         problems += _config_problems("nmpc", lambda: s.nmpc_config().validate())
     need(bool(s.features.backend.strip()), "features.backend", s.features.backend, "empty")
+    need(
+        s.friction_mapping in FRICTION_SCALINGS,
+        "friction_mapping",
+        s.friction_mapping,
+        f"must be one of {FRICTION_SCALINGS}",
+    )
+    problems += s.sensing.problems("sensing")
+    problems += friction_source_problems(s.estimator, s.fixed, s.lookup)
     need(
         _is_number(s.features.lambda_c) and s.features.lambda_c >= 0,
         "features.lambda_c",

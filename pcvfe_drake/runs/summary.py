@@ -9,10 +9,15 @@ dict written as ``summary.json``:
 - ``sim_time_s``, ``wall_time_s``, ``realtime_factor`` (simulated / wall time).
 - ``laps_completed``, ``lap_time_s`` (time of the first full lap, null if none), from the
   projection of the driven path onto the course; ``mean_speed_mps``.
-- ``catastrophic_failures``: number of events where the car left the course by more than its
-  half width, spun (|beta| > ``SPIN_BETA_RAD`` or heading error > 90 deg) or had a non-finite
-  state; ``failure_events`` (time, place and kind of each); ``max_abs_lateral_error_m``,
-  ``lateral_error_rms_m``.
+- ``catastrophic_failures``: number of failure events (``pcvfe_drake.control.failure``: left
+  the course by more than its half width, spinning with |beta| > 30 deg or a course-angle error
+  > 60 deg, or a non-finite state), ``failure_events`` (each with its time ``t_s``, place
+  ``sx_m``, ``sy_m``, ``s_m`` (along the course), ``kind`` and ``detail``),
+  ``max_abs_lateral_error_m``, ``lateral_error_rms_m``.
+- Scored on the truth: when the log has the sim-only ``true_*`` state columns, laps, speed,
+  tracking and failures use the true state (``drive_metrics.truth_frame``);
+  ``friction_utilisation``, ``mu_error_after_entry`` and ``transition_response`` are
+  described in ``pcvfe_drake.runs.drive_metrics``.
 - Context discovery (``pcvfe_drake.contexts.metrics``; transition-strip terrains excluded): ``ari``,
   ``contexts_discovered``, ``true_terrains_visited``, ``noise_fraction``,
   ``reidentification_latency_s`` (one entry per re-entry of a terrain that already had an id),
@@ -42,11 +47,9 @@ import numpy as np
 import pandas as pd
 
 from pcvfe_drake.contexts import metrics
+from pcvfe_drake.control import failure
+from pcvfe_drake.runs import drive_metrics
 
-SPIN_BETA_RAD = 0.6
-"""Side-slip angle beyond which the car counts as spinning (about 34 deg)."""
-SPIN_HEADING_ERROR_RAD = math.pi / 2
-"""Heading error to the course beyond which the car counts as spinning or turned around."""
 SETTLE_TIME_S = 20.0
 """A context's friction error is scored once it has this much driving in it (issue 7)."""
 
@@ -67,23 +70,18 @@ def sample_weights(t_s: np.ndarray) -> np.ndarray:
     return np.append(dt, dt[-1])
 
 
-def _rising_edges(flag: np.ndarray) -> int:
-    flag = np.asarray(flag, dtype=bool)
-    if flag.size == 0:
-        return 0
-    return int(flag[0]) + int(np.count_nonzero(flag[1:] & ~flag[:-1]))
-
-
 def course_tracking(log: pd.DataFrame, course) -> dict[str, Any]:
-    """Lap count, lap time and failure events of the driven path against ``course``.
+    """Lap count, lap time and catastrophic failures of the driven path against ``course``.
 
-    ``course`` is a ``pcvfe_drake.control.course.Course`` (or None: lap and tracking entries are None).
+    ``course`` is a ``pcvfe_drake.control.course.Course`` (or None: lap and tracking entries are
+    None, and only non-finite states count as failures). Failures follow the project's one
+    definition (``pcvfe_drake.control.failure``); ``failures`` lists each event with its time,
+    place and reason.
     """
     t = log["t"].to_numpy(float)
     xy = log[["sx", "sy"]].to_numpy(float)
     finite = np.all(np.isfinite(log[["sx", "sy", "v", "psi", "beta"]].to_numpy(float)), axis=1)
-    beta = np.nan_to_num(log["beta"].to_numpy(float), nan=np.inf)
-    spin = np.abs(beta) > SPIN_BETA_RAD
+    beta = log["beta"].to_numpy(float)
     out: dict[str, Any] = {
         "laps_completed": None,
         "lap_time_s": None,
@@ -91,15 +89,17 @@ def course_tracking(log: pd.DataFrame, course) -> dict[str, Any]:
         "lateral_error_rms_m": None,
         "course_half_width_m": None,
     }
-    off_course = np.zeros(len(t), dtype=bool)
+    lat = np.zeros(len(t))
+    course_angle = np.zeros(len(t))
+    s_along = np.full(len(t), np.nan)
+    half_width = math.inf
     if course is not None and np.any(finite):
         proj = course.project(xy[finite], heading=log["psi"].to_numpy(float)[finite])
         lat = np.full(len(t), np.nan)
         lat[finite] = proj.lateral_error
-        herr = np.zeros(len(t))
-        herr[finite] = proj.heading_error + log["beta"].to_numpy(float)[finite]
-        spin |= np.abs(np.angle(np.exp(1j * herr))) > SPIN_HEADING_ERROR_RAD
-        off_course = np.abs(np.nan_to_num(lat, nan=np.inf)) > course.half_width
+        course_angle[finite] = proj.heading_error + beta[finite]
+        s_along[finite] = proj.s
+        half_width = course.half_width
         progress = course.unwrap_progress(np.asarray(proj.s))
         travelled = progress - progress[0]
         laps = int(np.floor(travelled[-1] / course.length + 1e-9))
@@ -120,30 +120,12 @@ def course_tracking(log: pd.DataFrame, course) -> dict[str, Any]:
             lateral_error_rms_m=float(np.sqrt(np.nanmean(lat**2))),
             course_half_width_m=float(course.half_width),
         )
-    failure = ~finite | spin | off_course
-    out["catastrophic_failures"] = _rising_edges(failure)
-    out["failure_time_s"] = float(np.sum(sample_weights(t)[failure]))
-    out["failure_events"] = failure_events(t, xy, failure, ~finite, spin, off_course)
+    kinds = failure.failure_kinds(half_width, lat, course_angle, beta, finite)
+    events = failure.failure_events(t, xy, s_along, half_width, lat, course_angle, beta, finite)
+    out["catastrophic_failures"] = len(events)
+    out["failure_events"] = [e.to_dict() for e in events]
+    out["failure_time_s"] = float(np.sum(sample_weights(t)[kinds != ""]))
     return out
-
-
-def failure_events(t_s, xy_m, failure, non_finite, spin, off_course) -> list[dict[str, Any]]:
-    """One entry per catastrophic failure (rising edge of ``failure``): its time ``t_s``, the
-    place ``sx_m``, ``sy_m`` (the last finite position at or before it) and ``kind``
-    (``non_finite``, ``spin`` or ``off_course``, the first that holds in that order)."""
-    failure = np.asarray(failure, dtype=bool)
-    starts = np.flatnonzero(failure & ~np.concatenate([[False], failure[:-1]]))
-    finite_rows = np.flatnonzero(np.all(np.isfinite(xy_m), axis=1))
-    events = []
-    for k in starts:
-        before = finite_rows[finite_rows <= k]
-        x, y = (xy_m[before[-1]] if before.size else (math.nan, math.nan))
-        kind = "non_finite" if non_finite[k] else ("spin" if spin[k] else "off_course")
-        events.append(
-            {"t_s": float(t_s[k]), "sx_m": _finite_or_none(x), "sy_m": _finite_or_none(y),
-             "kind": kind}
-        )
-    return events
 
 
 def mu_estimates(
@@ -247,6 +229,7 @@ def summarize_run(
         raise ValueError(f"run log lacks column(s) {missing}; it has {list(log.columns)}")
     if len(log) == 0:
         raise ValueError("run log is empty: nothing was logged")
+    truth = drive_metrics.truth_frame(log)
     t = log["t"].to_numpy(float)
     w = sample_weights(t)
     sim_time = float(t[-1] - t[0] + (w[-1] if len(t) > 1 else 0.0))
@@ -265,7 +248,7 @@ def summarize_run(
     mu_hat = log["mu_hat"].to_numpy(float)
     ok = np.isfinite(mu_true) & np.isfinite(mu_hat)
     mu_err = float(np.average(np.abs(mu_hat - mu_true)[ok], weights=w[ok])) if ok.any() else None
-    speed = log["v"].to_numpy(float)
+    speed = truth["v"].to_numpy(float)
     fin = np.isfinite(speed)
     summary: dict[str, Any] = {
         "scenario": scenario,
@@ -279,7 +262,14 @@ def summarize_run(
     }
     if not has_truth:
         summary["ground_truth_note"] = NO_TRUTH_NOTE
-    summary.update(course_tracking(log, course))
+    summary["scored_on_truth"] = drive_metrics.has_truth(log)
+    summary.update(course_tracking(truth, course))
+    summary["friction_utilisation"] = drive_metrics.friction_utilisation(truth)
+    summary["mu_error_after_entry"] = drive_metrics.mu_error_after_settling(
+        log, excluded_terrains
+    )
+    summary["transition_response"] = drive_metrics.transition_response(log, excluded_terrains)
+    summary["transition_response_s"] = summary["transition_response"]["median_s"]
     lat = [r[2] for r in reid]
     summary.update(
         {

@@ -43,7 +43,9 @@ def test_ports_and_prior_with_fixed_inputs(params):
     entry = table.get(3)
     assert entry.samples == 50  # t = 0, 0.01, ..., 0.49 (the update at 0.5 is still due)
     assert entry.status == "prior" and not entry.fitted
-    np.testing.assert_array_equal(fitter.GetOutputPort("theta_hat").Eval(context), params.theta)
+    # No fit yet: the default unknown-context policy ("conservative"): the floor mu 0.3.
+    expected = [0.3, params.C_Sf, params.C_Sr]
+    np.testing.assert_array_equal(fitter.GetOutputPort("theta_hat").Eval(context), expected)
 
     # Non-finite state: not stored, and the output stays finite.
     fitter.GetInputPort("state").FixValue(context, np.full(7, np.nan))
@@ -104,7 +106,10 @@ def test_recorded_drive_converges_and_switches_context(params):
     assert abs(e2.mu - 0.45) < 0.01 and e2.fits >= 1 and e2.mu_std < 0.01
     assert abs(e5.mu - 0.8) < 0.01 and e5.last_update_s > 3.5
     assert table.noise_samples >= 50
-    # Context -1 at the end, for longer than noise_hold_s: the prior.
-    np.testing.assert_array_equal(fitter.GetOutputPort("theta_hat").Eval(fc), params.theta)
+    # Context -1 at the end, for longer than noise_hold_s: the conservative policy's mu, the
+    # floor 0.3 (both fitted contexts' lower bounds, 0.45 - 2 std and 0.8 - 2 std, lie above).
+    np.testing.assert_array_equal(
+        fitter.GetOutputPort("theta_hat").Eval(fc), [0.3, params.C_Sf, params.C_Sr]
+    )
     data = log.FindLog(root).data()
     assert np.all(np.isfinite(data))
