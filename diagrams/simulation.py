@@ -137,6 +137,11 @@ def _add_friction_source(builder, scenario: Scenario, params, station, features,
         builder.Connect(features.GetOutputPort("features"), source.GetInputPort("features"))
         return source.GetOutputPort("theta_hat"), source.GetOutputPort("terrain_class")
     if kind == "oracle":
+        if not station.HasOutputPort("true_mu"):
+            raise ValueError(
+                "estimator 'oracle' needs the simulated station's true_mu; this station has "
+                "none (hardware): choose pcvfe, fixed, lookup, ukf or kmpc"
+            )
         source = builder.AddNamedSystem(
             "friction_source", OracleFriction(params, period_s=rates.fitter_sample_period_s)
         )
