@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pcvfe_drake.runs.runlog import TRUE_STATE_COLUMNS
+from pcvfe_drake.runs.drivelog import TRUE_STATE_COLUMNS
 from pcvfe_drake.vehicle.single_track import STATE_NAMES
 
 G_MPS2 = 9.81

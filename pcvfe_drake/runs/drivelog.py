@@ -75,6 +75,17 @@ COLUMN_UNITS: dict[str, str] = {
 
 OPTIONAL_COLUMNS: tuple[str, ...] = ("terrain", "context", "mu_true", "image")
 """Optional columns with a defined meaning (see the module docstring)."""
+TRUE_STATE_COLUMNS: tuple[str, ...] = (
+    "true_sx",
+    "true_sy",
+    "true_delta",
+    "true_v",
+    "true_psi",
+    "true_psi_dot",
+    "true_beta",
+)
+"""Sim-only columns of a simulated run's true state (its state columns are then the measured
+state); not validated, ignored by fits."""
 
 # Plausible magnitudes; beyond them the unit is almost certainly wrong (see docs/drive_log.md).
 MAX_ABS_DELTA_RAD = 1.6

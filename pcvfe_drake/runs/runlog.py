@@ -22,12 +22,11 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from pcvfe_drake.runs.drivelog import DriveLogError, DriveLogWriter
+from pcvfe_drake.runs.drivelog import TRUE_STATE_COLUMNS, DriveLogError, DriveLogWriter
 from pcvfe_drake.vehicle.single_track import INPUT_NAMES, NX, STATE_NAMES
 
 ESTIMATE_COLUMNS = ("mu_hat", "C_Sf_hat", "C_Sr_hat")
-TRUE_STATE_COLUMNS = tuple(f"true_{name}" for name in STATE_NAMES)
-"""Sim-only columns of the true state (the drive-log state columns are the measured state)."""
+
 
 
 class RunLogWriteError(OSError):
