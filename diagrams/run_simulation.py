@@ -11,6 +11,9 @@ It stops
   writes the row completing the goal (the same rows and course projection the summary counts
   laps with, so the run never overshoots and the summary agrees), at ``max_duration_s`` at the
   latest, or
+- with ``scenario.stop_on_failure``, at the first catastrophic failure of the true state
+  (:class:`FailureMonitor`, checked every second of rows; ``summary["stop_reason"]`` is
+  ``"failure"`` and ``summary["failure_events"]`` says when, where and why), or
 - at Ctrl-C or SIGTERM (``summary["interrupted"]``, ``summary["interrupt_signal"]``; an
   interrupt that OSQP catches during a solve is raised again by the NMPC), or
 - when the simulation raises (``summary["error"]``), the drive log's disk included.

@@ -52,7 +52,7 @@ def test_the_run_monitor_stops_at_the_first_failure_on_the_true_state():
     from pydrake.systems.framework import EventStatus
 
     from pcvfe_drake.control.course import load_course
-    from pcvfe_drake.diagrams.run_simulation import LapMonitor
+    from pcvfe_drake.diagrams.run_simulation import FailureMonitor
     from pcvfe_drake.runs.runlog import RunLog
 
     course = load_course("slalom")
@@ -60,9 +60,7 @@ def test_the_run_monitor_stops_at_the_first_failure_on_the_true_state():
     x_on = course.state_on_path(np.array([10.0]), 5.0, 2.5, 1.3)[0]
     x_off = x_on.copy()
     x_off[1] += 6.0  # 6 m beside the path: off the 3 m half width
-    monitor = LapMonitor(
-        None, course, log, 1.0, log_period_s=0.05, v_bound_mps=40.0, stop_on_failure=True
-    )
+    monitor = FailureMonitor(None, course, log)
     for k in range(25):  # measured state on the path, the truth off it from row 20 on
         truth = x_off if k >= 20 else x_on
         log.append(k * 0.05, x_on, [0, 0], [0, 0], -1, [0.3, 20, 20], 0.45, 0, true_state=truth)
