@@ -2,10 +2,10 @@
 played out of the station's ports, so the estimator can be rerun on it (``pcvfe replay``).
 
 Ports: ``actuation`` in (accepted, not used: a recording cannot be steered); ``state``,
-``image``, ``station_status`` (constant, source ``replay``) out, ``true_mu`` and
-``true_terrain`` where the log has truth, and the replay-only ``logged_actuation``: the input
-recorded with the drive, which ``MakeSimulation`` feeds to the fitter and the log instead of the
-NMPC's command.
+``image``, ``station_status`` (constant, source ``replay``) out, ``true_mu``,
+``true_terrain`` and ``true_state`` where the log has them, and the replay-only
+``logged_actuation``: the input recorded with the drive, which ``MakeSimulation`` feeds to the
+fitter and the log instead of the NMPC's command.
 """
 
 from __future__ import annotations
@@ -38,6 +38,8 @@ def MakeReplayStation(scenario: Scenario, log: ReplayLog) -> Diagram:
     if log.has_truth:
         builder.ExportOutput(player.GetOutputPort("true_mu"), "true_mu")
         builder.ExportOutput(player.GetOutputPort("true_terrain"), "true_terrain")
+    if log.true_states is not None:
+        builder.ExportOutput(player.GetOutputPort("true_state"), "true_state")
     diagram = builder.Build()
     diagram.set_name("vehicle_station")
     return diagram

@@ -31,6 +31,7 @@ class DriveLogPlayer(LeafSystem):
         - image
         - true_mu
         - true_terrain
+        - true_state
 
     Ports:
         actuation: input (2), accepted and not used: a recorded drive cannot be steered.
@@ -41,6 +42,7 @@ class DriveLogPlayer(LeafSystem):
         image: output, abstract ``ImageRgba8U``: the newest frame captured before the context
             time (``ReplayLog.frame_at``; blank before the first).
         true_mu, true_terrain: outputs (1) only when the log has truth (``mu_true``).
+        true_state: output (7) only when the log has the true state (``true_*`` columns).
 
     Pure output calcs of the context time (no state, no events). Frames are read from disk
     when first needed and the last ``FRAME_CACHE`` kept (a memo of files, not simulation state).
@@ -59,6 +61,8 @@ class DriveLogPlayer(LeafSystem):
         if log.has_truth:
             self.DeclareVectorOutputPort("true_mu", 1, self._calc_true_mu)
             self.DeclareVectorOutputPort("true_terrain", 1, self._calc_true_terrain)
+        if log.true_states is not None:
+            self.DeclareVectorOutputPort("true_state", NX, self._calc_true_state)
         self._load = lru_cache(maxsize=FRAME_CACHE)(self._read_frame)
 
     def _read_frame(self, index: int) -> ImageRgba8U:
@@ -80,6 +84,9 @@ class DriveLogPlayer(LeafSystem):
 
     def _calc_true_mu(self, context: Context, output: BasicVector) -> None:
         output.SetFromVector([self.log.truth_at(context.get_time())[0]])
+
+    def _calc_true_state(self, context: Context, output: BasicVector) -> None:
+        output.SetFromVector(self.log.true_state_at(context.get_time()))
 
     def _calc_true_terrain(self, context: Context, output: BasicVector) -> None:
         output.SetFromVector([self.log.truth_at(context.get_time())[1]])

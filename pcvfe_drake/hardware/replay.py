@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pcvfe_drake.runs.drivelog import read_drive_log
+from pcvfe_drake.runs.drivelog import TRUE_STATE_COLUMNS, read_drive_log
 from pcvfe_drake.vehicle.single_track import INPUT_NAMES, STATE_NAMES
 
 _EPS_S = 1e-9
@@ -45,6 +45,8 @@ class ReplayLog:
     mu_true: np.ndarray | None = None
     terrain_index: np.ndarray | None = None
     source: str = ""
+    true_states: np.ndarray | None = None
+    """(N, 7) the simulated run's true state (``true_*`` columns; None: the log has none)."""
 
     def __post_init__(self) -> None:
         if len(self.t_s) == 0:
@@ -70,6 +72,12 @@ class ReplayLog:
     def actuation_before(self, t_s: float) -> np.ndarray:
         k = int(np.searchsorted(self.t_s, t_s - _EPS_S, side="left")) - 1
         return self.actuations[k] if k >= 0 else np.zeros(self.actuations.shape[1])
+
+    def true_state_at(self, t_s: float) -> np.ndarray:
+        """The true state of the row at ``t_s`` (NaN without one)."""
+        if self.true_states is None:
+            return np.full(len(STATE_NAMES), math.nan)
+        return self.true_states[self._row_at(t_s)]
 
     def truth_at(self, t_s: float) -> tuple[float, float]:
         """(mu_true, terrain_index) of the row at ``t_s`` (NaN, -1 without truth)."""
@@ -110,6 +118,10 @@ class ReplayLog:
             mu_true = log["mu_true"].to_numpy(float)
             if "terrain_index" in log.columns:
                 terrain_index = log["terrain_index"].to_numpy(float)
+        true_states = None
+        if all(c in log.columns for c in TRUE_STATE_COLUMNS):
+            values = log[list(TRUE_STATE_COLUMNS)].to_numpy(float)
+            true_states = values if np.isfinite(values).any() else None
         frame_t, paths = [], []
         if "image" in log.columns:
             for r, name in zip(t, log["image"].astype(str), strict=True):
@@ -132,6 +144,7 @@ class ReplayLog:
             mu_true=mu_true,
             terrain_index=terrain_index,
             source=source,
+            true_states=true_states,
         )
 
     @classmethod
