@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from pcvfe_drake.runs.output_paths import check_output_dir
-from pcvfe_drake.vehicle.params import load_vehicle
+from pcvfe_drake.vehicle.params import TRUTH_MODELS, load_vehicle
 from pcvfe_drake.vehicle.single_track import STATE_NAMES, STATE_UNITS
 
 LOG_PERIOD_S = 0.02
@@ -52,7 +52,7 @@ def register(subparsers) -> None:
     )
     parser.add_argument("--out", type=Path, default=Path("runs/demo"), help="output folder")
     parser.add_argument(
-        "--truth", choices=("st", "mb"), default="st", help="truth model of the plant"
+        "--truth", choices=TRUTH_MODELS, default="st", help="truth model of the plant"
     )
     parser.add_argument("--vehicle", default=None, help="vehicle preset or YAML file")
     parser.set_defaults(func=run)

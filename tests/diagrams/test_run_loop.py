@@ -167,3 +167,23 @@ def test_the_lap_monitor_stops_at_the_goal_row_with_few_projections():
     travelled = progress - progress[0]
     assert travelled[-1] >= 0.1 * course.length > travelled[-2]  # stopped at the goal row
     assert sum(calls) == len(run_log) and len(calls) < len(run_log) / 8
+
+
+def test_an_interrupt_while_the_outputs_are_written_is_held_back(tmp_path, monkeypatch):
+    """SIGTERM (or Ctrl-C) while summary and figures are written waits until they are."""
+    real = run_module.write_run_outputs
+
+    def write_with_a_signal(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(run_module, "write_run_outputs", write_with_a_signal)
+    previous = signal.signal(signal.SIGTERM, lambda *a: None)  # a safety net for pytest
+    try:
+        folder = RunFolder(tmp_path / "run")
+        result = run_simulation(short(duration_s=1.0), folder, progress=False)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert result.held_signals == ["SIGTERM"]
+    assert json.loads(folder.summary.read_text())["stop_reason"] == "duration"
+    assert result.figures["fig5_mu_over_time"]
