@@ -136,6 +136,7 @@ def main() -> int:
         big, base = result[cmd], result[f"{cmd}_base"]
         result[f"{cmd}_rows_ratio"] = round(big["rows"] / base["rows"], 2)
         result[f"{cmd}_time_ratio"] = round(big["wall_s"] / base["wall_s"], 2)
+        result[f"{cmd}_cpu_ratio"] = round(big["cpu_s"] / max(base["cpu_s"], 1e-9), 2)
         result[f"{cmd}_memory_ratio"] = round(big["peak_mb"] / base["peak_mb"], 2)
         result[f"{cmd}_kb_per_row"] = round(big["peak_mb"] * 1024.0 / big["rows"], 3)
     print("note: timings on a shared machine; ratios are from this run")

@@ -85,3 +85,12 @@ def test_steer_rate_sign(clean):
     bad = clean.copy()
     bad["steer_rate"] = -bad["steer_rate"]
     assert "column 'steer_rate'" in _problems(bad)
+
+
+def test_speed_and_yaw_rate_scale_errors(clean):
+    fast = clean.copy()
+    fast["v"] *= 1.15  # passed the old [0.5, 2] band; 10 % moved the fitted mu 1.05 -> 0.84
+    assert "column 'v': v is 1.15 times the speed" in _problems(fast)
+    half = clean.copy()
+    half["psi_dot"] *= 0.5
+    assert "column 'psi': psi changes 2.0" in _problems(half)

@@ -179,6 +179,8 @@ class FitResult:
         residual_rms: RMS of the *unweighted* residuals per state at the end (state units).
         rollouts: rollouts with sensitivities the solver ran, in full-dataset equivalents (a
             measure of work independent of the machine).
+        quality: the checks of ``fit_quality.assess`` (parameters at a bound, loss against the
+            noise, fit percent, influential windows); empty when nothing was fitted.
     """
 
     theta: np.ndarray
@@ -198,6 +200,7 @@ class FitResult:
     elapsed_s: float = 0.0
     residual_rms: np.ndarray = field(default_factory=lambda: np.full(7, np.nan))
     rollouts: float = 0.0
+    quality: dict = field(default_factory=dict)
 
     @property
     def mu(self) -> float:
@@ -226,4 +229,18 @@ class FitResult:
             "ill_conditioned": bool(self.ill_conditioned),
             "warnings": list(self.warnings),
             "elapsed_s": num(self.elapsed_s),
+            "quality": _jsonable(self.quality),
         }
+
+
+def _jsonable(obj):
+    """Nested dicts/lists with non-finite floats as None."""
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, float | np.floating):
+        return float(obj) if math.isfinite(obj) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    return obj

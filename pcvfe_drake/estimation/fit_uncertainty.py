@@ -26,6 +26,7 @@ from pcvfe_drake.estimation.fit_options import (
     FitOptions,
     FitResult,
 )
+from pcvfe_drake.estimation.fit_quality import assess
 from pcvfe_drake.vehicle.params import THETA_NAMES, VehicleParams
 from pcvfe_drake.vehicle.single_track import NTHETA
 
@@ -156,8 +157,12 @@ def final_result(
     """The FitResult at the final theta (residuals R and Jacobian J evaluated there)."""
     std, cond, ill, warnings = uncertainty(theta, R, J, options, params)
     loss = float(np.sum(R * R)) / (data.n_windows * data.horizon)
+    quality: dict = {}
     if not (math.isfinite(loss) and np.all(np.isfinite(theta))):
         status = STATUS_DIVERGED
+    else:
+        quality, checks = assess(theta, std, R, J, data, options, params, loss)
+        warnings.extend(checks)
     if note:
         warnings.append(note)
     if status == STATUS_DIVERGED:
@@ -180,4 +185,5 @@ def final_result(
         elapsed_s=time.perf_counter() - start_time,
         residual_rms=residual_rms(R, options.weights),
         rollouts=rollouts,
+        quality=quality,
     )

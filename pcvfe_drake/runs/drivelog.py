@@ -43,7 +43,11 @@ from typing import IO
 import numpy as np
 import pandas as pd
 
-from pcvfe_drake.runs.drivelog_physics import consistency_checks, single_sample_checks
+from pcvfe_drake.runs.drivelog_physics import (
+    consistency_checks,
+    single_sample_checks,
+    span_steps,
+)
 
 REQUIRED_COLUMNS: tuple[str, ...] = (
     "t",
@@ -108,6 +112,10 @@ MAX_LISTED_ROWS = 10
 """How many row numbers an error message lists per problem before summarising."""
 
 _MIN_MOTION_ROWS = 10
+SAME_QUANTITY_TOL = 0.1
+"""``v`` and the speed from sx, sy over t are the same quantity, and so are ``psi_dot`` and the
+rate of ``psi``: their median ratio must be within 1 +- this (a scale error of a few percent, e.g.
+a tire radius, passes; 10 % already moves the fitted mu by ~0.2)."""
 _LOG_NAME = re.compile(r"\.(csv|csv\.gz|parquet|pq)$")
 
 
@@ -199,18 +207,20 @@ def _speed_consistency(cols: dict[str, np.ndarray | None], problems: list[str]) 
     t, sx, sy, v = (cols.get(k) for k in ("t", "sx", "sy", "v"))
     if any(a is None for a in (t, sx, sy, v)) or t.size < _MIN_MOTION_ROWS:
         return
-    dt = np.diff(t)
+    # Over ~0.2 s: position noise would inflate the distance of single steps.
+    k = min(span_steps(t), t.size - 1)
+    dt = t[k:] - t[:-k]
     ok = dt > 0
     if ok.sum() < _MIN_MOTION_ROWS:
         return
     with np.errstate(invalid="ignore"):
-        path_speed = np.hypot(np.diff(sx), np.diff(sy))[ok] / dt[ok]
-        v_mid = 0.5 * np.abs(v[1:] + v[:-1])[ok]
+        path_speed = np.hypot(sx[k:] - sx[:-k], sy[k:] - sy[:-k])[ok] / dt[ok]
+        v_mid = 0.5 * np.abs(v[k:] + v[:-k])[ok]
         moving = (path_speed > 0.5) & (v_mid > 0.5)
     if moving.sum() < _MIN_MOTION_ROWS:
         return
     ratio = float(np.median(v_mid[moving] / path_speed[moving]))
-    if 0.5 <= ratio <= 2.0:
+    if abs(ratio - 1.0) <= SAME_QUANTITY_TOL:
         return
     hints = (
         (3.6, "v in km/h?"),
@@ -218,7 +228,7 @@ def _speed_consistency(cols: dict[str, np.ndarray | None], problems: list[str]) 
         (1000.0, "t in ms?"),
         (0.001, "sx/sy in mm?"),
     )
-    hint = "check the units of v, sx, sy and t"
+    hint = "check the units of v, sx, sy and t (v is the speed of the centre of gravity)"
     for factor, text in hints:
         if abs(math.log(ratio / factor)) < 0.15:
             hint = text
@@ -234,18 +244,21 @@ def _yaw_consistency(cols: dict[str, np.ndarray | None], problems: list[str]) ->
     t, psi, r = (cols.get(k) for k in ("t", "psi", "psi_dot"))
     if any(a is None for a in (t, psi, r)) or t.size < _MIN_MOTION_ROWS:
         return
-    dt = np.diff(t)
-    ok = dt > 0
-    dpsi = np.diff(psi)
-    r_mid = 0.5 * (r[1:] + r[:-1])
-    # Steps across a wrap (+-2 pi, or +-360 in degrees) are rare outliers; the median ignores them.
+    # Over ~0.2 s (heading noise would dominate single steps): the change of psi against the
+    # integral of psi_dot (trapezoid). Spans across a wrap (+-2 pi, or +-360 in degrees) are rare
+    # outliers; the median ignores them.
+    k = min(span_steps(t), t.size - 1)
+    steps = np.diff(t)
+    integral = np.concatenate([[0.0], np.cumsum(0.5 * (r[1:] + r[:-1]) * steps)])
+    dt = t[k:] - t[:-k]
+    dpsi = psi[k:] - psi[:-k]
+    turned = integral[k:] - integral[:-k]
     with np.errstate(invalid="ignore"):
-        turning = ok & (np.abs(r_mid) > 0.05) & np.isfinite(dpsi)
+        turning = (dt > 0) & (np.abs(turned) > 0.05 * dt) & np.isfinite(dpsi)
     if turning.sum() < _MIN_MOTION_ROWS:
         return
-    rate = dpsi[turning] / dt[turning]
-    ratio = float(np.median(rate / r_mid[turning]))
-    if 0.5 <= ratio <= 2.0:
+    ratio = float(np.median(dpsi[turning] / turned[turning]))
+    if abs(ratio - 1.0) <= SAME_QUANTITY_TOL:
         return
     if abs(math.log(abs(ratio) / 57.2958)) < 0.2:
         hint = "psi in degrees?"

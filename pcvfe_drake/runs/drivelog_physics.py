@@ -126,12 +126,14 @@ def single_sample_checks(
             problems.append(problem)
 
 
-def _span(t: np.ndarray) -> int:
+def span_steps(t: np.ndarray, seconds: float = 0.2) -> int:
+    """Rows spanning about ``seconds`` at the median step of ``t`` (at least 1): differences
+    over this span are not dominated by measurement noise."""
     steps = np.diff(t)
     steps = steps[np.isfinite(steps) & (steps > 0)]
     if steps.size == 0:
         return 1
-    return max(1, int(round(COURSE_SPAN_S / float(np.median(steps)))))
+    return max(1, int(round(seconds / float(np.median(steps)))))
 
 
 def _slope(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
@@ -162,7 +164,7 @@ def consistency_checks(cols: dict, problems: list[str]) -> None:
                         "(a forward-moving car turns the way it steers, psi_dot ~ v delta / l); "
                         "opposite sign conventions? flip the sign of delta or of psi_dot"
                     )
-    k = _span(t)
+    k = span_steps(t, COURSE_SPAN_S)
     if t.size <= k + _MIN_SAMPLES:
         return
     if sx is not None and sy is not None and psi is not None and beta is not None:
