@@ -47,9 +47,15 @@ def multistep_error(err: np.ndarray, data: DriveData) -> float:
 
 
 def noise_floor_mse(
-    model: WorkbenchModel, theta: np.ndarray, data: DriveData, starts: np.ndarray, horizon: int
-) -> float:
-    """Whitened MSE a perfect model would get from measurement noise alone (see module doc)."""
+    model: WorkbenchModel,
+    theta: np.ndarray,
+    data: DriveData,
+    starts: np.ndarray,
+    horizon: int,
+    per_window: bool = False,
+):
+    """Whitened MSE a perfect model would get from measurement noise alone (see module doc);
+    with ``per_window`` the (N,) values of each window instead of their mean."""
     from pcvfe_drake.workbench.data import INIT_HALF_WINDOW_S
 
     rng = np.random.default_rng(12345)
@@ -60,6 +66,8 @@ def noise_floor_mse(
     noisy = model.simulate(theta, data, starts, horizon, x0=perturbed)
     idx = list(FIT_STATES)
     d = (noisy[:, 1:, idx] - clean[:, 1:, idx]) / data.sigma[idx]
+    if per_window:
+        return np.mean(d**2, axis=(1, 2)) + 1.0
     return float(np.mean(d**2) + 1.0)
 
 
@@ -101,8 +109,11 @@ def evaluate(
         with_free_run: also simulate each held-out block from its start (fit % free run).
     """
     err = model.errors(theta, data, starts, horizon)
-    mse = multistep_error(err, data) ** 2
-    floor = noise_floor_mse(model, theta, data, starts, horizon)
+    idx = list(FIT_STATES)
+    mse_w = np.mean((err[:, :, idx] / data.sigma[idx]) ** 2, axis=(1, 2))
+    floor_w = noise_floor_mse(model, theta, data, starts, horizon, per_window=True)
+    mse = float(np.mean(mse_w))
+    floor = float(np.mean(floor_w))
     out: dict = {
         "model_error": float(np.sqrt(max(mse - floor, 0.0))),
         "multistep_error": float(np.sqrt(mse)),
@@ -136,6 +147,8 @@ def evaluate(
             for i, n in enumerate(STATE_NAMES)
         }
     out["_err"] = err
+    out["_mse_w"] = mse_w
+    out["_floor_w"] = floor_w
     out["_free_run"] = runs
     return out
 

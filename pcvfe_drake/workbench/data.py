@@ -18,6 +18,10 @@ MIN_SPEED_MPS = 1.0
 stiff and its friction is unobservable near standstill; the paper filters the same way)."""
 MAX_DT_JITTER = 0.05
 """Largest relative deviation of a time step from the median step."""
+NOISE_STRIDE_S = 0.1
+"""Noise scales are estimated from 4th differences over strides of up to this time [s]."""
+CORRELATED_NOISE_RATIO = 1.15
+"""A longer-stride noise estimate this much above the 1-sample one means correlated noise."""
 LOG_SUFFIXES = (".csv", ".csv.gz", ".parquet", ".pq")
 MAX_SAMPLES = 30_000
 """Most samples the workbench analyses (bounded memory and time; 5 min at 100 Hz). A longer log
@@ -49,16 +53,28 @@ def find_log(path: str | Path) -> Path:
     raise FileNotFoundError(f"drive log {p}: no such file or folder")
 
 
-def robust_noise_sigma(y: np.ndarray) -> float:
+def robust_noise_sigma(y: np.ndarray, max_stride: int = 1) -> float:
     """Measurement-noise standard deviation of a smooth signal from its 4th differences.
 
     For white noise of std s the 4th difference has std ``s sqrt(70)``; the median absolute
     deviation makes the estimate robust to the few samples where the signal itself bends.
+    Noise that is correlated over a few samples (a log interpolated to a higher rate) makes
+    neighbouring differences cancel; the 4th differences are therefore also taken over every
+    ``stride``-th sample (1..``max_stride``), and the largest estimate replaces the one of
+    stride 1 when it exceeds it by more than ``CORRELATED_NOISE_RATIO`` (for white noise they
+    agree within a few percent).
     """
-    d4 = np.diff(y, 4)
-    if d4.size < 5:
+    estimates = []
+    for stride in range(1, max(1, int(max_stride)) + 1):
+        d4 = y[stride * 4 :] - 4 * y[stride * 3 : -stride] + 6 * y[stride * 2 : -2 * stride]
+        d4 = d4 - 4 * y[stride : -3 * stride] + y[: -4 * stride]
+        if d4.size < 5:
+            break
+        estimates.append(float(1.4826 * np.median(np.abs(d4 - np.median(d4))) / np.sqrt(70.0)))
+    if not estimates:
         return float(np.std(y)) or 1.0
-    return float(1.4826 * np.median(np.abs(d4 - np.median(d4))) / np.sqrt(70.0))
+    top = max(estimates)
+    return top if top > CORRELATED_NOISE_RATIO * estimates[0] else estimates[0]
 
 
 @dataclass
@@ -199,7 +215,8 @@ def prepare(
         lookup = {name: i for i, name in enumerate(names)}
         context = np.array([lookup[s] for s in labels], dtype=int)
         names = [s if s != "" else "unknown" for s in names]
-    sigma = np.array([robust_noise_sigma(x[:, i]) for i in range(x.shape[1])])
+    strides = max(1, int(round(NOISE_STRIDE_S / dt)))
+    sigma = np.array([robust_noise_sigma(x[:, i], strides) for i in range(x.shape[1])])
     spread = np.maximum(np.ptp(x, axis=0), 1e-6)
     sigma = np.maximum(sigma, 1e-4 * spread)
     x0 = initial_state_estimates(x, u, dt)

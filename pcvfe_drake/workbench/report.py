@@ -45,7 +45,7 @@ def diagnose(
         "whiteness": whiteness(base.model, base.theta, data, wb.config.n_blocks),
         "breakdowns": breakdowns(wb.baseline_eval["_err"], wb.eval_starts, data),
     }
-    report.update(wb.rank(candidates))
+    report.update(wb.rank(candidates, start=add))
     if add:
         added = wb.add(add)
         fit = wb.added_fit
