@@ -13,6 +13,7 @@ Python API::
 See ``docs/workbench.md``.
 """
 
+from pcvfe_drake.workbench import sensor_effects, tyre_effects  # noqa: F401  (registers them)
 from pcvfe_drake.workbench.data import DriveData, load, prepare
 from pcvfe_drake.workbench.effects import (
     Effect,
@@ -22,7 +23,6 @@ from pcvfe_drake.workbench.effects import (
     known_effects,
     register_effect,
 )
-from pcvfe_drake.workbench import sensor_effects, tyre_effects  # noqa: F401  (registers them)
 from pcvfe_drake.workbench.model import WorkbenchModel
 from pcvfe_drake.workbench.ranking import DiagnoseConfig, Workbench
 from pcvfe_drake.workbench.report import diagnose, write_report

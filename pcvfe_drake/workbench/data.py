@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 
 from pcvfe_drake.runs.drivelog import REQUIRED_COLUMNS, read_drive_log, validate_drive_log
+from pcvfe_drake.runs.resample import resample_log
 from pcvfe_drake.vehicle.single_track import STATE_NAMES
 
 MIN_DURATION_S = 20.0
@@ -93,6 +94,8 @@ class DriveData:
         x0: states used to *start* rollouts (n, 7): the measurements, with the steering angle
             denoised (see :func:`initial_state_estimates`).
         rows_in_log: samples of the whole log (more than ``n`` when only excerpts are analysed).
+        x0_delta_sigma: noise [rad] left on the denoised steering angle of ``x0``
+            (see :func:`denoised_delta_sigma`).
     """
 
     t: np.ndarray
@@ -105,12 +108,15 @@ class DriveData:
     source: str = "<log>"
     x0: np.ndarray | None = None
     rows_in_log: int | None = None
+    x0_delta_sigma: float | None = None
 
     def __post_init__(self) -> None:
         if self.rows_in_log is None:
             self.rows_in_log = int(self.t.size)
         if self.x0 is None:
             self.x0 = initial_state_estimates(self.x, self.u, self.dt)
+        if self.x0_delta_sigma is None:
+            self.x0_delta_sigma = denoised_delta_sigma(self.x, self.u, self.dt)
 
     @property
     def n(self) -> int:
@@ -157,6 +163,26 @@ def excerpt_rows(n: int, max_samples: int = MAX_SAMPLES, excerpts: int = EXCERPT
     return (starts[:, None] + np.arange(m)[None, :]).reshape(-1)
 
 
+def denoised_delta_sigma(x: np.ndarray, u: np.ndarray, dt: float) -> float:
+    """Noise [rad] left on the denoised initial steering angle of :func:`initial_state_estimates`.
+
+    ``delta(j) - sum(steer_rate dt)`` is a constant plus the angle's measurement noise, so the
+    difference of its means over two adjacent windows of the averaging width is noise alone;
+    its robust spread / sqrt(2) is the noise of one window mean. Unlike ``sigma / sqrt(width)``
+    this holds for noise correlated over several samples (an interpolated, upsampled log).
+    """
+    m = max(1, int(round(INIT_HALF_WINDOW_S / dt)))
+    width = 2 * m + 1
+    cum = np.concatenate([[0.0], np.cumsum(u[:-1, 0] * dt)])
+    offset = x[:, 2] - cum
+    n_win = offset.size // width
+    if n_win < 6:
+        return float(robust_noise_sigma(x[:, 2]) / np.sqrt(width))
+    means = offset[: n_win * width].reshape(n_win, width).mean(axis=1)
+    d = np.diff(means)
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0))
+
+
 def choose_context_column(df: pd.DataFrame, column: str | None) -> str | None:
     if column is not None:
         if column not in df.columns:
@@ -176,17 +202,19 @@ def prepare(
     context_column: str | None = None,
     min_duration_s: float = MIN_DURATION_S,
     max_samples: int | None = MAX_SAMPLES,
+    check_units: bool = True,
 ) -> DriveData:
     """Validate a drive-log table and convert it to :class:`DriveData`.
 
     A log of more than ``max_samples`` rows is validated whole and analysed on the excerpts of
     :func:`excerpt_rows` (initial states and noise scales come from the whole log); ``None``:
-    every row.
+    every row. ``check_units=False`` skips the drive-log validator's unit heuristics (ranges
+    and consistency that suggest degrees or km/h); the format checks always run.
 
     Raises:
         ValueError: (a ``DriveLogError`` for format problems) with the input and value named.
     """
-    validate_drive_log(df, source=source)
+    validate_drive_log(df, source=source, check_units=check_units)
     t = df["t"].to_numpy(dtype=float)
     if t.size < 10 or t[-1] - t[0] < min_duration_s:
         raise ValueError(
@@ -200,7 +228,8 @@ def prepare(
         i = int(np.argmax(jitter))
         raise ValueError(
             f"drive log {source}: column 't' is not uniformly sampled (step {steps[i]:.4g} s at "
-            f"row {i + 1} vs median {dt:.4g} s); resample the log to a fixed rate"
+            f"row {i + 1} vs median {dt:.4g} s); resample the log to a fixed rate (--resample HZ, "
+            "or pcvfe_drake.runs.resample.resample_log)"
         )
     x = df[list(STATE_NAMES)].to_numpy(dtype=float).copy()
     x[:, 4] = np.unwrap(x[:, 4])
@@ -220,21 +249,43 @@ def prepare(
     spread = np.maximum(np.ptp(x, axis=0), 1e-6)
     sigma = np.maximum(sigma, 1e-4 * spread)
     x0 = initial_state_estimates(x, u, dt)
+    x0_sigma = denoised_delta_sigma(x, u, dt)
     rows = excerpt_rows(t.size, max_samples) if max_samples else np.arange(t.size)
     if rows.size == t.size:
-        return DriveData(t, dt, x, u, context, names, sigma, source, x0)
+        return DriveData(t, dt, x, u, context, names, sigma, source, x0, x0_delta_sigma=x0_sigma)
     return DriveData(
-        t[rows], dt, x[rows], u[rows], context[rows], names, sigma, source, x0[rows], t.size
+        t[rows],
+        dt,
+        x[rows],
+        u[rows],
+        context[rows],
+        names,
+        sigma,
+        source,
+        x0[rows],
+        t.size,
+        x0_delta_sigma=x0_sigma,
     )
 
 
 def load(
-    path: str | Path, context_column: str | None = None, min_duration_s: float = MIN_DURATION_S
+    path: str | Path,
+    context_column: str | None = None,
+    min_duration_s: float = MIN_DURATION_S,
+    resample_hz: float | None = None,
+    check_units: bool = True,
 ) -> DriveData:
-    """Read and prepare a drive log file or run folder."""
+    """Read and prepare a drive log file or run folder.
+
+    Args:
+        resample_hz: resample to this rate first (:func:`pcvfe_drake.runs.resample.resample_log`).
+        check_units: False skips the unit heuristics (a user who knows the log is right).
+    """
     p = find_log(path)
-    df = read_drive_log(p)
-    return prepare(df, str(p), context_column, min_duration_s)
+    df = read_drive_log(p, check_units=check_units, max_gap_s=None)
+    if resample_hz is not None:
+        df = resample_log(df, resample_hz, source=str(p))
+    return prepare(df, str(p), context_column, min_duration_s, check_units=check_units)
 
 
 def block_ids(n: int, n_blocks: int) -> np.ndarray:

@@ -6,9 +6,10 @@
   consecutive windows and the standard error is that of the group means.
 * :func:`excess_error_test`: is the held-out multi-step error above what measurement noise
   explains? The per-window excess (whitened MSE minus the window's noise floor) is tested
-  against zero with the same grouped standard error, plus the uncertainty of the noise floor
-  itself (the noise scales are estimated from the log: a relative standard error of about
-  ``sqrt(2.7 / n)`` each for the median-absolute-deviation estimate from ``n`` samples).
+  against zero with the grouped standard error a perfect model would show (simulated), plus
+  the uncertainty of the noise floor itself (the noise scales are estimated from the log: a
+  relative standard error of about ``sqrt(2.7 / n)`` each for the median-absolute-deviation
+  estimate from ``n`` samples).
 * :func:`residual_structure`: is anything predictable left in the residuals? Residuals of
   predictions over ``RESID_STEP_S`` (0.2 s) from measured states on the held-out blocks, one
   per non-overlapping step, so that noise correlated over a few samples (an interpolated,
@@ -83,30 +84,39 @@ def sigma_rel_se(n_samples: int) -> float:
     return float(np.sqrt(2.7 / max(n_samples, 10)))
 
 
-def excess_error_test(ev: dict, data: DriveData, group: int) -> dict:
+def excess_error_test(ev: dict, data: DriveData, group: int, z_crit: float = 2.576) -> dict:
     """Held-out whitened multi-step MSE in excess of the noise floor, with its uncertainty.
 
     Returns ``excess`` (whitened MSE above the floor), ``se`` (windows and noise-scale
     estimate), ``p_value`` (one-sided, H0: no excess), the model error and the smallest model
     error this log could detect (``detection_limit``, 2.58 standard errors, in the units of
-    ``model_error``)."""
+    ``model_error``, at the one-sided critical value ``z_crit``).
+
+    The standard error is the one *under the null hypothesis* (simulated noise through the
+    fitted model, grouped like the windows) plus the noise-scale uncertainty: a large model
+    error makes the windows' own spread large, which would otherwise hide it.
+    ``se_windows`` (the observed spread) is reported beside it."""
     excess_w = np.asarray(ev["_mse_w"]) - np.asarray(ev["_floor_w"])
     mean, se_win, n_groups = grouped_mean_se(excess_w, group)
+    # the spread a perfect model would show (simulated noise), grouped the same way
+    null_w = np.asarray(ev["_null_w"]) - np.asarray(ev["_floor_w"])
+    _, se_null, _ = grouped_mean_se(null_w, group)
     floor_mse = float(np.mean(ev["_floor_w"]))
     # one noise scale per fitted state; the whitened MSE scales with 1 / sigma^2
     se_sigma = floor_mse * 2.0 * sigma_rel_se(data.n) / np.sqrt(len(FIT_STATES))
-    se = float(np.hypot(se_win, se_sigma))
+    se = float(np.hypot(se_null, se_sigma))
     z = mean / se if se > 0 else np.inf
     return {
         "excess_mse": mean,
         "se": se,
         "se_windows": se_win,
+        "se_null": se_null,
         "se_noise_scale": se_sigma,
         "groups": n_groups,
         "p_value": float(norm.sf(z)),
         "model_error": float(np.sqrt(max(mean, 0.0))),
         "noise_floor": float(np.sqrt(floor_mse)),
-        "detection_limit": float(np.sqrt(2.576 * se)),
+        "detection_limit": float(np.sqrt(z_crit * se)),
     }
 
 
@@ -135,6 +145,19 @@ def residual_structure(
     out = {"n": int(n), "step_s": RESID_STEP_S, "max_lag": max_lag, "tests": []}
     if n < 3 * max_lag:
         return out
+    ctx = data.context[starts]
+    out["context_bias"] = {}
+    for c, label in enumerate(data.context_names):
+        sel = ctx == c
+        if sel.sum() < 5:
+            continue
+        out["context_bias"][label] = {
+            STATE_NAMES[i]: {
+                "bias": float(np.mean(err[sel, i]) / data.sigma[i]),
+                "se": float(np.std(err[sel, i]) / data.sigma[i] / np.sqrt(sel.sum())),
+            }
+            for i in FIT_STATES
+        }
     for i in FIT_STATES:
         name = STATE_NAMES[i]
         r = err[:, i]

@@ -107,12 +107,14 @@ class Workbench:
                 f"of >= {cfg.eval_horizon_s:g} s at v >= 1 m/s in every time block"
             )
         self.window_group = max(1, int(round(cfg.eval_horizon_s / cfg.eval_stride_s)))
+        self.n_fits = 0
         self._base: FitResult | None = None
         self._base_eval: dict | None = None
 
     # ------------------------------------------------------------------ fitting
     def fit_model(self, model: WorkbenchModel, warm: FitResult | None = None) -> FitResult:
         """Fit ``model`` on the training windows, warm-started from a nested fit."""
+        self.n_fits += 1
         theta0 = model.initial_theta() if warm is None else model.transfer(warm.theta, warm.model)
         candidates = []
         for e in model.effects:

@@ -85,14 +85,14 @@ PLANTED: dict[str, tuple[Truth, str, float]] = {
     "steering_offset": (Truth(steer_offset=0.01), "d0", 0.01),
     "gyro_bias": (Truth(gyro_bias=0.005), "b", 0.005),
     "speed_scale": (Truth(speed_scale=1.03), "k", 1.03),
-    "friction_speed": (Truth(mu_speed_slope=0.015), "k_v", 0.015),
+    "friction_speed": (Truth(mu_speed_slope=0.03), "k_v", 0.03),
     "friction_load": (Truth(mu_load_sens=0.5), "k_z", 0.5),
 }
 """Realistic planted magnitudes per effect: (truth, the parameter's name, its planted value).
 Ford Escort class car: CdA 0.75 m^2 (Cd 0.36 x 2.1 m^2), c_rr 0.015, steering lag 0.15 s,
 powertrain dead time 0.17 s, peak friction 0.8 (damp asphalt), 3 % / -2 % grade,
 40 kW drive power, 0.01 rad (0.6 deg) steering-encoder offset, 0.005 rad/s (0.3 deg/s) gyro
-bias, a 3 % speed-sensor scale error, friction falling 1.5 % per m/s of speed, a load
+bias, a 3 % speed-sensor scale error, friction falling 3 % per m/s of speed (wet asphalt), a load
 sensitivity of 0.5."""
 
 

@@ -16,6 +16,7 @@ excess is at least twice the log's and more than 2.58 standard errors above it.
 from __future__ import annotations
 
 import numpy as np
+from scipy.stats import norm
 
 from pcvfe_drake.vehicle.single_track import STATE_NAMES
 from pcvfe_drake.workbench.data import DriveData
@@ -157,58 +158,85 @@ def where_sentence(where: dict) -> str:
 
 
 def final_verdict(wb, fit, ev, selected: list[str], alpha: float) -> dict:
-    """Test the final model and word the verdict (JSON-ready)."""
+    """Test the final model and word the verdict (JSON-ready).
+
+    Half of ``alpha`` goes to the excess-error test, the other half is shared (Bonferroni) by
+    the residual-structure tests. A selected effect whose own signature state still fails a
+    residual test is a *stand-in*: it lowers the error but does not explain its own state,
+    so the verdict does not name it as the cause."""
+    from pcvfe_drake.workbench.effects import get_effect
+
     data = wb.data
-    excess = excess_error_test(ev, data, wb.window_group)
     resid = residual_structure(fit.model, fit.theta, data, wb.config.n_blocks)
-    tests = [("excess_error", "held-out error above the noise floor", excess["p_value"])]
+    n_resid = max(len(resid["tests"]), 1)
+    z_excess = float(norm.isf(alpha / 2.0))
+    excess = excess_error_test(ev, data, wb.window_group, z_crit=z_excess)
+    tests = [
+        (
+            "excess_error",
+            "held-out error above the noise floor",
+            excess["p_value"],
+            alpha / 2.0,
+            "",
+        )
+    ]
     for t in resid["tests"]:
         what = (
             f"{t['state']} residual autocorrelated"
             if t["kind"] == "autocorrelation"
             else f"{t['state']} residual correlates with {t['input']} (lag {t['lag']})"
         )
-        tests.append((t["kind"], what, t["p_value"]))
-    m = len(tests)
-    threshold = alpha / m
-    failed = [(k, w, p) for k, w, p in tests if p < threshold]
+        tests.append((t["kind"], what, t["p_value"], alpha / 2.0 / n_resid, t["state"]))
+    failed = [(k, w, p, th, st) for k, w, p, th, st in tests if p < th]
     base_bound = [
         name
         for name, q in fit.params_dict().items()
         if q["at_bound"] and fit.model.params[fit.model.param_names.index(name)].effect is None
     ]
+    failed_states = {st for *_, st in failed if st}
+    stand_ins = [e for e in selected if get_effect(e).signature_state in failed_states]
+    named = [e for e in selected if e not in stand_ins]
     where = localise(ev, wb.eval_starts, data, wb.window_group)
-    evidence = [f"{w} (p = {p:.2g})" for _, w, p in failed]
+    evidence = [f"{w} (p = {p:.2g})" for _, w, p, _, _ in failed]
     if base_bound:
         evidence.append(f"{', '.join(base_bound)} at a bound")
-    by = " + ".join(selected)
     ratio = excess["model_error"] / max(excess["noise_floor"], 1e-12)
     if failed or base_bound:
         kind = "outside_library"
         head = "something outside the library remains"
-        if by:
-            head += f" after {by}"
+        if named:
+            head += f" after {' + '.join(named)}"
         text = f"{head}: {'; '.join(evidence)}; {where_sentence(where)}"
+        if stand_ins:
+            text += (
+                f" (the loop's {' + '.join(stand_ins)} lowers the error but leaves structure "
+                "in its own state: a stand-in, not the cause)"
+            )
     else:
         kind = "explained"
         limit = excess["detection_limit"] / max(excess["noise_floor"], 1e-12)
         at = (
             f"at the noise floor: held-out model error {ratio:.2g} x the noise floor, "
-            f"no test finds structure (this log detects a model error above ~{limit:.2g} x "
-            "the noise floor)"
+            f"no test finds structure; this log detects a model error above ~{limit:.2g} x "
+            "the noise floor"
         )
+        by = " + ".join(named)
         text = f"explained by {by} ({at})" if by else f"explained ({at})"
     return {
         "kind": kind,
         "text": text,
-        "effects": list(selected),
+        "effects": named,
+        "stand_ins": stand_ins,
         "where": where_sentence(where) if kind == "outside_library" else "",
         "evidence": evidence,
-        "tests": [{"test": k, "what": w, "p_value": p} for k, w, p in tests],
+        "tests": [
+            {"test": k, "what": w, "p_value": p, "threshold": th, "failed": bool(p < th)}
+            for k, w, p, th, _ in tests
+        ],
         "alpha": alpha,
-        "threshold": threshold,
         "excess_error": excess,
         "residual_structure": resid,
+        "context_bias": resid.get("context_bias", {}),
         "localisation": where,
         "base_params_at_bound": base_bound,
         "error_to_noise_floor": float(ratio),
