@@ -1,24 +1,15 @@
-"""Learn which physical effect is missing: fit every candidate, score it on held-out data.
+"""The workbench engine: fit and evaluate models on one log, and run the loop.
 
-For each candidate effect the model *baseline + effect* is fitted on the training windows
-(starting from the baseline's fit and the effect's listed starting points) and compared with
-the baseline on held-out windows (time blocks the fit never saw).
-
-Significance (stated in every report as ``method``):
-
-1. a likelihood-ratio test on the training fit: ``LR = n_eff ln(J_base / J_effect)`` is
-   compared with a chi-square distribution with as many degrees of freedom as the effect has
-   parameters. ``J`` are the sums of squared whitened multi-step errors; ``n_eff`` counts one
-   observation per training window and fitted state, because errors along one rollout are
-   strongly correlated (counting every sample would overstate the evidence). The p-value
-   threshold is ``alpha`` divided by the number of candidates (Bonferroni);
-2. and the effect must lower the held-out model error (the multi-step error in excess of the
-   measurement-noise floor, see :mod:`pcvfe_drake.workbench.compare`) by at least
-   ``min_drop`` (5 %).
-
-An effect is *significant* when both hold. Candidates are ranked by their held-out error drop.
-After the best effect, each other significant candidate is fitted on top of it and tested the
-same way against the best model: any that still passes is reported as remaining structure.
+:class:`Workbench` fits any composed model on the training windows (warm-started from a nested
+fit), evaluates it on the held-out windows and runs the forward selection with a backward
+check (:mod:`pcvfe_drake.workbench.selection`) and the final tests
+(:mod:`pcvfe_drake.workbench.verdict`). Significance of an effect (stated in every report as
+``method``): a likelihood-ratio test on the training fit, ``LR = n_eff ln(J_before / J_after)``
+against chi-square with as many degrees of freedom as the effect has parameters (``n_eff``
+counts one observation per training window and fitted state, because errors along one rollout
+are strongly correlated), Bonferroni over the effects ranked in a round, AND a drop of the
+held-out model error (the multi-step error in excess of the measurement-noise floor, see
+:mod:`pcvfe_drake.workbench.compare`) of at least ``min_drop``, AND no parameter at a bound.
 """
 
 from __future__ import annotations
@@ -40,10 +31,13 @@ from pcvfe_drake.workbench.selection import run_selection
 from pcvfe_drake.workbench.verdict import final_verdict
 
 METHOD = (
-    "likelihood-ratio test (chi-square, dof = number of effect parameters, one observation per "
-    "training window and fitted state, Bonferroni over candidates) at alpha={alpha:g}, AND a "
-    "drop of the held-out model error (multi-step error above the noise floor) of at least "
-    "{min_drop:.0%}"
+    "forward selection with a backward check; an effect is significant on top of the current "
+    "model by a likelihood-ratio test (chi-square, dof = number of effect parameters, one "
+    "observation per training window and fitted state, Bonferroni over the effects of the "
+    "round) at alpha={alpha:g}, AND a drop of the held-out model error (multi-step error above "
+    "the noise floor) of at least {min_drop:.0%}, AND no parameter at a bound; the final model "
+    "is tested for error above the noise floor (alpha/2) and residual structure (alpha/2, "
+    "Bonferroni)"
 )
 
 
