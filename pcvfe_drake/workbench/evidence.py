@@ -16,9 +16,10 @@
   upsampled log) does not look like structure. Per fitted state: a portmanteau test of the
   autocorrelations at lags 2..K (lag 1 is skipped: consecutive residuals share one measured
   sample; Bartlett's variance ``(1 + 2 r_1^2) / N`` for an MA(1) null), and per input the
-  largest cross-correlation at lags 0..K against Bartlett's variance
-  ``sum_j rho_rr(j) rho_uu(j) / N`` (inputs are smooth, so the naive band ``1/sqrt(N)`` is
-  wrong), Bonferroni over the lags.
+  largest cross-correlation at lags 0..K, raw against Bartlett's band
+  (:func:`bartlett_ccf`; the raw input is smooth, which makes the naive band ``1/sqrt(N)``
+  wrong) and after prewhitening the input (:func:`prewhitened_ccf`; sees dependence on the
+  input's changes, e.g. a dead time), Bonferroni over both and over the lags.
 
 The verdict combines all of these with a Bonferroni correction over the number of tests, so a
 log the model explains is called "explained" at least ``1 - alpha`` of the time.
@@ -56,6 +57,42 @@ def lagged_corr(a: np.ndarray, b: np.ndarray, max_lag: int) -> np.ndarray:
     return out
 
 
+PREWHITEN_ORDER = 3
+"""Order of the autoregressive filter that prewhitens an input before cross-correlation."""
+
+
+def prewhitened_ccf(r: np.ndarray, u: np.ndarray, max_lag: int, order: int = PREWHITEN_ORDER):
+    """Cross-correlation of residual ``r`` with input ``u`` at lags 0..max_lag (``u``
+    leading) after prewhitening (Box-Jenkins): an AR(``order``) model of ``u`` is fitted by
+    least squares and both series are passed through its inverse filter. The filtered input
+    is white, so when ``r`` does not depend on ``u`` every lag has variance ~1/N whatever the
+    residual's own correlation; a smooth or step-like input no longer spreads one lag's
+    dependence over all lags. Returns (ccf, standard deviation under independence)."""
+    u = np.asarray(u, float) - np.mean(u)
+    r = np.asarray(r, float) - np.mean(r)
+    n = u.size
+    if n <= 4 * order + max_lag or float(u @ u) <= 0:
+        return np.zeros(max_lag + 1), 1.0 / np.sqrt(max(n, 1))
+    X = np.stack([u[order - i - 1 : n - i - 1] for i in range(order)], axis=1)
+    phi, *_ = np.linalg.lstsq(X, u[order:], rcond=None)
+    kernel = np.concatenate([[1.0], -phi])
+    uf = np.convolve(u, kernel, mode="valid")
+    rf = np.convolve(r, kernel, mode="valid")
+    return lagged_corr(rf, uf, max_lag), 1.0 / np.sqrt(uf.size)
+
+
+def bartlett_ccf(r: np.ndarray, u: np.ndarray, max_lag: int, acf_r: np.ndarray | None = None):
+    """Raw cross-correlation of ``r`` with ``u`` at lags 0..max_lag and its standard deviation
+    under independence by Bartlett's formula ``sqrt(sum_j rho_rr(j) rho_uu(j) / N)`` (lags
+    -max_lag..max_lag; a smooth input and a correlated residual widen it). ``acf_r``: the
+    residual's autocorrelation at lags 0..max_lag if already computed."""
+    n = np.size(r)
+    acf_r = lagged_corr(r, r, max_lag) if acf_r is None else acf_r
+    acf_u = lagged_corr(u, u, max_lag)
+    var = (1.0 + 2.0 * float(np.sum(acf_r[1:] * acf_u[1:]))) / max(n, 1)
+    return lagged_corr(r, u, max_lag), float(np.sqrt(max(var, 0.25 / max(n, 1))))
+
+
 def grouped_mean_se(values: np.ndarray, group: int) -> tuple[float, float, int]:
     """Mean, standard error and number of groups of ``values`` taken in runs of ``group``
     consecutive entries (for overlapping, hence correlated, windows)."""
@@ -67,6 +104,17 @@ def grouped_mean_se(values: np.ndarray, group: int) -> tuple[float, float, int]:
         return float(np.mean(values)) if values.size else 0.0, se, max(values.size, 1)
     g = values[: n_groups * group].reshape(n_groups, group).mean(axis=1)
     return float(values.mean()), float(g.std(ddof=1) / np.sqrt(n_groups)), n_groups
+
+
+def error_drop(before: dict, after: dict) -> float:
+    """Fraction of the held-out model error (noise-corrected multi-step error) removed.
+
+    Both errors are corrected with the *smaller* of the two models' noise floors, so a model
+    cannot gain by amplifying the initial-state noise (a larger floor of its own)."""
+    floor2 = min(before["noise_floor"], after["noise_floor"]) ** 2
+    e0 = np.sqrt(max(before["multistep_error"] ** 2 - floor2, 0.0))
+    e1 = np.sqrt(max(after["multistep_error"] ** 2 - floor2, 0.0))
+    return float((e0 - e1) / e0) if e0 > 0 else 0.0
 
 
 def paired_drop_test(before: dict, after: dict, group: int) -> dict:
@@ -176,12 +224,13 @@ def residual_structure(
             }
         )
         for j, uname in enumerate(INPUT_NAMES):
-            ccf = lagged_corr(r, u[:, j], max_lag)
-            acf_u = lagged_corr(u[:, j], u[:, j], max_lag)
-            var = (1.0 + 2.0 * float(np.sum(acf[1:] * acf_u[1:]))) / n
-            sd = np.sqrt(max(var, 0.25 / n))
+            ccf, sd = prewhitened_ccf(r, u[:, j], max_lag)
             z = np.abs(ccf) / sd
-            p = float(min(1.0, (max_lag + 1) * 2.0 * norm.sf(np.max(z))))
+            raw, sd_raw = bartlett_ccf(r, u[:, j], max_lag, acf)
+            z_raw = np.abs(raw) / sd_raw
+            # two views (raw with Bartlett's band: smooth dependence; prewhitened: dependence
+            # on changes of the input), Bonferroni over both and over the lags
+            p = float(min(1.0, 2.0 * (max_lag + 1) * 2.0 * norm.sf(max(np.max(z), np.max(z_raw)))))
             out["tests"].append(
                 {
                     "state": name,

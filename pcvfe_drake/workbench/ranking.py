@@ -25,7 +25,7 @@ from pcvfe_drake.workbench.compare import evaluate, public
 from pcvfe_drake.workbench.data import DriveData, window_starts
 from pcvfe_drake.workbench.effects import get_effect, known_effects
 from pcvfe_drake.workbench.estimate import FitResult, fit
-from pcvfe_drake.workbench.evidence import excess_error_test
+from pcvfe_drake.workbench.evidence import error_drop, excess_error_test
 from pcvfe_drake.workbench.model import WorkbenchModel
 from pcvfe_drake.workbench.selection import run_selection
 from pcvfe_drake.workbench.verdict import final_verdict
@@ -56,17 +56,6 @@ class DiagnoseConfig:
     base_params: tuple[str, ...] = ("mu",)
     max_iter: int = 15
     max_steps: int = 8
-
-
-def error_drop(before: dict, after: dict) -> float:
-    """Fraction of the held-out model error (noise-corrected multi-step error) removed.
-
-    Both errors are corrected with the *smaller* of the two models' noise floors, so a model
-    cannot gain by amplifying the initial-state noise (a larger floor of its own)."""
-    floor2 = min(before["noise_floor"], after["noise_floor"]) ** 2
-    e0 = np.sqrt(max(before["multistep_error"] ** 2 - floor2, 0.0))
-    e1 = np.sqrt(max(after["multistep_error"] ** 2 - floor2, 0.0))
-    return float((e0 - e1) / e0) if e0 > 0 else 0.0
 
 
 def _steps(seconds: float, data: DriveData) -> int:

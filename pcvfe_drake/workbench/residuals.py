@@ -20,7 +20,7 @@ from scipy.stats import chi2, norm
 from pcvfe_drake.vehicle.single_track import INPUT_NAMES, STATE_NAMES, wrap_angle
 from pcvfe_drake.workbench.data import DriveData, window_starts
 from pcvfe_drake.workbench.estimate import FIT_STATES
-from pcvfe_drake.workbench.evidence import lagged_corr
+from pcvfe_drake.workbench.evidence import bartlett_ccf, lagged_corr, prewhitened_ccf
 from pcvfe_drake.workbench.model import WorkbenchModel
 
 MAX_LAG = 25
@@ -32,11 +32,11 @@ def whiteness(model: WorkbenchModel, theta: np.ndarray, data: DriveData, n_block
 
     Bands hold their nominal rate on a log the model explains: for lags >= 2 the band of the
     autocorrelation is Bartlett's ``2.576 sqrt((1 + 2 r_1^2) / N)`` (one-step residuals of a
-    perfect model are MA(1): the noise of one sample enters two residuals), and the
-    cross-correlation band is ``2.576 sqrt(sum_j rho_rr(j) rho_uu(j) / N)`` (the inputs are
-    smooth). ``white`` is the portmanteau test of lags 2..25 at p >= 0.01; ``correlated_with``
-    names inputs whose largest cross-correlation is beyond the band with a Bonferroni correction
-    over the lags (p < 0.01)."""
+    perfect model are MA(1): the noise of one sample enters two residuals). ``cross_corr`` is
+    the raw cross-correlation with its Bartlett band ``cross_band_99``; ``correlated_with``
+    names inputs whose raw (Bartlett) or prewhitened cross-correlation is beyond its band with
+    a Bonferroni correction over both views and the lags (p < 0.01). ``white`` is the
+    portmanteau test of lags 2..25 at p >= 0.01."""
     starts = window_starts(data, 1, 1, "heldout", n_blocks)
     Z = model.simulate(theta, data, starts, 1, x0=data.x[starts])
     err = Z[:, 1, :7] - data.x[starts + 1]
@@ -44,10 +44,6 @@ def whiteness(model: WorkbenchModel, theta: np.ndarray, data: DriveData, n_block
     n = starts.size
     band = BAND_Z99 / np.sqrt(max(n, 1))
     out = {"n": int(n), "band_99": float(band), "states": {}}
-    u_acf = {
-        name: lagged_corr(data.u[starts, j], data.u[starts, j], MAX_LAG)
-        for j, name in enumerate(INPUT_NAMES)
-    }
     for i in FIT_STATES:
         name = STATE_NAMES[i]
         acf = lagged_corr(err[:, i], err[:, i], MAX_LAG)[1:]
@@ -60,11 +56,13 @@ def whiteness(model: WorkbenchModel, theta: np.ndarray, data: DriveData, n_block
         p_white = float(chi2.sf(q, MAX_LAG - 1))
         outside = float(np.mean(np.abs(acf[1:]) > band_k))
         cross_band, correlated = {}, []
-        for u, c in ccf.items():
-            var = (1.0 + 2.0 * float(np.sum(acf * u_acf[u][1:]))) / max(n, 1)
-            sd = np.sqrt(max(var, 0.25 / max(n, 1)))
-            cross_band[u] = float(BAND_Z99 * sd)
-            p = (MAX_LAG + 1) * 2.0 * norm.sf(np.max(np.abs(c)) / sd)
+        acf0 = np.concatenate([[1.0], acf])
+        for j, u in enumerate(INPUT_NAMES):
+            pw, sd = prewhitened_ccf(err[:, i], data.u[starts, j], MAX_LAG)
+            raw, sd_raw = bartlett_ccf(err[:, i], data.u[starts, j], MAX_LAG, acf0)
+            cross_band[u] = float(BAND_Z99 * sd_raw)
+            z = max(np.max(np.abs(pw)) / sd, np.max(np.abs(raw)) / sd_raw)
+            p = 2.0 * (MAX_LAG + 1) * 2.0 * norm.sf(z)
             if p < 0.01:
                 correlated.append(u)
         out["states"][name] = {

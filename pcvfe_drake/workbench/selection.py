@@ -33,7 +33,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from pcvfe_drake.workbench.estimate import FitResult
-from pcvfe_drake.workbench.evidence import paired_drop_test
+from pcvfe_drake.workbench.evidence import error_drop, paired_drop_test
 
 
 @dataclass
@@ -117,8 +117,6 @@ def lr_test(small: FitResult, big: FitResult) -> tuple[float, int, float]:
 
 def try_effect(wb, ref: FitResult, ref_eval: dict, name: str, n_tests: int) -> Trial:
     """Fit ``ref``'s model plus effect ``name`` and test it against ``ref``."""
-    from pcvfe_drake.workbench.ranking import error_drop
-
     cfg = wb.config
     alt = wb.fit_model(ref.model.with_effects(name), warm=ref)
     lr, dof, p = lr_test(ref, alt)
