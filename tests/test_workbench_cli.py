@@ -229,3 +229,17 @@ def test_effects_file_adds_a_user_effect(drag_log, tmp_path, capsys):
     finally:
         if "accel_gain_cli" in known_effects():
             unregister_effect("accel_gain_cli")
+
+
+def test_fit_resample(drag_log, tmp_path, capsys):
+    df, _ = drag_log
+    uneven = df.iloc[np.union1d(np.arange(0, len(df), 2), np.arange(1, len(df), 3))]  # uneven
+    path = tmp_path / "uneven.csv"
+    uneven.to_csv(path, index=False)
+    assert main(["fit", str(path), "--resample", "10", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert out["resampled_hz"] == 10.0 and abs(out["dt_s"] - 0.1) < 1e-9
+    (ctx,) = out["contexts"].values()
+    assert abs(ctx["theta"]["mu"] - 1.05) < 0.1
+    assert main(["fit", str(path), "--resample", "-5"]) == 2
+    assert "--resample" in capsys.readouterr().err
