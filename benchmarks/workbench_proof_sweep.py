@@ -6,8 +6,9 @@ ranks the whole library with the forward selection and backward check of ``pcvfe
 * ``clean``: clean logs over ``--clean-seeds`` seeds; a *false discovery* is any selected
   effect, a *false alarm* any verdict other than "explained"; the one-step whiteness flags of
   the baseline (15 tests per log, each at 0.01) are counted too. Each clean log is also
-  resampled to 50 Hz and to 13 Hz (interpolated states, step-averaged inputs) and diagnosed
-  again: those count as false alarms too. The rates are compared with the stated alpha (0.01).
+  resampled (even seeds to 50 Hz, odd seeds to 13 Hz: interpolated states, step-averaged
+  inputs) and diagnosed again: those count as false alarms too. The rates are compared with
+  the stated alpha (0.01).
 * ``planted``: each effect alone, each pair of the five original effects (drag,
   rolling_resistance, steering_lag, input_delay, tire_saturation) and each triple of them,
   over ``--planted-seeds``. A case passes when the selected effects are exactly the planted
@@ -108,7 +109,8 @@ def main() -> int:
         for seed in tqdm(range(100, 100 + n_clean), desc="clean logs"):
             (df,) = synth.simulate_truths([synth.Truth()], duration_s=90.0, seed=seed, substeps=2)
             row = {"seed": seed}
-            for label, frame in (("20Hz", df), ("50Hz", resample_log(df, 50.0))):
+            rate = 50.0 if seed % 2 == 0 else 13.0  # up- or downsampled, alternately
+            for label, frame in (("20Hz", df), (f"{rate:g}Hz", resample_log(df, rate))):
                 report, _ = diagnose(prepare(frame, f"clean {seed} {label}"))
                 white = report["baseline"]["residuals"]["whiteness"]["states"].values()
                 row[label] = {
@@ -118,14 +120,9 @@ def main() -> int:
                         (not w["white"]) + len(w["correlated_with"]) for w in white
                     ),
                 }
-            report, _ = diagnose(prepare(resample_log(df, 13.0), f"clean {seed} 13Hz"))
-            row["13Hz"] = {
-                "selected": [s["name"] for s in report["selected"]],
-                "verdict": report["verdict"]["kind"],
-            }
             clean.append(row)
         native = [r["20Hz"] for r in clean]
-        resampled = [r[k] for r in clean for k in ("50Hz", "13Hz")]
+        resampled = [r[k] for r in clean for k in ("50Hz", "13Hz") if k in r]
         out["clean"] = {
             "logs": len(native),
             "false_discovery_rate": sum(bool(r["selected"]) for r in native) / len(native),

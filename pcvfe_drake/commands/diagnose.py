@@ -171,6 +171,14 @@ def run(args: argparse.Namespace) -> int:
                     f"     {r['name']:20s} held-out error {r['heldout_error_drop']:+7.1%} "
                     f"(p={r['drop_p_value']:.2g})  LR p={r['p_value']:.2g}{note}"
                 )
+        final = report["final"]
+        print(
+            f"final model: {' + '.join(final['effects']) or 'baseline'}; "
+            + ", ".join(
+                f"{k} = {v['value']:.4g}" + (" (at a bound)" if v["at_bound"] else "")
+                for k, v in final["params"].items()
+            )
+        )
         print(f"verdict: {report['verdict']['text']}")
         if "added" in report:
             added = report["added"]
