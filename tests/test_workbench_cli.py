@@ -43,8 +43,10 @@ def test_json_with_add(drag_log, tmp_path, capsys):
     report = json.loads(lines[-1])
     assert set(report["baseline"]["fit_percent"]) >= {"v", "psi_dot", "beta"}
     assert report["baseline"]["heldout_error"] > 0
+    # --add drag: the loop starts from baseline + drag and ranks the rest on top of it
+    assert report["selection"]["start"] == ["drag"]
     ranked = report["ranked_effects"]
-    assert [r["name"] for r in ranked][0] == "drag"
+    assert [r["name"] for r in ranked] == ["rolling_resistance"]
     for r in ranked:
         assert {
             "name",
@@ -52,17 +54,33 @@ def test_json_with_add(drag_log, tmp_path, capsys):
             "p_value",
             "confidence",
             "heldout_error_drop",
+            "drop_p_value",
+            "drop_note",
             "params",
         } <= set(r)
+    assert report["selected"] == []  # nothing significant on top of drag
+    assert report["verdict"]["kind"] == "explained"
+    assert report["verdict"]["text"].startswith("explained by drag")
     assert report["added"]["effects"] == ["drag"]
     assert 0.5 <= report["error_drop"] <= 1.0
     assert "drag.CdA" in report["added"]["params"]
     # the written report
     saved = json.loads((out / "report.json").read_text())
-    assert saved["ranked_effects"][0]["name"] == "drag"
+    assert saved["verdict"]["kind"] == "explained"
     html = (out / "report.html").read_text()
-    assert html.count("data:image/png;base64,") == 4
-    for png in ("overlay.png", "residual_autocorr.png", "ranking.png", "breakdown.png"):
+    pngs = [
+        "selection_path.png",
+        "error_over_log.png",
+        "error_map.png",
+        "regimes.png",
+        "bias.png",
+        "cross_correlation.png",
+        "overlay.png",
+        "residual_autocorr.png",
+        "ranking.png",
+    ]
+    assert html.count("data:image/png;base64,") == len(pngs)
+    for png in pngs:
         assert (out / png).stat().st_size > 1000
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temp left
 
@@ -72,9 +90,49 @@ def test_run_folder_and_text_output(drag_log, tmp_path, capsys):
     run = tmp_path / "run_001"
     write_drive_log(df, run / "log.parquet")
     (run / "summary.json").write_text("{}")
-    assert main(["diagnose", str(run), "--candidates", "drag"]) == 0
+    assert main(["diagnose", str(run), "--candidates", "drag,gyro_bias"]) == 0
     text = capsys.readouterr().out
-    assert "missing effect: drag" in text
+    assert "1. + drag" in text
+    assert "verdict: explained by drag" in text
+
+
+def test_json_selected_and_verdict_fields(drag_log, capsys):
+    _, path = drag_log
+    assert main(["diagnose", str(path), "--candidates", "drag,grade", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    (step,) = report["selected"]
+    assert step["name"] == "drag" and step["p_value"] < 1e-6
+    assert step["heldout_error_after"] < step["heldout_error_before"]
+    assert abs(step["params"]["drag.CdA"]["value"] - 0.75) < 0.15 * 0.75
+    assert report["verdict"]["kind"] in ("explained", "outside_library")
+    assert report["verdict"]["effects"] == ["drag"]
+    assert report["best"] == "drag"  # today's fields stay
+
+
+def test_resample_and_accept_units(drag_log, tmp_path, capsys):
+    df, _ = drag_log
+    jittered = df.copy()
+    rng = np.random.default_rng(0)
+    jittered["t"] = df["t"] + rng.uniform(-0.004, 0.004, len(df))  # +-4 ms on 50 ms steps
+    path = tmp_path / "jitter.csv"
+    write_drive_log(jittered, path)
+    assert main(["diagnose", str(path), "--candidates", "drag", "--json"]) == 2
+    assert "--resample" in capsys.readouterr().err
+    assert main(["diagnose", str(path), "--candidates", "drag", "--resample", "20", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert report["resampled_hz"] == 20.0 and abs(report["rate_hz"] - 20.0) < 1e-6
+    assert report["best"] == "drag"
+    # a steering column in degrees trips the unit check; --accept-units overrides it
+    degrees = df.copy()
+    degrees["beta"] = np.degrees(df["beta"]) * 30.0
+    path = tmp_path / "deg.csv"
+    degrees.to_csv(path, index=False)  # write_drive_log would refuse it
+    assert main(["diagnose", str(path), "--candidates", "drag", "--json"]) == 2
+    assert "degrees instead of rad" in capsys.readouterr().err
+    argv = ["diagnose", str(path), "--candidates", "drag", "--json"]
+    assert main([*argv, "--accept-units", "a spin test"]) == 0
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert report["unit_checks"] == {"run": False, "reason": "a spin test"}
 
 
 def _expect_error(capsys, tmp_path, argv, *needles):
@@ -171,3 +229,17 @@ def test_effects_file_adds_a_user_effect(drag_log, tmp_path, capsys):
     finally:
         if "accel_gain_cli" in known_effects():
             unregister_effect("accel_gain_cli")
+
+
+def test_fit_resample(drag_log, tmp_path, capsys):
+    df, _ = drag_log
+    uneven = df.iloc[np.union1d(np.arange(0, len(df), 2), np.arange(1, len(df), 3))]  # uneven
+    path = tmp_path / "uneven.csv"
+    uneven.to_csv(path, index=False)
+    assert main(["fit", str(path), "--resample", "10", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert out["resampled_hz"] == 10.0 and abs(out["dt_s"] - 0.1) < 1e-9
+    (ctx,) = out["contexts"].values()
+    assert abs(ctx["theta"]["mu"] - 1.05) < 0.1
+    assert main(["fit", str(path), "--resample", "-5"]) == 2
+    assert "--resample" in capsys.readouterr().err

@@ -15,12 +15,15 @@ from pcvfe_drake.workbench.effects import get_effect, known_effects
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "diagnose",
-        help="compare the model with a drive log, rank missing physical effects, add them",
+        help="compare the model with a drive log, find the missing physical effects one by one",
         description=(
-            "Fit the single-track model on the training blocks of a drive log, compare it on "
-            "held-out blocks (fit percent, k-step and free-run errors, residual analysis), fit "
-            "every candidate effect of the library and rank them by held-out error drop with a "
-            "likelihood-ratio significance test; --add refits with the named effects. "
+            "Fit the single-track model on the training blocks of a drive log and compare it "
+            "on held-out blocks (fit percent, k-step and free-run errors, residual analysis). "
+            "Then the loop: rank every library effect on top of the current model "
+            "(likelihood-ratio test, held-out error drop and its paired test), add the best "
+            "significant one, check that the earlier ones are still needed, and repeat until "
+            "nothing significant is left; finally test the residuals for structure outside "
+            "the library and say where it shows. --add starts the loop from a given model. "
             f"Effects: {', '.join(known_effects())}."
         ),
     )
@@ -30,7 +33,8 @@ def register(subparsers) -> None:
         action="append",
         default=[],
         metavar="EFFECT",
-        help="add this effect and report before/after (repeatable)",
+        help="start from a model with this effect and rank the library on top of it; report "
+        "before/after against the baseline (repeatable)",
     )
     p.add_argument(
         "--candidates",
@@ -50,6 +54,21 @@ def register(subparsers) -> None:
         "--context-column",
         default=None,
         help="column with context labels (default: context, terrain)",
+    )
+    p.add_argument(
+        "--resample",
+        type=float,
+        default=None,
+        metavar="HZ",
+        help="resample the log to HZ first (jittered or uneven time stamps): states "
+        "interpolated linearly, inputs averaged over each new step, labels from the nearest row",
+    )
+    p.add_argument(
+        "--accept-units",
+        default=None,
+        metavar="REASON",
+        help="skip the unit heuristics (e.g. 'degrees instead of rad?') for a log you know is "
+        "right; the reason is recorded in the report",
     )
     p.add_argument(
         "--out",
@@ -100,7 +119,14 @@ def run(args: argparse.Namespace) -> int:
     if args.candidates:
         candidates = [get_effect(c.strip()).name for c in args.candidates.split(",") if c.strip()]
     vehicle = load_vehicle(args.vehicle)
-    data = load(args.log, context_column=args.context_column)
+    if args.accept_units is not None and not args.accept_units.strip():
+        raise ValueError("--accept-units needs a reason (e.g. --accept-units 'drift test')")
+    data = load(
+        args.log,
+        context_column=args.context_column,
+        resample_hz=args.resample,
+        check_units=args.accept_units is None,
+    )
     if data.rows_in_log > data.n:
         print(
             f"note: {args.log} has {data.rows_in_log} samples; diagnose analyses {data.n} of "
@@ -109,6 +135,12 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     report, wb = diagnose(data, vehicle, add=add, candidates=candidates)
+    report["resampled_hz"] = args.resample
+    report["unit_checks"] = (
+        {"run": True}
+        if args.accept_units is None
+        else {"run": False, "reason": args.accept_units.strip()}
+    )
     if args.json:
         print(json.dumps(to_jsonable(report)))
     else:
@@ -120,15 +152,34 @@ def run(args: argparse.Namespace) -> int:
             f"{base['noise_floor']:.3g}); fit % at {base['fit_percent_horizon']}: "
             + ", ".join(f"{k} {v:.1f}" for k, v in base["fit_percent"].items())
         )
-        for r in report["ranked_effects"]:
-            mark = "*" if r["significant"] else " "
-            params = ", ".join(f"{k}={v['value']:.4g}" for k, v in r["params"].items())
+        start = report["selection"]["start"]
+        print(f"the loop, from {' + '.join(start) if start else 'the baseline'}:")
+        for i, step in enumerate(report["selection"]["path"], 1):
+            sign = "+" if step["action"] == "add" else "-"
+            params = ", ".join(f"{k}={v['value']:.4g}" for k, v in step.get("params", {}).items())
+            note = f"  ({step['drop_note']})" if step.get("drop_note") else ""
             print(
-                f" {mark} {r['name']:20s} model error {r['heldout_error_drop']:+7.1%}  "
-                f"multi-step {r['heldout_multistep_error_drop']:+7.1%}  "
-                f"p={r['p_value']:.2g}  {params}"
+                f"  {i}. {sign} {step['name']:20s} held-out error "
+                f"{step['heldout_error_before']:.3g} -> {step['heldout_error']:.3g}  "
+                f"p={step['p_value']:.2g}  {params}{note}"
             )
-        print(report["verdict"])
+        if not report["selection"]["path"]:
+            print("  no effect is significant; first round:")
+            for r in report["ranked_effects"][:5]:
+                note = f"  ({r['drop_note']})" if r["drop_note"] else ""
+                print(
+                    f"     {r['name']:20s} held-out error {r['heldout_error_drop']:+7.1%} "
+                    f"(p={r['drop_p_value']:.2g})  LR p={r['p_value']:.2g}{note}"
+                )
+        final = report["final"]
+        print(
+            f"final model: {' + '.join(final['effects']) or 'baseline'}; "
+            + ", ".join(
+                f"{k} = {v['value']:.4g}" + (" (at a bound)" if v["at_bound"] else "")
+                for k, v in final["params"].items()
+            )
+        )
+        print(f"verdict: {report['verdict']['text']}")
         if "added" in report:
             added = report["added"]
             print(

@@ -18,6 +18,7 @@ from pcvfe_drake.estimation.fit_dataset import (
 from pcvfe_drake.estimation.fit_options import JOINT_PRIOR_REL_SIGMA, FitOptions, joint_options
 from pcvfe_drake.estimation.fitting import fit_contexts
 from pcvfe_drake.runs.drivelog import read_drive_log
+from pcvfe_drake.runs.resample import resample_log
 from pcvfe_drake.vehicle.params import THETA_NAMES, load_vehicle
 
 
@@ -87,6 +88,15 @@ def register(subparsers) -> None:
         help="read the log without validation: rows with NaN or time gaps are skipped by the "
         "window filter (and counted) instead of rejecting the file",
     )
+    parser.add_argument(
+        "--resample",
+        type=float,
+        default=None,
+        metavar="HZ",
+        help="resample the log to HZ first (for jittered or uneven time stamps): states "
+        "interpolated linearly, inputs averaged over each new step, labels from the nearest "
+        "row (docs/drive_log.md)",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.set_defaults(func=run)
 
@@ -102,6 +112,8 @@ def run(args: argparse.Namespace) -> int:
     if args.max_windows < 0 or args.max_windows == 1:
         raise ValueError(f"--max-windows must be 0 (all) or >= 2, got {args.max_windows}")
     log = read_drive_log(args.log, validate=not args.lenient, max_gap_s=math.inf)
+    if args.resample is not None:
+        log = resample_log(log, args.resample, source=str(args.log))
     split = windows_from_log(
         log,
         args.context_column,
@@ -134,6 +146,7 @@ def run(args: argparse.Namespace) -> int:
                     "nominal_theta": dict(zip(THETA_NAMES, map(float, params.theta), strict=True)),
                     "context_column": args.context_column,
                     "samples": n_rows,
+                    "resampled_hz": args.resample,
                     "dt_s": split.dt,
                     "horizon": split.horizon,
                     "stride": args.stride,

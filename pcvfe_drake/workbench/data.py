@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 
 from pcvfe_drake.runs.drivelog import REQUIRED_COLUMNS, read_drive_log, validate_drive_log
+from pcvfe_drake.runs.resample import resample_log
 from pcvfe_drake.vehicle.single_track import STATE_NAMES
 
 MIN_DURATION_S = 20.0
@@ -18,6 +19,10 @@ MIN_SPEED_MPS = 1.0
 stiff and its friction is unobservable near standstill; the paper filters the same way)."""
 MAX_DT_JITTER = 0.05
 """Largest relative deviation of a time step from the median step."""
+NOISE_STRIDE_S = 0.1
+"""Noise scales are estimated from 4th differences over strides of up to this time [s]."""
+CORRELATED_NOISE_RATIO = 1.15
+"""A longer-stride noise estimate this much above the 1-sample one means correlated noise."""
 LOG_SUFFIXES = (".csv", ".csv.gz", ".parquet", ".pq")
 MAX_SAMPLES = 30_000
 """Most samples the workbench analyses (bounded memory and time; 5 min at 100 Hz). A longer log
@@ -49,16 +54,28 @@ def find_log(path: str | Path) -> Path:
     raise FileNotFoundError(f"drive log {p}: no such file or folder")
 
 
-def robust_noise_sigma(y: np.ndarray) -> float:
+def robust_noise_sigma(y: np.ndarray, max_stride: int = 1) -> float:
     """Measurement-noise standard deviation of a smooth signal from its 4th differences.
 
     For white noise of std s the 4th difference has std ``s sqrt(70)``; the median absolute
     deviation makes the estimate robust to the few samples where the signal itself bends.
+    Noise that is correlated over a few samples (a log interpolated to a higher rate) makes
+    neighbouring differences cancel; the 4th differences are therefore also taken over every
+    ``stride``-th sample (1..``max_stride``), and the largest estimate replaces the one of
+    stride 1 when it exceeds it by more than ``CORRELATED_NOISE_RATIO`` (for white noise they
+    agree within a few percent).
     """
-    d4 = np.diff(y, 4)
-    if d4.size < 5:
+    estimates = []
+    for stride in range(1, max(1, int(max_stride)) + 1):
+        d4 = y[stride * 4 :] - 4 * y[stride * 3 : -stride] + 6 * y[stride * 2 : -2 * stride]
+        d4 = d4 - 4 * y[stride : -3 * stride] + y[: -4 * stride]
+        if d4.size < 5:
+            break
+        estimates.append(float(1.4826 * np.median(np.abs(d4 - np.median(d4))) / np.sqrt(70.0)))
+    if not estimates:
         return float(np.std(y)) or 1.0
-    return float(1.4826 * np.median(np.abs(d4 - np.median(d4))) / np.sqrt(70.0))
+    top = max(estimates)
+    return top if top > CORRELATED_NOISE_RATIO * estimates[0] else estimates[0]
 
 
 @dataclass
@@ -77,6 +94,8 @@ class DriveData:
         x0: states used to *start* rollouts (n, 7): the measurements, with the steering angle
             denoised (see :func:`initial_state_estimates`).
         rows_in_log: samples of the whole log (more than ``n`` when only excerpts are analysed).
+        x0_delta_sigma: noise [rad] left on the denoised steering angle of ``x0``
+            (see :func:`denoised_delta_sigma`).
     """
 
     t: np.ndarray
@@ -89,12 +108,15 @@ class DriveData:
     source: str = "<log>"
     x0: np.ndarray | None = None
     rows_in_log: int | None = None
+    x0_delta_sigma: float | None = None
 
     def __post_init__(self) -> None:
         if self.rows_in_log is None:
             self.rows_in_log = int(self.t.size)
         if self.x0 is None:
             self.x0 = initial_state_estimates(self.x, self.u, self.dt)
+        if self.x0_delta_sigma is None:
+            self.x0_delta_sigma = denoised_delta_sigma(self.x, self.u, self.dt)
 
     @property
     def n(self) -> int:
@@ -141,6 +163,26 @@ def excerpt_rows(n: int, max_samples: int = MAX_SAMPLES, excerpts: int = EXCERPT
     return (starts[:, None] + np.arange(m)[None, :]).reshape(-1)
 
 
+def denoised_delta_sigma(x: np.ndarray, u: np.ndarray, dt: float) -> float:
+    """Noise [rad] left on the denoised initial steering angle of :func:`initial_state_estimates`.
+
+    ``delta(j) - sum(steer_rate dt)`` is a constant plus the angle's measurement noise, so the
+    difference of its means over two adjacent windows of the averaging width is noise alone;
+    its robust spread / sqrt(2) is the noise of one window mean. Unlike ``sigma / sqrt(width)``
+    this holds for noise correlated over several samples (an interpolated, upsampled log).
+    """
+    m = max(1, int(round(INIT_HALF_WINDOW_S / dt)))
+    width = 2 * m + 1
+    cum = np.concatenate([[0.0], np.cumsum(u[:-1, 0] * dt)])
+    offset = x[:, 2] - cum
+    n_win = offset.size // width
+    if n_win < 6:
+        return float(robust_noise_sigma(x[:, 2]) / np.sqrt(width))
+    means = offset[: n_win * width].reshape(n_win, width).mean(axis=1)
+    d = np.diff(means)
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0))
+
+
 def choose_context_column(df: pd.DataFrame, column: str | None) -> str | None:
     if column is not None:
         if column not in df.columns:
@@ -160,17 +202,19 @@ def prepare(
     context_column: str | None = None,
     min_duration_s: float = MIN_DURATION_S,
     max_samples: int | None = MAX_SAMPLES,
+    check_units: bool = True,
 ) -> DriveData:
     """Validate a drive-log table and convert it to :class:`DriveData`.
 
     A log of more than ``max_samples`` rows is validated whole and analysed on the excerpts of
     :func:`excerpt_rows` (initial states and noise scales come from the whole log); ``None``:
-    every row.
+    every row. ``check_units=False`` skips the drive-log validator's unit heuristics (ranges
+    and consistency that suggest degrees or km/h); the format checks always run.
 
     Raises:
         ValueError: (a ``DriveLogError`` for format problems) with the input and value named.
     """
-    validate_drive_log(df, source=source)
+    validate_drive_log(df, source=source, check_units=check_units)
     t = df["t"].to_numpy(dtype=float)
     if t.size < 10 or t[-1] - t[0] < min_duration_s:
         raise ValueError(
@@ -184,7 +228,8 @@ def prepare(
         i = int(np.argmax(jitter))
         raise ValueError(
             f"drive log {source}: column 't' is not uniformly sampled (step {steps[i]:.4g} s at "
-            f"row {i + 1} vs median {dt:.4g} s); resample the log to a fixed rate"
+            f"row {i + 1} vs median {dt:.4g} s); resample the log to a fixed rate (--resample HZ, "
+            "or pcvfe_drake.runs.resample.resample_log)"
         )
     x = df[list(STATE_NAMES)].to_numpy(dtype=float).copy()
     x[:, 4] = np.unwrap(x[:, 4])
@@ -199,25 +244,48 @@ def prepare(
         lookup = {name: i for i, name in enumerate(names)}
         context = np.array([lookup[s] for s in labels], dtype=int)
         names = [s if s != "" else "unknown" for s in names]
-    sigma = np.array([robust_noise_sigma(x[:, i]) for i in range(x.shape[1])])
+    strides = max(1, int(round(NOISE_STRIDE_S / dt)))
+    sigma = np.array([robust_noise_sigma(x[:, i], strides) for i in range(x.shape[1])])
     spread = np.maximum(np.ptp(x, axis=0), 1e-6)
     sigma = np.maximum(sigma, 1e-4 * spread)
     x0 = initial_state_estimates(x, u, dt)
+    x0_sigma = denoised_delta_sigma(x, u, dt)
     rows = excerpt_rows(t.size, max_samples) if max_samples else np.arange(t.size)
     if rows.size == t.size:
-        return DriveData(t, dt, x, u, context, names, sigma, source, x0)
+        return DriveData(t, dt, x, u, context, names, sigma, source, x0, x0_delta_sigma=x0_sigma)
     return DriveData(
-        t[rows], dt, x[rows], u[rows], context[rows], names, sigma, source, x0[rows], t.size
+        t[rows],
+        dt,
+        x[rows],
+        u[rows],
+        context[rows],
+        names,
+        sigma,
+        source,
+        x0[rows],
+        t.size,
+        x0_delta_sigma=x0_sigma,
     )
 
 
 def load(
-    path: str | Path, context_column: str | None = None, min_duration_s: float = MIN_DURATION_S
+    path: str | Path,
+    context_column: str | None = None,
+    min_duration_s: float = MIN_DURATION_S,
+    resample_hz: float | None = None,
+    check_units: bool = True,
 ) -> DriveData:
-    """Read and prepare a drive log file or run folder."""
+    """Read and prepare a drive log file or run folder.
+
+    Args:
+        resample_hz: resample to this rate first (:func:`pcvfe_drake.runs.resample.resample_log`).
+        check_units: False skips the unit heuristics (a user who knows the log is right).
+    """
     p = find_log(path)
-    df = read_drive_log(p)
-    return prepare(df, str(p), context_column, min_duration_s)
+    df = read_drive_log(p, check_units=check_units, max_gap_s=None)
+    if resample_hz is not None:
+        df = resample_log(df, resample_hz, source=str(p))
+    return prepare(df, str(p), context_column, min_duration_s, check_units=check_units)
 
 
 def block_ids(n: int, n_blocks: int) -> np.ndarray:

@@ -9,10 +9,14 @@ hook                what it changes
 ``inputs``          the input sequence of a window before the rollout (dead time)
 ``accel``           the applied longitudinal acceleration command (power limit)
 ``wheel_angle``     the road-wheel angle the tires see (lag, offset)
-``tire``            the lateral tire force law (saturation)
+``friction``        a factor on the friction of one axle, seeing the state and the axle load
+                    (speed- and load-dependent friction)
+``tire``            the lateral tire force law (saturation); sees the state too
 ``longitudinal``    extra longitudinal acceleration [m/s^2] (drag, rolling, grade)
 ``state_rates``     time derivatives of the effect's own states (lag)
 ``initial_states``  the effect's states at the start of a window, from the measured history
+``measure``         what the sensors report for a true ST state (gyro bias, speed scale,
+                    steering-encoder offset), with ``unmeasure`` its inverse for the start
 ==================  =====================================================================
 
 Every parameter has a unit, bounds, a starting value, a typical scale (for finite differences
@@ -82,6 +86,11 @@ class StepContext:
         steer: constrained steering rate [rad/s] (N,).
         accel: constrained acceleration command [m/s^2] (N,) (after ``accel`` hooks).
         vehicle: the nominal :class:`~pcvfe_drake.vehicle.params.VehicleParams`.
+        a_long: the longitudinal acceleration [m/s^2] (N,): the command plus the
+            ``longitudinal`` hooks' resistances (set before the axle loads are computed).
+        axle: ``"front"`` or ``"rear"`` inside the ``friction`` and ``tire`` hooks.
+        fz_static: the static load [N] of that axle (for load sensitivity).
+        mu_scale: the product of the ``friction`` factors of that axle (N,) (in ``tire``).
     """
 
     x: np.ndarray
@@ -89,6 +98,10 @@ class StepContext:
     steer: np.ndarray
     accel: np.ndarray
     vehicle: object
+    a_long: np.ndarray | None = None
+    axle: str = ""
+    fz_static: float = 0.0
+    mu_scale: np.ndarray | float = 1.0
 
 
 class Effect:
@@ -128,10 +141,29 @@ class Effect:
         """Road-wheel angle [rad] (N,) seen by the front tire."""
         return delta
 
-    def tire(self, alpha, fz, c_alpha, p: dict):
-        """Lateral tire force [N] for slip ``alpha`` [rad], load ``fz`` [N], stiffness
-        ``c_alpha`` [N/rad]; return None to keep the linear law."""
+    def friction(self, fz, ctx: StepContext, p: dict):
+        """A factor (N,) on the friction coefficient of the axle ``ctx.axle`` whose load is
+        ``fz`` [N] (the cornering stiffness ``mu C_S Fz`` and a tire law's peak scale with
+        it); ``ctx.x`` is the state. Return None for no change."""
         return None
+
+    def tire(self, alpha, fz, c_alpha, p: dict, ctx: StepContext | None = None):
+        """Lateral tire force [N] for slip ``alpha`` [rad], load ``fz`` [N], stiffness
+        ``c_alpha`` [N/rad] (friction factors included) on axle ``ctx.axle`` in state
+        ``ctx.x``; return None to keep the linear law. (A subclass may leave out ``ctx``.)"""
+        return None
+
+    #: True for effects that change only what the sensors report (``measure``/``unmeasure``).
+    measurement: ClassVar[bool] = False
+
+    def measure(self, y: np.ndarray, p: dict) -> np.ndarray:
+        """Measured ST states for true states ``y`` (N, ..., 7); the values of ``p`` have
+        shape (N, 1, ...) broadcasting along the window. Must not modify ``y`` in place."""
+        return y
+
+    def unmeasure(self, y: np.ndarray, p: dict) -> np.ndarray:
+        """The inverse of :meth:`measure` for initial states (N, 7), ``p`` values (N,)."""
+        return y
 
     def longitudinal(self, ctx: StepContext, p: dict):
         """Extra longitudinal acceleration [m/s^2] (N,), or None."""
@@ -317,7 +349,8 @@ class TireSaturation(Effect):
 
     With ``z = C_alpha alpha / (3 mu_peak Fz)`` the force is ``3 mu_peak Fz (z - z|z| + z^3/3)``
     for ``|z| < 1`` and ``mu_peak Fz sign(alpha)`` beyond; for small slip it equals the
-    baseline's linear force ``C_alpha alpha`` (``C_alpha = mu C_S Fz``).
+    baseline's linear force ``C_alpha alpha`` (``C_alpha = mu C_S Fz``). Friction factors
+    (``friction`` hooks, e.g. speed-dependent friction) scale the peak as well.
     """
 
     name = "tire_saturation"
@@ -327,8 +360,9 @@ class TireSaturation(Effect):
     signature_label = "lateral acceleration cubed"
     starts = ((0.6,), (1.0,), (1.6,))
 
-    def tire(self, alpha, fz, c_alpha, p):
-        f_max = p["mu_peak"] * np.maximum(fz, 1.0)
+    def tire(self, alpha, fz, c_alpha, p, ctx=None):
+        scale = 1.0 if ctx is None else ctx.mu_scale
+        f_max = p["mu_peak"] * scale * np.maximum(fz, 1.0)
         z = c_alpha * alpha / (3.0 * f_max)
         za = np.minimum(np.abs(z), 1.0)
         zs = np.sign(z) * za
@@ -382,20 +416,6 @@ class MotorPowerLimit(Effect):
         return (np.maximum(data.u[:, 1], 0.0) * data.x[:, 3])[:, None]
 
 
-class SteeringOffset(Effect):
-    """A constant offset between the measured steering angle and the road-wheel angle."""
-
-    name = "steering_offset"
-    description = "constant steering-angle offset, delta_w = delta + d0"
-    params = (EffectParam("d0", "rad", -0.1, 0.1, 0.0, 0.005, 0.0, "steering offset"),)
-    order = 5
-    signature_state = "psi_dot"
-    signature_label = "a constant"
-
-    def wheel_angle(self, delta, ctx, p):
-        return delta + p["d0"]
-
-
 _REGISTRY: dict[str, type[Effect]] = {}
 
 
@@ -427,7 +447,6 @@ for _cls in (
     TireSaturation,
     Grade,
     MotorPowerLimit,
-    SteeringOffset,
 ):
     register_effect(_cls)
 

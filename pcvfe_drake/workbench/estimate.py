@@ -55,20 +55,31 @@ class FitResult:
     history: list[float] = field(default_factory=list)
     informed: np.ndarray | None = None
 
-    def params_dict(self, only_effects: bool = False) -> dict:
-        """{name: {value, std, unit, informed}}; ``informed`` is False for a parameter the
-        training windows carry no information on (e.g. the friction of a context that no
-        training window visits): it keeps its starting value."""
+    def at_bound(self) -> np.ndarray:
+        """Per parameter: whether the fit ended on one of its bounds."""
+        lo, hi = self.model.bounds()
+        tol = 1e-6 * (hi - lo)
+        return (self.theta <= lo + tol) | (self.theta >= hi - tol)
+
+    def params_dict(self, only_effects: bool = False, effect: str | None = None) -> dict:
+        """{name: {value, std, unit, informed, at_bound}}; ``informed`` is False for a
+        parameter the training windows carry no information on (e.g. the friction of a
+        context that no training window visits): it keeps its starting value. A parameter
+        at a bound has no defined uncertainty (``std`` NaN, null in JSON). ``effect``: only
+        that effect's parameters."""
         out = {}
         informed = np.ones(self.theta.size, bool) if self.informed is None else self.informed
-        for p, value, s, inf in zip(self.model.params, self.theta, self.std, informed, strict=True):
-            if only_effects and p.effect is None:
+        bound = self.at_bound()
+        rows = zip(self.model.params, self.theta, self.std, informed, bound, strict=True)
+        for p, value, s, inf, at in rows:
+            if (only_effects and p.effect is None) or (effect is not None and p.effect != effect):
                 continue
             out[p.name] = {
                 "value": float(value),
-                "std": float(s),
+                "std": float("nan") if at else float(s),
                 "unit": p.unit,
                 "informed": bool(inf),
+                "at_bound": bool(at and abs(value - p.null) > 1e-9 * (p.upper - p.lower)),
             }
         return out
 

@@ -5,14 +5,21 @@ followed by the effects' own states)::
 
     1. CommonRoad's input constraints (as ``pcvfe_drake.vehicle.single_track.constrain_inputs``)
     2. accel hooks            (e.g. motor_power_limit)            -> applied command a
-    3. wheel_angle hooks      (steering_lag, then steering_offset) -> road-wheel angle delta_w
-    4. axle loads             Fz_f = m (g lr - a h) / L,  Fz_r = m (g lf + a h) / L
-    5. slip angles            alpha_f = delta_w - beta - lf r / v,  alpha_r = -beta + lr r / v
-    6. tire forces            F_y = mu C_S Fz alpha (linear), or a tire hook (tire_saturation)
-    7. yaw and slip           r' = (lf F_yf - lr F_yr) / I_z,  beta' = (F_yf + F_yr) / (m v) - r
-                              (r = psi_dot)
-    8. longitudinal hooks     v' = a + sum(extra accelerations)   (drag, rolling_resistance, grade)
-    9. state_rates hooks      the effects' own states (steering_lag)
+    3. wheel_angle hooks      (steering_lag)                      -> road-wheel angle delta_w
+    4. longitudinal hooks     a_x = a + sum(extra accelerations)  (drag, rolling_resistance, grade)
+    5. axle loads             Fz_f = m (g lr - a_x h) / L,  Fz_r = m (g lf + a_x h) / L
+                              (the longitudinal resistances transfer load too)
+    6. slip angles            alpha_f = delta_w - beta - lf r / v,  alpha_r = -beta + lr r / v
+    7. friction hooks         mu_axle = mu x the factors (friction_speed, friction_load)
+    8. tire forces            F_y = mu_axle C_S Fz alpha (linear), or a tire hook
+                              (tire_saturation; it sees the state and the friction factor)
+    9. yaw and slip           r' = (lf F_yf - lr F_yr) / I_z,  beta' = (F_yf + F_yr) / (m v) - r
+                              (r = psi_dot);  v' = a_x
+   10. state_rates hooks      the effects' own states (steering_lag)
+
+Measurement hooks (gyro_bias, speed_scale, steering_offset) map the true state to what the
+sensors report: rollouts start from the *un*-measured state of the measured sample and are
+compared in measured form.
 
 With no effects this is exactly CommonRoad's dynamic ST model
 (``pcvfe_drake.vehicle.single_track``'s model
@@ -25,6 +32,7 @@ context, then each effect's parameters, named ``effect.param``.
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -104,6 +112,10 @@ class WorkbenchModel:
         if dup:
             raise ValueError(f"effect(s) {dup} given more than once")
         self.effects: list[Effect] = sorted(eff, key=lambda e: e.order)
+        self._tire_takes_ctx = {
+            e.name: len(inspect.signature(e.tire).parameters) >= 5 for e in self.effects
+        }
+        self._sensors = [e for e in self.effects if e.measurement]
         self.params: list[ParamInfo] = []
         nominal = dict(zip(THETA_NAMES, self.vehicle.theta, strict=True))
         for b in self.base_params:
@@ -197,30 +209,46 @@ class WorkbenchModel:
         for e, sl in zip(self.effects, self._state_slices, strict=True):
             ctx.states = z[:, sl]
             delta_w = e.wheel_angle(delta_w, ctx, eff[e.name])
-        v = x[:, V]
-        vd = np.maximum(v, V_FLOOR_MPS)
-        r = x[:, PSI_DOT]
-        beta = x[:, BETA]
-        wheelbase = vp.lf + vp.lr
-        fzf = vp.m * (vp.g * vp.lr - acc * vp.h) / wheelbase
-        fzr = vp.m * (vp.g * vp.lf + acc * vp.h) / wheelbase
-        alpha_f = delta_w - beta - vp.lf * r / vd
-        alpha_r = -beta + vp.lr * r / vd
-        caf = base["mu"] * base["C_Sf"] * fzf
-        car = base["mu"] * base["C_Sr"] * fzr
-        fyf = caf * alpha_f
-        fyr = car * alpha_r
-        for e in self.effects:
-            out_f = e.tire(alpha_f, fzf, caf, eff[e.name])
-            if out_f is not None:
-                fyf = out_f
-                fyr = e.tire(alpha_r, fzr, car, eff[e.name])
         a_long = acc.copy()
         for e, sl in zip(self.effects, self._state_slices, strict=True):
             ctx.states = z[:, sl]
             extra = e.longitudinal(ctx, eff[e.name])
             if extra is not None:
                 a_long = a_long + extra
+        ctx.a_long = a_long
+        v = x[:, V]
+        vd = np.maximum(v, V_FLOOR_MPS)
+        r = x[:, PSI_DOT]
+        beta = x[:, BETA]
+        wheelbase = vp.lf + vp.lr
+        fzf = vp.m * (vp.g * vp.lr - a_long * vp.h) / wheelbase
+        fzr = vp.m * (vp.g * vp.lf + a_long * vp.h) / wheelbase
+        alpha_f = delta_w - beta - vp.lf * r / vd
+        alpha_r = -beta + vp.lr * r / vd
+        axles = (
+            ("front", fzf, alpha_f, base["C_Sf"], vp.m * vp.g * vp.lr / wheelbase),
+            ("rear", fzr, alpha_r, base["C_Sr"], vp.m * vp.g * vp.lf / wheelbase),
+        )
+        forces = []
+        for axle, fz, alpha, c_s, fz_static in axles:
+            ctx.axle, ctx.fz_static = axle, fz_static
+            scale = 1.0
+            for e in self.effects:
+                factor = e.friction(fz, ctx, eff[e.name])
+                if factor is not None:
+                    scale = scale * factor
+            ctx.mu_scale = scale
+            c_alpha = base["mu"] * scale * c_s * fz
+            fy = c_alpha * alpha
+            for e in self.effects:
+                if self._tire_takes_ctx[e.name]:
+                    out = e.tire(alpha, fz, c_alpha, eff[e.name], ctx)
+                else:
+                    out = e.tire(alpha, fz, c_alpha, eff[e.name])
+                if out is not None:
+                    fy = out
+            forces.append(fy)
+        fyf, fyr = forces
         zdot = np.empty_like(z)
         zdot[:, 0] = v * np.cos(x[:, PSI] + beta)
         zdot[:, 1] = v * np.sin(x[:, PSI] + beta)
@@ -266,9 +294,12 @@ class WorkbenchModel:
             starts: window start samples (N,).
             horizon: steps per window.
             ctx_rows: context index per window (default: the context at the start).
-            x0: initial ST states (N, 7) (default: ``data.x0[starts]``, the measurements).
+            x0: initial ST states (N, 7) as measured (default: ``data.x0[starts]``).
         Returns:
-            Z (N, horizon + 1, nz): RK4 with the inputs held over each sample step.
+            Z (N, horizon + 1, nz): RK4 with the inputs held over each sample step. Rollouts
+            start from the measured state passed back through the sensor effects'
+            ``unmeasure``; the ST part of Z is what the sensors would report (``measure``),
+            the effects' own states are true values.
         """
         starts = np.asarray(starts, dtype=int)
         n = starts.size
@@ -278,7 +309,10 @@ class WorkbenchModel:
         base, eff = self._unpack(theta_rows, ctx_rows)
         idx = starts[:, None] + np.arange(horizon)[None, :]
         U = data.u[idx]
-        parts = [data.x0[starts] if x0 is None else np.asarray(x0, dtype=float)]
+        x_start = data.x0[starts] if x0 is None else np.asarray(x0, dtype=float)
+        for e in reversed(self._sensors):
+            x_start = e.unmeasure(x_start, eff[e.name])
+        parts = [x_start]
         for e in self.effects:
             U = e.inputs(U, data, starts, eff[e.name])
             if e.n_states:
@@ -308,6 +342,11 @@ class WorkbenchModel:
                 k4 = self.rhs(stage(z, z + h * k3, h), uk, base, eff)
                 z = stage(z, z + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4), h)
             Z[:, k + 1] = z
+        if self._sensors:
+            y = Z[:, :, :NX]
+            for e in self._sensors:
+                y = e.measure(y, {k: v[:, None] for k, v in eff[e.name].items()})
+            Z[:, :, :NX] = y
         return Z
 
     def errors(

@@ -1,29 +1,20 @@
-"""Learn which physical effect is missing: fit every candidate, score it on held-out data.
+"""The workbench engine: fit and evaluate models on one log, and run the loop.
 
-For each candidate effect the model *baseline + effect* is fitted on the training windows
-(starting from the baseline's fit and the effect's listed starting points) and compared with
-the baseline on held-out windows (time blocks the fit never saw).
-
-Significance (stated in every report as ``method``):
-
-1. a likelihood-ratio test on the training fit: ``LR = n_eff ln(J_base / J_effect)`` is
-   compared with a chi-square distribution with as many degrees of freedom as the effect has
-   parameters. ``J`` are the sums of squared whitened multi-step errors; ``n_eff`` counts one
-   observation per training window and fitted state, because errors along one rollout are
-   strongly correlated (counting every sample would overstate the evidence). The p-value
-   threshold is ``alpha`` divided by the number of candidates (Bonferroni);
-2. and the effect must lower the held-out model error (the multi-step error in excess of the
-   measurement-noise floor, see :mod:`pcvfe_drake.workbench.compare`) by at least
-   ``min_drop`` (5 %).
-
-An effect is *significant* when both hold. Candidates are ranked by their held-out error drop.
-After the best effect, each other significant candidate is fitted on top of it and tested the
-same way against the best model: any that still passes is reported as remaining structure.
+:class:`Workbench` fits any composed model on the training windows (warm-started from a nested
+fit), evaluates it on the held-out windows and runs the forward selection with a backward
+check (:mod:`pcvfe_drake.workbench.selection`) and the final tests
+(:mod:`pcvfe_drake.workbench.verdict`). Significance of an effect (stated in every report as
+``method``): a likelihood-ratio test on the training fit, ``LR = n_eff ln(J_before / J_after)``
+against chi-square with as many degrees of freedom as the effect has parameters (``n_eff``
+counts one observation per training window and fitted state, because errors along one rollout
+are strongly correlated), Bonferroni over the effects ranked in a round, AND a drop of the
+held-out model error (the multi-step error in excess of the measurement-noise floor, see
+:mod:`pcvfe_drake.workbench.compare`) of at least ``min_drop``, AND no parameter at a bound.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.stats import chi2
@@ -34,16 +25,19 @@ from pcvfe_drake.workbench.compare import evaluate, public
 from pcvfe_drake.workbench.data import DriveData, window_starts
 from pcvfe_drake.workbench.effects import get_effect, known_effects
 from pcvfe_drake.workbench.estimate import FitResult, fit
+from pcvfe_drake.workbench.evidence import error_drop, excess_error_test
 from pcvfe_drake.workbench.model import WorkbenchModel
-
-UNEXPLAINED_RATIO = 0.5
-"""Model error (above the noise floor) / noise floor beyond which structure is unexplained."""
+from pcvfe_drake.workbench.selection import run_selection
+from pcvfe_drake.workbench.verdict import final_verdict
 
 METHOD = (
-    "likelihood-ratio test (chi-square, dof = number of effect parameters, one observation per "
-    "training window and fitted state, Bonferroni over candidates) at alpha={alpha:g}, AND a "
-    "drop of the held-out model error (multi-step error above the noise floor) of at least "
-    "{min_drop:.0%}"
+    "forward selection with a backward check; an effect is significant on top of the current "
+    "model by a likelihood-ratio test (chi-square, dof = number of effect parameters, one "
+    "observation per training window and fitted state, Bonferroni over the effects of the "
+    "round) at alpha={alpha:g}, AND a drop of the held-out model error (multi-step error above "
+    "the noise floor) of at least {min_drop:.0%}, AND no parameter at a bound; the final model "
+    "is tested for error above the noise floor (alpha/2) and residual structure (alpha/2, "
+    "Bonferroni)"
 )
 
 
@@ -61,49 +55,7 @@ class DiagnoseConfig:
     min_drop: float = 0.05
     base_params: tuple[str, ...] = ("mu",)
     max_iter: int = 15
-
-
-@dataclass
-class Candidate:
-    name: str
-    fit: FitResult
-    evaluation: dict
-    lr: float
-    dof: int
-    p_value: float
-    drop: float
-    significant: bool
-    signature: dict = field(default_factory=dict)
-    base_multistep: float = 1.0
-
-    def summary(self) -> dict:
-        return {
-            "name": self.name,
-            "significant": bool(self.significant),
-            "p_value": float(self.p_value),
-            "confidence": float(1.0 - self.p_value),
-            "lr_statistic": float(self.lr),
-            "dof": int(self.dof),
-            "heldout_error": float(self.evaluation["model_error"]),
-            "heldout_error_drop": float(self.drop),
-            "heldout_multistep_error": float(self.evaluation["multistep_error"]),
-            "heldout_multistep_error_drop": float(
-                1.0 - self.evaluation["multistep_error"] / self.base_multistep
-            ),
-            "params": self.fit.params_dict(only_effects=True),
-            "signature": self.signature,
-        }
-
-
-def error_drop(before: dict, after: dict) -> float:
-    """Fraction of the held-out model error (noise-corrected multi-step error) removed.
-
-    Both errors are corrected with the *smaller* of the two models' noise floors, so a model
-    cannot gain by amplifying the initial-state noise (a larger floor of its own)."""
-    floor2 = min(before["noise_floor"], after["noise_floor"]) ** 2
-    e0 = np.sqrt(max(before["multistep_error"] ** 2 - floor2, 0.0))
-    e1 = np.sqrt(max(after["multistep_error"] ** 2 - floor2, 0.0))
-    return float((e0 - e1) / e0) if e0 > 0 else 0.0
+    max_steps: int = 8
 
 
 def _steps(seconds: float, data: DriveData) -> int:
@@ -137,12 +89,15 @@ class Workbench:
                 f"training, {self.eval_starts.size} held-out); the workbench needs stretches "
                 f"of >= {cfg.eval_horizon_s:g} s at v >= 1 m/s in every time block"
             )
+        self.window_group = max(1, int(round(cfg.eval_horizon_s / cfg.eval_stride_s)))
+        self.n_fits = 0
         self._base: FitResult | None = None
         self._base_eval: dict | None = None
 
     # ------------------------------------------------------------------ fitting
     def fit_model(self, model: WorkbenchModel, warm: FitResult | None = None) -> FitResult:
         """Fit ``model`` on the training windows, warm-started from a nested fit."""
+        self.n_fits += 1
         theta0 = model.initial_theta() if warm is None else model.transfer(warm.theta, warm.model)
         candidates = []
         for e in model.effects:
@@ -186,17 +141,6 @@ class Workbench:
             with_free_run,
         )
 
-    def compare_nested(
-        self, ref: FitResult, ref_eval: dict, alt: FitResult, n_candidates: int
-    ) -> tuple[float, int, float, float, bool, dict]:
-        dof = alt.model.n_params - ref.model.n_params
-        lr = max(0.0, ref.n_eff * float(np.log(ref.cost / alt.cost)))
-        p = float(chi2.sf(lr, dof)) if dof > 0 else 1.0
-        ev = self.evaluate(alt, with_free_run=False)
-        drop = error_drop(ref_eval, ev)
-        sig = p < self.config.alpha / max(n_candidates, 1) and drop >= self.config.min_drop
-        return lr, dof, p, drop, sig, ev
-
     # ------------------------------------------------------------------ signatures
     def signatures(self, names: list[str]) -> dict[str, dict]:
         """How strongly the baseline's short-horizon residual of each effect's signature state
@@ -229,83 +173,54 @@ class Workbench:
             }
         return out
 
-    # ------------------------------------------------------------------ ranking
-    def rank(self, candidates: list[str] | None = None) -> dict:
-        """Fit and score each candidate; returns the JSON-ready ranking section."""
+    # ------------------------------------------------------------------ the loop
+    def at_floor(self, ev: dict) -> bool:
+        """Whether a model's held-out error is within the noise (no significant excess)."""
+        return excess_error_test(ev, self.data, self.window_group)["p_value"] >= self.config.alpha
+
+    def rank(self, candidates: list[str] | None = None, start: list[str] | None = None) -> dict:
+        """Forward selection with a backward check from ``start`` (see
+        :mod:`pcvfe_drake.workbench.selection`), then the verdict; JSON-ready."""
         names = known_effects() if candidates is None else [get_effect(c).name for c in candidates]
-        base, base_eval = self.baseline, self.baseline_eval
-        sigs = self.signatures(names)
-        results: list[Candidate] = []
-        for name in names:
-            alt = self.fit_model(self.base_model.with_effects(name), warm=base)
-            lr, dof, p, drop, sig, ev = self.compare_nested(base, base_eval, alt, len(names))
-            results.append(
-                Candidate(
-                    name,
-                    alt,
-                    ev,
-                    lr,
-                    dof,
-                    p,
-                    drop,
-                    sig,
-                    sigs.get(name, {}),
-                    base_eval["multistep_error"],
-                )
-            )
-        results.sort(key=lambda c: c.drop, reverse=True)
-        self.candidates = results
-        significant = [c for c in results if c.significant]
-        remaining = []
-        best = significant[0] if significant else None
-        if best is not None:
-            for c in significant[1:]:
-                both = self.fit_model(best.fit.model.with_effects(c.name), warm=best.fit)
-                lr, dof, p, drop, sig, _ = self.compare_nested(
-                    best.fit, best.evaluation, both, len(names)
-                )
-                remaining.append(
-                    {
-                        "name": c.name,
-                        "on_top_of": best.name,
-                        "significant": bool(sig),
-                        "p_value": p,
-                        "heldout_error_drop": drop,
-                    }
-                )
-        still = [r["name"] for r in remaining if r["significant"]]
-        final = best.evaluation if best is not None else base_eval
-        ratio = final["model_error"] / max(final["noise_floor"], 1e-12)
-        unexplained = ratio > UNEXPLAINED_RATIO
-        if best is not None:
-            verdict = (
-                f"missing effect: {best.name} (p = {best.p_value:.2g}, held-out model error "
-                f"-{best.drop:.0%})"
-            )
-            if still:
-                verdict += f"; significant structure remains after it: {', '.join(still)}"
-            elif unexplained:
-                verdict += (
-                    f"; its held-out error is still {ratio:.2g} x the noise floor: structure "
-                    "remains that no library effect explains"
-                )
-            else:
-                verdict += "; no significant structure remains (error at the noise floor)"
-        elif unexplained:
-            verdict = (
-                f"no candidate effect is significant, but the baseline's held-out error is "
-                f"{ratio:.2g} x the noise floor: the model misses something outside the library"
-            )
-        else:
-            verdict = "no candidate effect is significant: the baseline explains the data"
+        start = [get_effect(e).name for e in (start or [])]
+        names = [n for n in names if n not in start]
+        sel = run_selection(self, names, start, self.config.max_steps)
+        self.selection = sel
+        self.candidates = sel["_first"]
+        final, final_eval = sel["_final"], sel["_final_eval"]
+        self.final_fit, self.final_eval = final, final_eval
+        alpha = self.config.alpha
+        verdict = final_verdict(self, final, final_eval, sel["final_effects"], alpha)
+        base_floor = self.at_floor(self.baseline_eval)
+        ranked = [t.summary(base_floor if not start else False, alpha) for t in sel["_first"]]
+        chosen = [s["name"] for s in sel["selected"]]
+        last_round = sel["rounds"][-1]["ranked"] if len(sel["rounds"]) > 1 else []
         return {
-            "method": METHOD.format(alpha=self.config.alpha, min_drop=self.config.min_drop),
-            "ranked_effects": [c.summary() for c in results],
-            "best": significant[0].name if significant else None,
-            "remaining": remaining,
-            "remaining_significant": still,
-            "unexplained_structure": bool(unexplained or still),
-            "final_error_to_noise_floor": float(ratio),
+            "method": METHOD.format(alpha=alpha, min_drop=self.config.min_drop),
+            "ranked_effects": ranked,
+            "selected": sel["selected"],
+            "selection": {k: v for k, v in sel.items() if not k.startswith("_")},
+            "best": chosen[0] if chosen else None,
+            "remaining": [
+                {
+                    "name": r["name"],
+                    "on_top_of": " + ".join(sel["final_effects"]) or "baseline",
+                    "significant": r["significant"],
+                    "p_value": r["p_value"],
+                    "heldout_error_drop": r["heldout_error_drop"],
+                }
+                for r in last_round
+            ],
+            "remaining_significant": chosen[1:],
+            "final": {
+                "effects": sel["final_effects"],
+                "params": final.params_dict(),
+                "heldout_error": final_eval["model_error"],
+                "heldout_multistep_error": final_eval["multistep_error"],
+                "noise_floor": final_eval["noise_floor"],
+            },
+            "unexplained_structure": verdict["kind"] == "outside_library",
+            "final_error_to_noise_floor": verdict["error_to_noise_floor"],
             "verdict": verdict,
         }
 

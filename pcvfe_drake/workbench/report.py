@@ -17,6 +17,7 @@ import numpy as np
 from pcvfe_drake.vehicle.single_track import STATE_NAMES
 from pcvfe_drake.workbench.compare import public
 from pcvfe_drake.workbench.data import DriveData
+from pcvfe_drake.workbench.figures import all_figures
 from pcvfe_drake.workbench.ranking import DiagnoseConfig, Workbench
 from pcvfe_drake.workbench.residuals import breakdowns, whiteness
 
@@ -45,7 +46,17 @@ def diagnose(
         "whiteness": whiteness(base.model, base.theta, data, wb.config.n_blocks),
         "breakdowns": breakdowns(wb.baseline_eval["_err"], wb.eval_starts, data),
     }
-    report.update(wb.rank(candidates))
+    report.update(wb.rank(candidates, start=add))
+    final = wb.final_fit
+    report["final"]["residuals"] = {
+        "whiteness": whiteness(final.model, final.theta, data, wb.config.n_blocks),
+        "breakdowns": breakdowns(wb.final_eval["_err"], wb.eval_starts, data),
+    }
+    report["selection_errors"] = [
+        wb.selection["rounds"][0]["ranked"][0]["heldout_error_before"]
+        if wb.selection["rounds"]
+        else wb.final_eval["model_error"]
+    ]
     if add:
         added = wb.add(add)
         fit = wb.added_fit
@@ -58,92 +69,16 @@ def diagnose(
     return report, wb
 
 
-# ---------------------------------------------------------------------- plots
-def _plots(report: dict, wb: Workbench, folder: Path) -> list[str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    names = []
-    data = wb.data
-    after_fit = getattr(wb, "added_fit", None)
-    after_eval = getattr(wb, "added_eval", None)
-    if after_fit is None and report.get("best"):
-        best = next(c for c in wb.candidates if c.name == report["best"])
-        after_fit, after_eval = best.fit, wb.evaluate(best.fit)
-    label_after = "+ " + " + ".join(after_fit.model.effect_names) if after_fit else ""
-
-    # 1. measured vs free-run overlays
-    fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
-    for ax, state in zip(axes, ("v", "psi_dot", "beta"), strict=True):
-        i = STATE_NAMES.index(state)
-        for k, (idx, sim) in enumerate(wb.baseline_eval["_free_run"]):
-            ax.plot(data.t[idx], data.x[idx, i], "k", lw=0.8, label="measured" if k == 0 else None)
-            ax.plot(data.t[idx], sim[:, i], "C0", lw=0.8, label="baseline" if k == 0 else None)
-        if after_eval is not None:
-            for k, (idx, sim) in enumerate(after_eval["_free_run"]):
-                ax.plot(data.t[idx], sim[:, i], "C3", lw=0.8, label=label_after if k == 0 else None)
-        ax.set_ylabel(state)
-    axes[0].legend(loc="upper right", fontsize=8)
-    axes[-1].set_xlabel("t [s] (held-out blocks, free run)")
-    fig.tight_layout()
-    fig.savefig(folder / "overlay.png", dpi=80)
-    plt.close(fig)
-    names.append("overlay.png")
-
-    # 2. residual autocorrelation, before / after side by side
-    cols = 2 if after_fit is not None else 1
-    fig, axes = plt.subplots(1, cols, figsize=(6 * cols, 3.5), squeeze=False)
-    sets = [("baseline", report["baseline"]["residuals"]["whiteness"])]
-    if after_fit is not None:
-        w = report.get("added", {}).get("residuals", {}).get("whiteness")
-        if w is None:
-            from pcvfe_drake.workbench.residuals import whiteness as _wh
-
-            w = _wh(after_fit.model, after_fit.theta, data, wb.config.n_blocks)
-        sets.append((label_after, w))
-    for ax, (title, w) in zip(axes[0], sets, strict=True):
-        for name, st in w["states"].items():
-            ax.plot(range(1, len(st["autocorr"]) + 1), st["autocorr"], lw=1, label=name)
-        ax.axhspan(-w["band_99"], w["band_99"], color="0.85")
-        ax.set_title(f"one-step residual autocorrelation: {title}", fontsize=9)
-        ax.set_xlabel("lag [samples]")
-        ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(folder / "residual_autocorr.png", dpi=80)
-    plt.close(fig)
-    names.append("residual_autocorr.png")
-
-    # 3. ranking
-    ranked = report["ranked_effects"]
-    fig, ax = plt.subplots(figsize=(7, 3.5))
-    drops = [max(r["heldout_error_drop"], -0.1) for r in ranked]
-    colors = ["C2" if r["significant"] else "0.6" for r in ranked]
-    ax.barh([r["name"] for r in ranked][::-1], drops[::-1], color=colors[::-1])
-    ax.set_xlabel("held-out model error drop (green: significant)")
-    fig.tight_layout()
-    fig.savefig(folder / "ranking.png", dpi=80)
-    plt.close(fig)
-    names.append("ranking.png")
-
-    # 4. error by operating regime, before / after
-    fig, axes = plt.subplots(1, 3, figsize=(12, 3.2))
-    for ax, key in zip(axes, ("speed", "lateral_accel", "drive_mode"), strict=True):
-        rows = report["baseline"]["residuals"]["breakdowns"][key]
-        xs = np.arange(len(rows))
-        ax.bar(xs - 0.2, [r["rms"] for r in rows], 0.4, label="baseline")
-        if after_eval is not None:
-            after = breakdowns(after_eval["_err"], wb.eval_starts, data)[key]
-            ax.bar(xs + 0.2, [r["rms"] for r in after], 0.4, label=label_after)
-        ax.set_xticks(xs, [r["bin"] for r in rows], rotation=20, fontsize=7)
-        ax.set_title(f"whitened multi-step RMS by {key}", fontsize=9)
-    axes[0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(folder / "breakdown.png", dpi=80)
-    plt.close(fig)
-    names.append("breakdown.png")
-    return names
+def _fmt_params(params: dict) -> str:
+    out = []
+    for n, p in params.items():
+        if p.get("at_bound"):
+            out.append(f"{n} = {p['value']:.4g} {p['unit']} (at a bound)")
+        elif p["std"] is None or not np.isfinite(p["std"]):
+            out.append(f"{n} = {p['value']:.4g} {p['unit']}")
+        else:
+            out.append(f"{n} = {p['value']:.4g} &plusmn; {p['std']:.2g} {p['unit']}")
+    return ", ".join(out)
 
 
 def _table(rows: list[dict], keys: list[str]) -> str:
@@ -154,17 +89,11 @@ def _table(rows: list[dict], keys: list[str]) -> str:
         for k in keys:
             v = r.get(k, "")
             if isinstance(v, float):
-                v = f"{v:.4g}"
+                cells.append(f"<td>{v:.4g}</td>")
             elif isinstance(v, dict):
-                v = ", ".join(
-                    f"{n} = {p['value']:.4g} &plusmn; {p['std']:.2g} {p['unit']}"
-                    if isinstance(p, dict)
-                    else f"{n}: {p}"
-                    for n, p in v.items()
-                )
-                cells.append(f"<td>{v}</td>")
-                continue
-            cells.append(f"<td>{html.escape(str(v))}</td>")
+                cells.append(f"<td>{_fmt_params(v)}</td>")
+            else:
+                cells.append(f"<td>{html.escape(str(v))}</td>")
         body += "<tr>" + "".join(cells) + "</tr>"
     return f"<table><tr>{head}</tr>{body}</table>"
 
@@ -173,61 +102,75 @@ def _html(report: dict, pngs: list[str], folder: Path) -> str:
     imgs = ""
     for name in pngs:
         b64 = base64.b64encode((folder / name).read_bytes()).decode()
-        imgs += f'<h3>{html.escape(name)}</h3><img src="data:image/png;base64,{b64}"/>'
+        imgs += (
+            f'<figure><img alt="{html.escape(name)}" src="data:image/png;base64,{b64}"/>'
+            f"<figcaption>{html.escape(name)}</figcaption></figure>"
+        )
     base = report["baseline"]
+    verdict = report["verdict"]
     fit_rows = [{"state": k, "fit %": v} for k, v in base["fit_percent"].items()]
+    path = [
+        {
+            "step": i + 1,
+            "action": s["action"],
+            "effect": s["name"],
+            "p": s["p_value"],
+            "error before": s["heldout_error_before"],
+            "error after": s["heldout_error"],
+            "note": s.get("drop_note", ""),
+            "params": s.get("params", {}),
+        }
+        for i, s in enumerate(report["selection"]["path"])
+    ]
     ranked = [
         {**r, "signature": r.get("signature", {}).get("text", "")} for r in report["ranked_effects"]
     ]
-    tables = ""
-    sections = [("baseline", base["residuals"])]
-    if "added" in report:
-        sections.append(
-            ("+ " + " + ".join(report["added"]["effects"]), report["added"]["residuals"])
-        )
-    for title, res in sections:
-        white = [
-            {"state": k, "fraction of lags 2-25 outside 99% band": v["fraction_outside_band"]}
-            for k, v in res["whiteness"]["states"].items()
-        ]
-        tables += f"<h3>Residual whiteness, {html.escape(title)}</h3>"
-        tables += _table(white, ["state", "fraction of lags 2-25 outside 99% band"])
-        for key, rows in res["breakdowns"].items():
-            tables += (
-                f"<h4>{html.escape(title)}: whitened multi-step RMS by {html.escape(key)}</h4>"
-            )
-            tables += _table(rows, ["bin", "n", "rms"])
-    added = ""
-    if "added" in report:
-        a = report["added"]
-        added = (
-            f"<h2>Added: {html.escape(', '.join(a['effects']))}</h2>"
-            f"<p>held-out model error {base['heldout_error']:.4g} &rarr; {a['heldout_error']:.4g}"
-            f" (drop {a['error_drop']:.1%})</p>" + _table([{"params": a["params"]}], ["params"])
-        )
+    tests = [
+        {"test": t["what"], "p": t["p_value"], "threshold": t["threshold"], "fails": t["failed"]}
+        for t in verdict["tests"]
+    ]
+    final = report["final"]
+    where = verdict["where"] or "-"
     return f"""<!DOCTYPE html><html><head><meta charset="utf-8"><title>pcvfe diagnose</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
-td,th{{border:1px solid #ccc;padding:3px 6px;font-size:13px}}img{{max-width:100%}}</style></head>
+td,th{{border:1px solid #ccc;padding:3px 6px;font-size:13px}}img{{max-width:100%}}
+.verdict{{font-size:17px;padding:8px;border-left:6px solid #888}}</style></head>
 <body><h1>Model-discrepancy report</h1>
 <p>log {html.escape(str(report["log"]))}, {report["duration_s"]:.1f} s at
 {report["rate_hz"]:.3g} Hz, vehicle {html.escape(report["vehicle"])}</p>
-<h2>Verdict</h2><p><b>{html.escape(report["verdict"])}</b></p>
+<h2>Verdict: <span id="verdict-kind">{html.escape(verdict["kind"])}</span></h2>
+<p class="verdict" id="verdict">{html.escape(verdict["text"])}</p>
+<p id="where">Where: {html.escape(where)}</p>
+<p>Tests of the final model (alpha {verdict["alpha"]:g}: half for the error test, half
+shared by the residual tests):</p>
+{_table(tests, ["test", "p", "threshold", "fails"])}
+<h2>The loop</h2>
+{_table(path, ["step", "action", "effect", "p", "error before", "error after", "note", "params"])}
+<p>Final model: {html.escape(" + ".join(final["effects"]) or "baseline")}; held-out model error
+{final["heldout_error"]:.4g}, noise floor {final["noise_floor"]:.4g}.
+{_fmt_params(final["params"])}</p>
 <p>Significance: {html.escape(report["method"])}</p>
 <h2>Baseline</h2><p>held-out model error {base["heldout_error"]:.4g} (multi-step
 {base["heldout_multistep_error"]:.4g}, noise floor {base["noise_floor"]:.4g}); fit % at
 {html.escape(base["fit_percent_horizon"])} ahead:</p>
 {_table(fit_rows, ["state", "fit %"])}
-{_table([{"params": base["params"]}], ["params"])}
-<h2>Ranked candidate effects</h2>
+<h2>First round: each effect alone</h2>
 {
         _table(
             ranked,
-            ["name", "significant", "p_value", "heldout_error_drop", "params", "signature"],
+            [
+                "name",
+                "significant",
+                "p_value",
+                "heldout_error_drop",
+                "drop_p_value",
+                "drop_note",
+                "params",
+                "signature",
+            ],
         )
     }
-{added}
-<h2>Plots</h2>{imgs}
-<h2>Where the model fails</h2>{tables}</body></html>"""
+<h2>Where the model fails</h2>{imgs}</body></html>"""
 
 
 def write_report(report: dict, wb: Workbench, out_dir: str | Path) -> Path:
@@ -237,7 +180,7 @@ def write_report(report: dict, wb: Workbench, out_dir: str | Path) -> Path:
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     tmp.chmod(0o755)
     try:
-        pngs = _plots(report, wb, tmp)
+        pngs = all_figures(report, wb, tmp)
         (tmp / "report.json").write_text(json.dumps(to_jsonable(report), indent=1))
         (tmp / "report.html").write_text(_html(report, pngs, tmp))
         if out.exists():

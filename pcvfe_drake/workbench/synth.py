@@ -52,7 +52,11 @@ class Truth:
         mu_peak: peak friction of a brush tire (inf: linear tire).
         grade: road rise per metre along world x and y [-].
         p_max_kw: drive power limit [kW] (inf: none).
-        steer_offset: wheel angle minus measured angle [rad].
+        steer_offset: steering-encoder offset: wheel angle minus measured angle [rad].
+        gyro_bias: yaw-rate gyro bias (measured minus true) [rad/s].
+        speed_scale: speed sensor reading / true speed [-].
+        mu_speed_slope: friction falls by this fraction per m/s above 15 m/s [s/m].
+        mu_load_sens: friction falls by this fraction per unit relative axle-load increase.
     """
 
     mu: float | None = None
@@ -64,6 +68,10 @@ class Truth:
     grade: tuple[float, float] = (0.0, 0.0)
     p_max_kw: float = math.inf
     steer_offset: float = 0.0
+    gyro_bias: float = 0.0
+    speed_scale: float = 1.0
+    mu_speed_slope: float = 0.0
+    mu_load_sens: float = 0.0
 
 
 PLANTED: dict[str, tuple[Truth, str, float]] = {
@@ -75,11 +83,17 @@ PLANTED: dict[str, tuple[Truth, str, float]] = {
     "grade": (Truth(grade=(0.03, -0.02)), "gx", 0.03),
     "motor_power_limit": (Truth(p_max_kw=40.0), "P_max", 40.0),
     "steering_offset": (Truth(steer_offset=0.01), "d0", 0.01),
+    "gyro_bias": (Truth(gyro_bias=0.005), "b", 0.005),
+    "speed_scale": (Truth(speed_scale=1.03), "k", 1.03),
+    "friction_speed": (Truth(mu_speed_slope=0.03), "k_v", 0.03),
+    "friction_load": (Truth(mu_load_sens=0.5), "k_z", 0.5),
 }
 """Realistic planted magnitudes per effect: (truth, the parameter's name, its planted value).
 Ford Escort class car: CdA 0.75 m^2 (Cd 0.36 x 2.1 m^2), c_rr 0.015, steering lag 0.15 s,
 powertrain dead time 0.17 s, peak friction 0.8 (damp asphalt), 3 % / -2 % grade,
-40 kW drive power, 0.01 rad (0.6 deg) steering offset."""
+40 kW drive power, 0.01 rad (0.6 deg) steering-encoder offset, 0.005 rad/s (0.3 deg/s) gyro
+bias, a 3 % speed-sensor scale error, friction falling 3 % per m/s of speed (wet asphalt), a load
+sensitivity of 0.5."""
 
 
 LATERAL_PATTERN_MPS2 = np.array([1.0, 5.5, 2.5, 6.0, 3.5, 5.0])
@@ -88,6 +102,10 @@ HEADING_RATE_RADPS = 0.07
 """Mean yaw rate of the driving program [rad/s]: one full turn of the heading in ~90 s."""
 COUNTER_STEER = 1.0
 """Steering angle [rad] the driver adds per radian of side slip (steering into a slide)."""
+BACK_OFF_SLIP_RAD = 0.06
+BRAKE_CIRCLE_MPS2 = 6.0
+"""The driver keeps braking and lateral acceleration inside a circle of this radius [m/s^2]."""
+"""Side slip [rad] above which the driver reduces the steering sweep (to 20 % at +0.048 rad)."""
 
 
 @dataclass(frozen=True)
@@ -147,6 +165,8 @@ def driver_commands(vp: VehicleParams, ex: Excitation, k: int, x: np.ndarray):
     # like a driver, corner less while braking hard (avoids spinning a saturated car)
     braking = (~ex.coast[k]) & (ex.v_ref[k] < v - 2.0)
     amp = np.where(braking, 0.5 * amp, amp)
+    # and back off the sweep when the car starts to slide (|beta| above 0.06 rad)
+    amp = amp * np.clip(1.0 - (np.abs(x[:, 6]) - BACK_OFF_SLIP_RAD) / 0.06, 0.2, 1.0)
     # a slow turn (HEADING_RATE) on top, so that the heading sweeps through all directions,
     # and a counter-steer: the wheels turn toward the direction of travel (psi + beta), as a
     # driver catching a slide
@@ -157,7 +177,10 @@ def driver_commands(vp: VehicleParams, ex: Excitation, k: int, x: np.ndarray):
     )
     d_rate = amp * 2.0 * np.pi * ex.freq_hz[k] * np.cos(ex.phase[k])
     steer = np.clip(d_rate + 3.0 * (d_des - x[:, 2]), -steer_limit, steer_limit)
-    acc = np.where(ex.coast[k], 0.0, np.clip(0.8 * (ex.v_ref[k] - v), -3.5, 2.5))
+    # brake within a friction circle: less braking while cornering hard
+    lat = np.abs(v * x[:, 5])
+    brake_max = np.clip(np.sqrt(np.maximum(BRAKE_CIRCLE_MPS2**2 - lat**2, 0.0)), 1.0, 3.5)
+    acc = np.where(ex.coast[k], 0.0, np.clip(0.8 * (ex.v_ref[k] - v), -brake_max, 2.5))
     return steer, acc
 
 
@@ -202,22 +225,31 @@ def _truth_rates(vp, tr, s, steer_cmd, acc_cmd):
     vs = np.maximum(v, 0.1)
     power_cap = 1000.0 * tr["p_max_kw"] / (vp.m * np.maximum(v, 0.5))
     acc = np.where(acc > 0, np.minimum(acc, power_cap), acc)
-    wheel = np.where(tr["steer_tau"] > 0, delta_w, delta) + tr["steer_offset"]
+    wheel = np.where(tr["steer_tau"] > 0, delta_w, delta)
     wheelbase = vp.lf + vp.lr
-    fzf = vp.m * (vp.g * vp.lr - acc * vp.h) / wheelbase
-    fzr = vp.m * (vp.g * vp.lf + acc * vp.h) / wheelbase
-    alpha_f = wheel - beta - vp.lf * r / vs
-    alpha_r = -beta + vp.lr * r / vs
-    fyf = _brush(alpha_f, fzf, tr["mu"] * vp.C_Sf * fzf, tr["mu_peak"])
-    fyr = _brush(alpha_r, fzr, tr["mu"] * vp.C_Sr * fzr, tr["mu_peak"])
     drag_force = 0.5 * RHO_AIR_KGPM3 * tr["CdA"] * v * np.abs(v)
     resist = vp.m * vp.g * (tr["c_rr"] * np.tanh(v / 0.2))
     slope = vp.m * vp.g * (tr["gx"] * np.cos(psi) + tr["gy"] * np.sin(psi))
+    # the load moves with the car's real longitudinal acceleration (resistances included)
+    a_x = acc - (drag_force + resist + slope) / vp.m
+    fzf0 = vp.m * vp.g * vp.lr / wheelbase
+    fzr0 = vp.m * vp.g * vp.lf / wheelbase
+    fzf = fzf0 - vp.m * a_x * vp.h / wheelbase
+    fzr = fzr0 + vp.m * a_x * vp.h / wheelbase
+    alpha_f = wheel - beta - vp.lf * r / vs
+    alpha_r = -beta + vp.lr * r / vs
+    mu_v = tr["mu"] * (1.0 - tr["mu_speed_slope"] * (v - 15.0))
+    mu_f = mu_v * (1.0 - tr["mu_load_sens"] * (fzf / fzf0 - 1.0))
+    mu_r = mu_v * (1.0 - tr["mu_load_sens"] * (fzr / fzr0 - 1.0))
+    peak_f = tr["mu_peak"] * mu_f / tr["mu"]
+    peak_r = tr["mu_peak"] * mu_r / tr["mu"]
+    fyf = _brush(alpha_f, fzf, mu_f * vp.C_Sf * fzf, peak_f)
+    fyr = _brush(alpha_r, fzr, mu_r * vp.C_Sr * fzr, peak_r)
     out = np.empty_like(s)
     out[:, 0] = v * np.cos(psi + beta)
     out[:, 1] = v * np.sin(psi + beta)
     out[:, 2] = steer
-    out[:, 3] = acc - (drag_force + resist + slope) / vp.m
+    out[:, 3] = a_x
     out[:, 4] = r
     out[:, 5] = (vp.lf * fyf - vp.lr * fyr) / vp.I_z
     out[:, 6] = (fyf + fyr) / (vp.m * vs) - r
@@ -261,7 +293,8 @@ def simulate_truths(
         "gx": col(lambda t: t.grade[0]),
         "gy": col(lambda t: t.grade[1]),
         "p_max_kw": col(lambda t: t.p_max_kw),
-        "steer_offset": col(lambda t: t.steer_offset),
+        "mu_speed_slope": col(lambda t: t.mu_speed_slope),
+        "mu_load_sens": col(lambda t: t.mu_load_sens),
     }
     delay = col(lambda t: t.accel_delay)
     s = np.zeros((b, 8))
@@ -292,7 +325,7 @@ def simulate_truths(
         if not np.all(np.isfinite(s)):
             raise RuntimeError(f"truth simulation diverged at t={k * dt:.2f} s")
     return [
-        _to_log(states[:, i], steer_log[:, i], acc_log[:, i], dt, noise, seed + 1 + i)
+        _to_log(states[:, i], steer_log[:, i], acc_log[:, i], dt, noise, seed + 1 + i, truths[i])
         for i in range(b)
     ]
 
@@ -331,10 +364,14 @@ def simulate_multibody(
     return _to_log(states, steer_log, acc_log, dt, noise, seed + 101)
 
 
-def _to_log(states, steer, acc, dt, noise, seed) -> pd.DataFrame:
+def _to_log(states, steer, acc, dt, noise, seed, truth: Truth | None = None) -> pd.DataFrame:
     n = states.shape[0]
     t = np.arange(n) * dt
     x = states.copy()
+    if truth is not None:  # sensor errors: what the sensors report about the true state
+        x[:, 2] = x[:, 2] - truth.steer_offset
+        x[:, 3] = x[:, 3] * truth.speed_scale
+        x[:, 5] = x[:, 5] + truth.gyro_bias
     if noise is not None:
         rng = np.random.default_rng(seed)
         x = x + rng.standard_normal(x.shape) * noise.sigma
