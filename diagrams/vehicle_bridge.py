@@ -9,7 +9,9 @@ rehearsed against it in another process (hardware-in-the-loop rehearsal)::
     PCVFE_ACTUATION -> actuation_subscriber -> actuation_receiver -> station.actuation
 
 The ``actuation_receiver`` brakes the car when commands stop arriving (a real car's low-level
-controller does the same). Exported outputs: ``true_state`` (the plant's state), ``true_mu``,
+controller does the same). The state it publishes is the simulated station's ``state``: what
+the car's sensors report under the scenario's ``sensing``. Exported outputs: ``true_state``
+(the plant's state), ``true_mu``,
 ``true_terrain`` (the truth, for the bridge's own log) and ``actuation_status``.
 """
 
@@ -91,7 +93,9 @@ def MakeVehicleBridge(scenario: Scenario, *, lcm_buses: LcmBuses | None = None) 
     builder.Connect(station.GetOutputPort("state"), receiver.GetInputPort("state"))
     builder.Connect(receiver.GetOutputPort("actuation"), station.GetInputPort("actuation"))
 
-    builder.ExportOutput(station.GetOutputPort("state"), "true_state")
+    # The station's `state` is what the car's sensors report (the scenario's sensing); the log of
+    # what the car really did is its sim-only true state.
+    builder.ExportOutput(station.GetOutputPort("true_state"), "true_state")
     builder.ExportOutput(station.GetOutputPort("true_mu"), "true_mu")
     builder.ExportOutput(station.GetOutputPort("true_terrain"), "true_terrain")
     builder.ExportOutput(receiver.GetOutputPort("status"), "actuation_status")

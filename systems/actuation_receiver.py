@@ -8,13 +8,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, Context, EventStatus, LeafSystem, State
 
-from pcvfe_drake.hardware.watchdog import (
-    StreamStatus,
-    check_message,
-    is_new,
-    note_condition,
-    stream_condition,
-)
+from pcvfe_drake.hardware.watchdog import StreamLimits, StreamStatus, is_new, require_positive
 from pcvfe_drake.lcmtypes import lcmt_vehicle_actuation
 from pcvfe_drake.vehicle.single_track import NU, NX, V
 
@@ -50,14 +44,8 @@ class ActuationReceiver(LeafSystem):
 
     def __init__(self, *, period_s: float, timeout_s: float, brake_decel_mps2: float) -> None:
         super().__init__()
-        for name, value in (
-            ("period_s", period_s),
-            ("timeout_s", timeout_s),
-            ("brake_decel_mps2", brake_decel_mps2),
-        ):
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"ActuationReceiver: {name} must be > 0, got {value!r}")
-        self.timeout_s = float(timeout_s)
+        require_positive("ActuationReceiver", period_s=period_s, brake_decel_mps2=brake_decel_mps2)
+        self.limits = StreamLimits(timeout_s)
         self.brake_decel_mps2 = float(brake_decel_mps2)
         self._message_port = self.DeclareAbstractInputPort(
             "message", AbstractValue.Make(lcmt_vehicle_actuation())
@@ -83,17 +71,15 @@ class ActuationReceiver(LeafSystem):
         if is_new(status, msg.utime):
             u = np.array([msg.steer_rate, msg.accel], dtype=float)
             problem = "" if np.all(np.isfinite(u)) else "non_finite"
-            status, accepted = check_message(
-                status, t, msg.utime, problem=problem, max_delay_s=math.inf
-            )
+            status, accepted = self.limits.check(status, t, msg.utime, problem)
             if accepted:
                 state.get_mutable_discrete_state(self._u_index).set_value(u)
-        status = note_condition(status, stream_condition(status, t, self.timeout_s))
+        status = self.limits.settle(status, t)
         state.get_mutable_abstract_state(self._status_index).set_value(status)
         return EventStatus.Succeeded()
 
     def _calc_actuation(self, context: Context, output: BasicVector) -> None:
-        if stream_condition(self._status(context), context.get_time(), self.timeout_s) == "ok":
+        if self.limits.condition(self._status(context), context.get_time()) == "ok":
             output.SetFromVector(context.get_discrete_state(self._u_index).value())
             return
         v = float(self._state_port.Eval(context)[V])

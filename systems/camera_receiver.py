@@ -3,22 +3,13 @@ station's image."""
 
 from __future__ import annotations
 
-import math
-import time
-
 from drake import lcmt_image_array
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import Context, EventStatus, LeafSystem, State
 from pydrake.systems.sensors import ImageRgba8U
 
 from pcvfe_drake.hardware.image_messages import ImageMessageError, decode_image_array, image_utime
-from pcvfe_drake.hardware.watchdog import (
-    StreamStatus,
-    check_message,
-    is_new,
-    note_condition,
-    stream_condition,
-)
+from pcvfe_drake.hardware.watchdog import StreamLimits, StreamStatus, is_new, require_positive
 from pcvfe_drake.systems.texture_camera import to_drake_image
 
 
@@ -66,16 +57,8 @@ class CameraReceiver(LeafSystem):
         wall_clock: bool = False,
     ) -> None:
         super().__init__()
-        for name, value in (
-            ("period_s", period_s),
-            ("timeout_s", timeout_s),
-            ("max_delay_s", max_delay_s),
-        ):
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"CameraReceiver: {name} must be > 0 s, got {value!r}")
-        self.timeout_s = float(timeout_s)
-        self.max_delay_s = float(max_delay_s)
-        self.wall_clock = bool(wall_clock)
+        require_positive("CameraReceiver", period_s=period_s)
+        self.limits = StreamLimits(timeout_s, max_delay_s, wall_clock)
         self._blank = ImageRgba8U(int(width_px), int(height_px))
         self._message_port = self.DeclareAbstractInputPort(
             "message", AbstractValue.Make(lcmt_image_array())
@@ -106,22 +89,15 @@ class CameraReceiver(LeafSystem):
                 rgb = decode_image_array(msg)
             except ImageMessageError:
                 problem = "malformed"
-            status, accepted = check_message(
-                status,
-                t,
-                utime,
-                problem=problem,
-                max_delay_s=self.max_delay_s,
-                arrival_s=time.monotonic() if self.wall_clock else None,
-            )
+            status, accepted = self.limits.check(status, t, utime, problem)
             if accepted:
                 state.get_mutable_abstract_state(self._frame_index).set_value(to_drake_image(rgb))
-        status = note_condition(status, stream_condition(status, t, self.timeout_s))
+        status = self.limits.settle(status, t)
         state.get_mutable_abstract_state(self._status_index).set_value(status)
         return EventStatus.Succeeded()
 
     def _calc_image(self, context: Context, output: AbstractValue) -> None:
-        if stream_condition(self._status(context), context.get_time(), self.timeout_s) == "ok":
+        if self.limits.condition(self._status(context), context.get_time()) == "ok":
             output.set_value(context.get_abstract_state(self._frame_index).get_value())
         else:
             output.set_value(self._blank)

@@ -3,20 +3,11 @@ vector."""
 
 from __future__ import annotations
 
-import math
-import time
-
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, Context, EventStatus, LeafSystem, State
 
-from pcvfe_drake.hardware.watchdog import (
-    StreamStatus,
-    check_message,
-    is_new,
-    note_condition,
-    stream_condition,
-)
+from pcvfe_drake.hardware.watchdog import StreamLimits, StreamStatus, is_new, require_positive
 from pcvfe_drake.lcmtypes import lcmt_vehicle_state
 from pcvfe_drake.vehicle.single_track import NX
 
@@ -56,16 +47,8 @@ class VehicleStateReceiver(LeafSystem):
         self, *, period_s: float, timeout_s: float, max_delay_s: float, wall_clock: bool = False
     ) -> None:
         super().__init__()
-        for name, value in (
-            ("period_s", period_s),
-            ("timeout_s", timeout_s),
-            ("max_delay_s", max_delay_s),
-        ):
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"VehicleStateReceiver: {name} must be > 0 s, got {value!r}")
-        self.timeout_s = float(timeout_s)
-        self.max_delay_s = float(max_delay_s)
-        self.wall_clock = bool(wall_clock)
+        require_positive("VehicleStateReceiver", period_s=period_s)
+        self.limits = StreamLimits(timeout_s, max_delay_s, wall_clock)
         self._message_port = self.DeclareAbstractInputPort(
             "message", AbstractValue.Make(lcmt_vehicle_state())
         )
@@ -99,25 +82,18 @@ class VehicleStateReceiver(LeafSystem):
                 problem = "non_finite"
             elif not msg.valid:
                 problem = "invalid"
-            status, accepted = check_message(
-                status,
-                t,
-                msg.utime,
-                problem=problem,
-                max_delay_s=self.max_delay_s,
-                arrival_s=time.monotonic() if self.wall_clock else None,
-            )
+            status, accepted = self.limits.check(status, t, msg.utime, problem)
             if accepted:
                 state.get_mutable_discrete_state(self._state_index).set_value(
                     np.concatenate([x, [float(msg.utime)]])
                 )
-        status = note_condition(status, stream_condition(status, t, self.timeout_s))
+        status = self.limits.settle(status, t)
         state.get_mutable_abstract_state(self._status_index).set_value(status)
         return EventStatus.Succeeded()
 
     def _calc_state(self, context: Context, output: BasicVector) -> None:
         status = self._status(context)
-        if stream_condition(status, context.get_time(), self.timeout_s) == "ok":
+        if self.limits.condition(status, context.get_time()) == "ok":
             output.SetFromVector(context.get_discrete_state(self._state_index).value()[:NX])
         else:
             output.SetFromVector(np.full(NX, np.nan))

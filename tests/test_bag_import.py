@@ -100,11 +100,11 @@ def write_bag(path, storage):
         rng = np.random.default_rng(0)
         for k in range(30):  # camera 10 Hz, bgr8
             t = 0.1 * k + 0.003
-            rgb = rng.integers(0, 256, size=(12, 16, 3), dtype=np.uint8)
+            rgb = rng.integers(0, 256, size=(24, 32, 3), dtype=np.uint8)
             frames.append((t, rgb))
             img = T[msgs["img"]](
-                header=header(T0 + t), height=12, width=16, encoding="bgr8", is_bigendian=0,
-                step=48, data=np.ascontiguousarray(rgb[:, :, ::-1]).reshape(-1),
+                header=header(T0 + t), height=24, width=32, encoding="bgr8", is_bigendian=0,
+                step=96, data=np.ascontiguousarray(rgb[:, :, ::-1]).reshape(-1),
             )  # fmt: skip
             events.append((t, "img", img))
         for t, kind, msg in sorted(events, key=lambda e: e[0]):
@@ -157,3 +157,17 @@ def test_mapping_errors_name_the_field(tmp_path):
     other.odometry.topic = "/odom"
     with pytest.raises(ValueError, match="no odometry topic '/odom'"):
         import_bag(tmp_path / "bag", other, tmp_path / "x.csv")
+
+
+def test_fit_and_replay_work_on_an_imported_bag(tmp_path, capsys):
+    write_bag(tmp_path / "bag", StoragePlugin.MCAP)
+    log = tmp_path / "drive.csv"
+    assert main(["import-bag", str(tmp_path / "bag"), "--out", str(log)]) == 0
+    assert main(["fit", str(log), "--vehicle", "roboracer", "--json"]) == 0
+    out = tmp_path / "replayed"
+    assert main(["replay", str(log), "--scenario", "roboracer", "--out", str(out),
+                 "--no-progress"]) == 0  # fmt: skip
+    replayed = read_drive_log(out / "drive_log.csv")
+    assert replayed["mu_true"].isna().all()  # a real car's log has no truth
+    summary = (out / "summary.json").read_text()
+    assert '"ground_truth": false' in summary

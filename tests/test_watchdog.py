@@ -91,3 +91,18 @@ def test_a_sender_clock_slightly_slower_than_the_station_is_not_late():
     # A 60 ms hiccup still is late.
     s, ok = feed(s, 10.061 + 0.001, int(round(10.0 * 0.98 * 1e6)))
     assert not ok and s.last_rejection == "late"
+
+
+def test_stream_limits_check_and_settle_and_name_bad_values():
+    from pcvfe_drake.hardware.watchdog import StreamLimits, require_positive
+
+    limits = StreamLimits(timeout_s=0.1, max_delay_s=0.05)
+    s, ok = limits.check(StreamStatus(), 1.0, 1_000_000)
+    assert ok and limits.condition(s, 1.05) == "ok"
+    s = limits.settle(s, 1.0)
+    assert limits.settle(s, 1.2).timeouts == 1
+    assert StreamLimits(timeout_s=0.1).max_delay_s == math.inf
+    with pytest.raises(ValueError, match="Rx: period_s must be a finite number > 0"):
+        require_positive("Rx", period_s=0.0)
+    with pytest.raises(ValueError, match="timeout_s"):
+        StreamLimits(timeout_s=float("nan"))

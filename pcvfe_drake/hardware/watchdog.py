@@ -29,6 +29,7 @@ Plain Python (no pydrake): the receiver LeafSystems keep a :class:`StreamStatus`
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field, replace
 
 CONDITIONS = ("ok", "waiting", "timeout")
@@ -216,3 +217,42 @@ class StationStatus:
             "camera": self.camera,
             "streams": {s.name: s.to_dict() for s in self.streams},
         }
+
+
+def require_positive(owner: str, **values: float) -> None:
+    """Raise ValueError naming ``owner`` and the first of ``values`` that is not a finite
+    number > 0."""
+    for name, value in values.items():
+        if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+            raise ValueError(f"{owner}: {name} must be a finite number > 0, got {value!r}")
+
+
+@dataclass(frozen=True)
+class StreamLimits:
+    """What a receiver accepts from one stream: its timeout, the allowed extra delay, and the
+    clock the delay is measured on (the wall clock on hardware, else the station's time)."""
+
+    timeout_s: float
+    max_delay_s: float = math.inf
+    wall_clock: bool = False
+
+    def __post_init__(self) -> None:
+        require_positive("StreamLimits", timeout_s=self.timeout_s)
+        if not self.max_delay_s > 0:  # inf: lateness not checked
+            raise ValueError(f"StreamLimits: max_delay_s must be > 0, got {self.max_delay_s!r}")
+
+    def check(
+        self, status: StreamStatus, t_s: float, utime: int, problem: str = ""
+    ) -> tuple[StreamStatus, bool]:
+        """:func:`check_message` with these limits."""
+        arrival = time.monotonic() if self.wall_clock else None
+        return check_message(
+            status, t_s, utime, problem=problem, max_delay_s=self.max_delay_s, arrival_s=arrival
+        )
+
+    def condition(self, status: StreamStatus, t_s: float) -> str:
+        return stream_condition(status, t_s, self.timeout_s)
+
+    def settle(self, status: StreamStatus, t_s: float) -> StreamStatus:
+        """``status`` with the transition to ``timeout`` (if any) counted at ``t_s``."""
+        return note_condition(status, self.condition(status, t_s))

@@ -144,3 +144,15 @@ def test_a_scenario_bus_that_does_not_exist_is_named():
     _, buses = shared_buses()
     with pytest.raises(ValueError, match="hardware.bus='car'"):
         MakeVehicleStation(scenario, hardware=True, lcm_buses=buses)
+
+
+def test_bridge_logs_the_plants_true_state():
+    scenario = memq_scenario()
+    _, buses = shared_buses()
+    bridge = MakeVehicleBridge(scenario, lcm_buses=buses)
+    inner = bridge.GetSubsystemByName("station")
+    ctx = bridge.CreateDefaultContext()
+    truth = bridge.GetOutputPort("true_state").Eval(ctx)
+    np.testing.assert_array_equal(
+        truth, inner.GetOutputPort("true_state").Eval(inner.GetMyContextFromRoot(ctx))
+    )
