@@ -211,3 +211,16 @@ def test_metrics_and_failures_read_from_either_summary_layout():
         == failure_rows(new)
         == [{"t_s": 3.0, "sx_m": 1.0, "sy_m": 2.0, "kind": "spin"}]
     )
+
+
+def test_shipped_experiments_load_and_expand():
+    from pcvfe_drake.evaluation.experiment import shipped_experiments
+
+    assert "paper_claim3" in shipped_experiments()
+    exp, path = load_experiment("paper_claim3")
+    assert [s.name for s in exp.sources] == ["pcvfe", "ukf", "lookup", "fixed", "kmpc", "oracle"]
+    specs = run_specs(exp, path)
+    assert len(specs) == 60 and {s.scenario_name for s in specs} == {"paper_eval"}
+    estimators = {s.source: s.scenario["estimator"] for s in specs}
+    assert estimators == {s.name: s.name for s in exp.sources}
+    assert all(s.scenario["laps"] == 1.0 for s in specs)
