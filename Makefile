@@ -25,7 +25,10 @@ lint: $(STAMP)
 test: lint
 	$(VENV)/bin/pytest -q
 
+# The peers (pyproject extra `peers`; sysidentpy without its numpy cap, see pyproject.toml).
 bench: $(STAMP)
+	$(PY) -m pip install --quiet -e ".[peers]"
+	$(PY) -m pip install --quiet --no-deps sysidentpy==0.9.0
 	$(PY) benchmarks/run_all.py
 
 clean:
