@@ -70,7 +70,7 @@ def main() -> int:
     parser.add_argument("--quick", action="store_true", help="the failing run only")
     parser.add_argument("--scenario", default="paper_eval")
     parser.add_argument("--out-dir", type=Path, default=None, help="where the screenshots go")
-    parser.add_argument("--before", type=float, nargs="+", default=[3.0, 1.0, 0.0])
+    parser.add_argument("--before", type=float, nargs="+", default=[2.0, 1.0, 0.0])
     args = parser.parse_args()
 
     from pcvfe_drake.diagrams.scenario_io import load_scenario
@@ -88,13 +88,15 @@ def main() -> int:
         print(f"{args.scenario} with an optimistic fixed friction, until it fails ...", flush=True)
         summary, _ = run(scenario, tmp / "full", None)
         t_end = float(summary["sim_time_s"])
+        events = summary.get("failure_events") or []
         out.update(
             sim_time_s=t_end,
-            stopped_by_failure=summary.get("stopped_by_failure"),
+            stop_reason=summary.get("stop_reason"),
+            first_failure=events[0] if events else None,
             catastrophic_failures=summary.get("catastrophic_failures"),
             nmpc_fallbacks=summary.get("nmpc_fallbacks"),
         )
-        print(f"  ended at {t_end:.2f} s: {out['stopped_by_failure']}", flush=True)
+        print(f"  ended at {t_end:.2f} s: {out['first_failure']}", flush=True)
         chromium = find_chromium()
         if args.quick or chromium is None or args.out_dir is None:
             out["screenshots"] = "skipped (--quick, no --out-dir, or no chromium)"
@@ -103,7 +105,7 @@ def main() -> int:
         args.out_dir.mkdir(parents=True, exist_ok=True)
         shots = []
         for before in args.before:
-            t = max(1.0, t_end - before)
+            t = max(0.5, t_end - before)
             print(f"rerun to {t:.2f} s ({before:.1f} s before the end) ...", flush=True)
             part, meshcat = run(scenario, tmp / f"to_{t:.2f}", t)
             car = packed_translation(meshcat, "/pcvfe/friction_circle") - CAR_OFFSET

@@ -52,8 +52,9 @@ def AddDebugLayers(
 
     Systems (names): ``plan_view``, ``friction_circle_view`` (from the ``station``'s ``state``,
     the ``nmpc``'s ``plan`` and ``actuation``, and the ``theta_hat`` output port the NMPC is
-    given; the station's ``true_mu`` where it exists), and, where the loop has a perception
-    stage (``features`` and ``clustering`` systems), ``camera_view`` and ``feature_view``.
+    given; the station's ``true_mu`` where it exists), ``camera_view`` where the station has an
+    ``image`` (with the frame's caption where there is a ``features`` system, and its context
+    where there is a ``clustering``), and ``feature_view`` where there are both.
     """
     state = station.GetOutputPort("state")
     horizon = nmpc.controller.N
@@ -77,23 +78,29 @@ def AddDebugLayers(
     if has_truth:
         builder.Connect(station.GetOutputPort("true_mu"), circle.GetInputPort("true_mu"))
     layers = {"plan": plan, "friction_circle": circle}
-    if features is None or clustering is None:
+    if not station.HasOutputPort("image"):
         return layers
 
-    feature_dim = features.GetOutputPort("features").size()
+    feature_dim = features.GetOutputPort("features").size() if features is not None else 1
     camera = builder.AddNamedSystem(
         "camera_view",
         CameraView(
             meshcat,
             feature_dim,
-            caption=_captioner(features, terrain_map),
+            caption=_captioner(features, terrain_map) if features is not None else None,
             frame_period_s=camera_period_s,
         ),
     )
     builder.Connect(station.GetOutputPort("image"), camera.GetInputPort("image"))
     builder.Connect(state, camera.GetInputPort("state"))
+    layers["camera"] = camera
+    if features is not None:
+        builder.Connect(features.GetOutputPort("features"), camera.GetInputPort("features"))
+    if clustering is None:
+        return layers
     builder.Connect(clustering.GetOutputPort("context_id"), camera.GetInputPort("context_id"))
-    builder.Connect(features.GetOutputPort("features"), camera.GetInputPort("features"))
+    if features is None:
+        return layers
 
     x0, x1, y0, y1 = terrain_map.bounds_m
     size = 0.5 * max(y1 - y0, 1.0)
@@ -110,5 +117,5 @@ def AddDebugLayers(
     builder.Connect(features.GetOutputPort("features"), feature_view.GetInputPort("features"))
     for name in ("context_id", "cluster_table", "stored_features"):
         builder.Connect(clustering.GetOutputPort(name), feature_view.GetInputPort(name))
-    layers.update(camera=camera, features=feature_view)
+    layers["features"] = feature_view
     return layers

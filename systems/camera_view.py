@@ -40,6 +40,9 @@ class CameraView(LeafSystem):
       CLIP captions or the descriptor's nearest texture
       (:class:`pcvfe_drake.views.labels.FrameCaptioner`); absent without a ``caption``.
 
+    ``context_id`` and ``features`` may be left unconnected (a loop without clustering or
+    features): the border, id and caption are then not drawn.
+
     .. pydrake_system::
 
         name: CameraView
@@ -120,7 +123,14 @@ class CameraView(LeafSystem):
 
             self._frames.show(self._n_frames, t, frame)
             self._n_frames += 1
-        ctx = int(round(float(self._context_port.Eval(context)[0])))
+        if self._context_port.HasValue(context):
+            self._draw_context(int(round(float(self._context_port.Eval(context)[0]))), t)
+        if self._caption is not None and self._features_port.HasValue(context):
+            text = self._caption(np.asarray(self._features_port.Eval(context)))
+            self._caption_label.show(text or None, t)
+
+    def _draw_context(self, ctx: int, t: float) -> None:
+        mc = self._meshcat
         colour = context_rgb(ctx)
 
         def border(path: str) -> None:
@@ -131,6 +141,3 @@ class CameraView(LeafSystem):
         self._border.show(ctx, t, border)
         label = f"context {ctx}" if ctx >= 0 else "noise (-1)"
         self._context.show(label, t, rgb=colour if ctx >= 0 else (0.85, 0.85, 0.85))
-        if self._caption is not None:
-            text = self._caption(np.asarray(self._features_port.Eval(context)))
-            self._caption_label.show(text or None, t)

@@ -61,6 +61,18 @@ def test_panel_frames_context_and_caption(meshcat, probe):
     assert probe.visible(meshcat, view._border.path(3)) is False
 
 
+def test_frame_alone_without_context_or_features(meshcat, probe):
+    view = CameraView(meshcat, 23, frame_period_s=0.5)
+    simulator = Simulator(view)
+    context = simulator.get_mutable_context()
+    view.GetInputPort("state").FixValue(context, np.array([1.0, 2.0, 0, 4.0, 0, 0, 0]))
+    view.GetInputPort("image").FixValue(context, image((200, 10, 10)))
+    simulator.AdvanceTo(0.1)  # context_id and features unconnected: a loop without them
+    assert view.frames_drawn == 1 and meshcat.HasPath("/pcvfe/camera/frame/00000")
+    assert view._border.shown is None and view._context.shown is None
+    assert view._caption_label.shown is None
+
+
 def test_bad_arguments(meshcat):
     with pytest.raises(ValueError, match="frame_period_s"):
         CameraView(meshcat, 23, frame_period_s=0.0)
