@@ -109,8 +109,9 @@ def main() -> int:
             print(f"rerun to {t:.2f} s ({before:.1f} s before the end) ...", flush=True)
             part, meshcat = run(scenario, tmp / f"to_{t:.2f}", t)
             car = packed_translation(meshcat, "/pcvfe/friction_circle") - CAR_OFFSET
+            look_at = car + [0.0, 0.0, 7.0]  # between the car and the panels above it
             png = args.out_dir / f"bad_lap_{before:.0f}s_before.png"
-            ok = shoot(chromium, meshcat, tmp / "car.html", png, car, (0.0, -22.0, 14.0))
+            ok = shoot(chromium, meshcat, tmp / "car.html", png, look_at, (0.0, -30.0, 12.0))
             entry = {"before_s": before, "t_s": t, "car": png.name if ok else None}
             anchor = packed_translation(meshcat, "/pcvfe/features/current")
             if anchor is not None and before == args.before[-1]:
