@@ -13,12 +13,12 @@ import dataclasses
 from pathlib import Path
 
 import yaml
-from pydrake.common.yaml import yaml_load_typed
 
 from pcvfe_drake.diagrams.scenario_io import (
     load_scenario,
+    load_typed_yaml,
+    read_yaml_file,
     scenario_from_yaml_text,
-    schema_problems,
 )
 from pcvfe_drake.evaluation.experiment import (
     Experiment,
@@ -34,19 +34,7 @@ from pcvfe_drake.runs.scenario import resolve_scenario_path
 
 def experiment_from_yaml_text(text: str, source: str = "<string>") -> Experiment:
     """Parse experiment YAML ``text``; errors name ``source`` and the offending field."""
-    try:
-        raw = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ValueError(f"{source}: not valid YAML: {exc}") from exc
-    if raw is None:
-        raw = {}
-    data, problems = schema_problems(Experiment, raw)
-    if problems:
-        raise ValueError(f"{source}: malformed experiment: " + "; ".join(problems))
-    try:
-        exp = yaml_load_typed(schema=Experiment, data=yaml.safe_dump(data))
-    except (RuntimeError, ValueError, TypeError) as exc:
-        raise ValueError(f"{source}: malformed experiment: {exc}") from exc
+    exp = load_typed_yaml(Experiment, text, source, "experiment")
     problems = experiment_problems(exp)
     if problems:
         raise ValueError(f"{source}: invalid experiment: " + "; ".join(problems))
@@ -56,7 +44,7 @@ def experiment_from_yaml_text(text: str, source: str = "<string>") -> Experiment
 def load_experiment(path_or_name: str | Path) -> tuple[Experiment, Path]:
     """Load an experiment file or shipped experiment name; returns it and its path."""
     path = resolve_experiment_path(path_or_name)
-    return experiment_from_yaml_text(path.read_text(), source=str(path)), path
+    return experiment_from_yaml_text(read_yaml_file(path, "experiment"), source=str(path)), path
 
 
 def _scenario_path(entry: str, experiment_path: Path) -> Path:

@@ -116,42 +116,49 @@ def _normalise_value(hint, value, name: str, problems: list[str]):
     return value
 
 
-def scenario_from_yaml_text(
-    text: str, source: str = "<string>", *, defaults: Scenario | None = None
-) -> Scenario:
-    """Parse scenario YAML ``text`` on top of ``defaults`` (None: the dataclass defaults);
-    errors name ``source`` and the offending field. An empty text gives ``defaults``."""
+def load_typed_yaml(schema, text: str, source: str, kind: str, defaults=None):
+    """YAML ``text`` into dataclass ``schema`` with ``yaml_load_typed`` (on top of ``defaults``
+    when given); every error is a ``ValueError`` naming ``source`` and the dotted field. An empty
+    text gives ``defaults`` (or the dataclass defaults). ``kind`` names the file in messages."""
     try:
         raw = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise ValueError(f"{source}: not valid YAML: {exc}") from exc
     if raw is None:
         raw = {}
-    problems: list[str] = []
-    data = _normalise(Scenario, raw, "", problems)
+    data, problems = schema_problems(schema, raw)
     if problems:
-        raise ValueError(f"{source}: malformed scenario: " + "; ".join(problems))
+        raise ValueError(f"{source}: malformed {kind}: " + "; ".join(problems))
+    kwargs = {} if defaults is None else {"defaults": defaults}
     try:
-        scenario = yaml_load_typed(
-            schema=Scenario,
-            data=yaml.safe_dump(data),
-            defaults=defaults if defaults is not None else Scenario(),
-        )
+        return yaml_load_typed(schema=schema, data=yaml.safe_dump(data), **kwargs)
     except (RuntimeError, ValueError, TypeError, NotImplementedError) as exc:
-        raise ValueError(f"{source}: malformed scenario: {exc}") from exc
+        raise ValueError(f"{source}: malformed {kind}: {exc}") from exc
+
+
+def scenario_from_yaml_text(
+    text: str, source: str = "<string>", *, defaults: Scenario | None = None
+) -> Scenario:
+    """Parse scenario YAML ``text`` on top of ``defaults`` (None: the dataclass defaults);
+    errors name ``source`` and the offending field. An empty text gives ``defaults``."""
+    scenario = load_typed_yaml(
+        Scenario, text, source, "scenario", defaults if defaults is not None else Scenario()
+    )
     return scenario.validate(source)
 
 
-def _read_text(path: Path) -> str:
+def read_yaml_file(path: Path, kind: str = "scenario") -> str:
+    """The text of a YAML file; a binary or unreadable file is a ``ValueError`` naming it."""
     try:
         return path.read_text(encoding="utf-8")
     except UnicodeDecodeError as exc:
         raise ValueError(
-            f"{path}: not a scenario file (not UTF-8 text: {exc.reason} at byte {exc.start}); "
+            f"{path}: not {'an' if kind[0] in 'aeiou' else 'a'} {kind} file "
+            f"(not UTF-8 text: {exc.reason} at byte {exc.start}); "
             "give a YAML file"
         ) from exc
     except OSError as exc:
-        raise ValueError(f"{path}: cannot read the scenario file: {exc.strerror or exc}") from exc
+        raise ValueError(f"{path}: cannot read the {kind} file: {exc.strerror or exc}") from exc
 
 
 def load_scenario(path_or_name: str | Path | None = None, *overrides: str | Path) -> Scenario:
@@ -165,7 +172,8 @@ def load_scenario(path_or_name: str | Path | None = None, *overrides: str | Path
     for layer in (path_or_name, *overrides):
         path = resolve_scenario_path(layer)
         before = scenario.vehicle if scenario is not None else None
-        scenario = scenario_from_yaml_text(_read_text(path), source=str(path), defaults=scenario)
+        text = read_yaml_file(path)
+        scenario = scenario_from_yaml_text(text, source=str(path), defaults=scenario)
         if scenario.vehicle not in PRESETS and scenario.vehicle != before:
             scenario = _resolve_vehicle(scenario, path)
     return scenario

@@ -224,3 +224,10 @@ def test_shipped_experiments_load_and_expand():
     estimators = {s.source: s.scenario["estimator"] for s in specs}
     assert estimators == {s.name: s.name for s in exp.sources}
     assert all(s.scenario["laps"] == 1.0 for s in specs)
+
+
+def test_binary_experiment_file_is_named(tmp_path):
+    path = tmp_path / "grid.yaml"
+    path.write_bytes(b"\xff\xfe\x00binary")
+    with pytest.raises(ValueError, match=r"grid\.yaml: not an experiment file \(not UTF-8"):
+        load_experiment(path)
