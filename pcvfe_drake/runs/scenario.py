@@ -101,8 +101,8 @@ class Rates:
 
 @dataclass
 class SimulatorSettings:
-    """Drake's ``pydrake.systems.analysis.SimulatorConfig``, field for field (the core does not
-    import pydrake; ``diagrams/run_simulation.py`` turns it into a ``SimulatorConfig`` and applies
+    """Drake's ``pydrake.systems.analysis.SimulatorConfig``, field for field (pydrake stays out
+    of the core; ``diagrams/run_simulation.py`` turns it into a ``SimulatorConfig`` and applies
     it with ``ApplySimulatorConfig``; a test checks the fields match Drake's). ``start_time`` is
     left out: a run starts at t = 0.
 
