@@ -60,15 +60,9 @@ class SensingConfig:
 
     @property
     def noise(self) -> MeasurementNoise:
-        """The standard deviations as a ``MeasurementNoise``."""
+        """The standard deviations as a ``MeasurementNoise`` (its fields, by name)."""
         return MeasurementNoise(
-            self.sx_m,
-            self.sy_m,
-            self.delta_rad,
-            self.v_mps,
-            self.psi_rad,
-            self.psi_dot_radps,
-            self.beta_rad,
+            **{f.name: getattr(self, f.name) for f in dataclasses.fields(MeasurementNoise)}
         )
 
     @property
@@ -89,7 +83,7 @@ class SensingConfig:
             out.append(f"{prefix}.period_s={self.period_s!r}: must be > 0")
         if not (_finite(self.latency_s) and self.latency_s >= 0):
             out.append(f"{prefix}.latency_s={self.latency_s!r}: must be >= 0")
-        for f in dataclasses.fields(self)[3:10]:
+        for f in dataclasses.fields(MeasurementNoise):
             value = getattr(self, f.name)
             if not (_finite(value) and value >= 0):
                 out.append(f"{prefix}.{f.name}={value!r}: must be a standard deviation >= 0")
