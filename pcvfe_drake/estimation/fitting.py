@@ -26,6 +26,7 @@ from collections.abc import Hashable, Mapping
 
 import numpy as np
 
+from pcvfe_drake.estimation import least_squares as lsq
 from pcvfe_drake.estimation.fit_dataset import SKIP_REASONS, WindowDataset, WindowSplit
 from pcvfe_drake.estimation.fit_loss import (
     check_theta,
@@ -50,7 +51,7 @@ from pcvfe_drake.estimation.fit_options import (
     FitResult,
     joint_options,
 )
-from pcvfe_drake.estimation.fit_uncertainty import final_result, gram, no_fit_result
+from pcvfe_drake.estimation.fit_uncertainty import final_result, no_fit_result
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import NTHETA
 
@@ -142,61 +143,29 @@ def fit_gauss_newton(
         return result
 
     def levenberg_marquardt(theta, cost, R, J, windows, max_iterations, xtol, ftol):
-        """Bounded LM from theta (cost, R, J evaluated there); returns the final state."""
-        lam = 1e-3
-        status = STATUS_MAX_ITERATIONS
-        iterations = 0
-        scale = np.maximum(np.abs(theta[free]), 1e-6)  # work in parameter-relative units
-        while iterations < max_iterations:
-            iterations += 1
-            Jf = J.reshape(-1, NTHETA)[:, free] * scale
-            r = R.reshape(-1)
-            grad = np.einsum("ni,n->i", Jf, r) + scale * precision[free] * (
-                theta[free] - prior_mean[free]
-            )
-            hess = gram(Jf) + np.diag(scale**2 * precision[free])
-            # Active set: parameters at a bound whose descent direction leaves the box stay.
-            at_lo = (theta[free] <= lower[free]) & (grad > 0)
-            at_hi = (theta[free] >= upper[free]) & (grad < 0)
-            inactive = ~(at_lo | at_hi)
-            if not inactive.any() or np.max(np.abs(grad[inactive])) <= 1e-14 * max(cost, 1e-300):
-                status = STATUS_CONVERGED
-                break
-            accepted = False
-            while lam <= 1e12:
-                h = hess[np.ix_(inactive, inactive)]
-                floor = 1e-12 * np.trace(hess) + 1e-300
-                damped = h + lam * np.diag(np.maximum(np.diag(h), floor))
-                step = np.zeros(free.size)
-                try:
-                    step[inactive] = np.linalg.solve(damped, -grad[inactive])
-                except np.linalg.LinAlgError:
-                    lam *= 10.0
-                    continue
-                trial = theta.copy()
-                trial[free] = np.clip(theta[free] + step * scale, lower[free], upper[free])
-                taken = (trial[free] - theta[free]) / scale
-                rel_step = np.max(np.abs(taken))
-                predicted = -(grad @ taken + 0.5 * taken @ hess @ taken)
-                if lam <= 1e-2 and (rel_step <= xtol or predicted <= ftol * cost):
-                    # The (nearly undamped) Gauss-Newton step is negligible, or would lower the
-                    # objective by less than ftol: converged here, without another rollout.
-                    return theta, cost, R, J, STATUS_CONVERGED, iterations
-                trial_cost, trial_R, trial_J = objective(trial, windows)
-                if trial_cost < cost:
-                    accepted = True
-                    break
-                lam *= 10.0
-            if not accepted:
-                status = STATUS_CONVERGED  # no descent direction left at machine precision
-                break
-            decrease = (cost - trial_cost) / max(cost, 1e-300)
-            theta, cost, R, J = trial, trial_cost, trial_R, trial_J
-            lam = max(lam / 10.0, 1e-9)
-            if decrease <= ftol:
-                status = STATUS_CONVERGED
-                break
-        return theta, cost, R, J, status, iterations
+        """Bounded LM (the shared core) from theta (R, J evaluated there); the final state."""
+        shape = R.shape
+
+        def fun(th, need_jacobian):
+            _, R_t, J_t = objective(th, windows)
+            return R_t.reshape(-1), J_t.reshape(-1, NTHETA)
+
+        out = lsq.solve(
+            fun,
+            theta,
+            lower,
+            upper,
+            np.maximum(np.abs(theta), 1e-6),  # work in parameter-relative units
+            free=free,
+            prior_mean=prior_mean,
+            prior_precision=precision,
+            settings=lsq.LsqSettings(max_iterations=max_iterations, xtol=xtol, ftol=ftol),
+            start=(R.reshape(-1), J.reshape(-1, NTHETA)),
+        )
+        n = out.r.size // int(np.prod(shape[1:]))
+        R_o = out.r.reshape((n, *shape[1:]))
+        J_o = out.J.reshape((n, *shape[1:], NTHETA))
+        return out.theta, out.cost, R_o, J_o, out.status, out.iterations
 
     def full_start(th):
         """Objective, residuals and Jacobian on all windows, and the loss, at th."""

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pcvfe_drake.estimation import least_squares as lsq
 from pcvfe_drake.vehicle.single_track import BETA, DELTA, PSI, PSI_DOT, V
 from pcvfe_drake.workbench.data import DriveData
 from pcvfe_drake.workbench.model import WorkbenchModel
@@ -173,65 +174,45 @@ def fit(
         options = [theta] + [np.clip(c, lo, hi) for c in candidates]
         costs = [training_cost(model, c, data, starts, horizon, burn_in) for c in options]
         theta = options[int(np.argmin(costs))]
-    r, jac = _residuals_and_jacobian(model, theta, data, starts, horizon, True, burn_in)
-    cost = float(r @ r)
-    history = [cost]
-    lam = 1e-3
-    converged = False
-    it = 0
-    for it in range(1, max_iter + 1):  # noqa: B007
-        js = jac * scale
-        g = js.T @ r
-        # active set: parameters on a bound whose gradient pushes outward stay there
-        pinned = ((theta <= lo) & (g > 0)) | ((theta >= hi) & (g < 0))
-        free = ~pinned
-        if not free.any():
-            converged = True
-            break
-        hess = js[:, free].T @ js[:, free]
-        diag = np.diag(hess).copy()
-        diag[diag <= 0] = 1e-12
-        accepted = False
-        for _ in range(8):
-            step = np.zeros_like(theta)
-            step[free] = np.linalg.solve(
-                hess + lam * np.diag(diag) + 1e-12 * np.eye(len(diag)), -g[free]
-            )
-            trial = np.clip(theta + scale * step, lo, hi)
-            r_trial, _ = _residuals_and_jacobian(
-                model, trial, data, starts, horizon, False, burn_in
-            )
-            c_trial = float(r_trial @ r_trial) if np.all(np.isfinite(r_trial)) else np.inf
-            if c_trial < cost:
-                accepted = True
-                break
-            lam *= 4.0
-        if not accepted:
-            converged = True
-            break
-        decrease = (cost - c_trial) / max(cost, 1e-300)
-        theta = trial
-        lam = max(lam / 3.0, 1e-9)
-        r, jac = _residuals_and_jacobian(model, theta, data, starts, horizon, True, burn_in)
-        cost = float(r @ r)
-        history.append(cost)
-        if decrease < rtol:
-            converged = True
-            break
+
+    def fun(th, need_jacobian):
+        r, jac = _residuals_and_jacobian(model, th, data, starts, horizon, need_jacobian, burn_in)
+        if not np.all(np.isfinite(r)):
+            r = np.full_like(r, np.inf)
+        return r, jac
+
+    out = lsq.solve(
+        fun,
+        theta,
+        lo,
+        hi,
+        scale,
+        settings=lsq.LsqSettings(
+            max_iterations=max_iter,
+            ftol=rtol,
+            xtol=1e-9,
+            lam_up=4.0,
+            lam_down=3.0,
+            max_rejections=8,
+            jacobian_at_trials=False,  # finite differences: 2P + 1 rollouts
+            predicted_check=False,
+        ),
+    )
+    theta, r, jac, cost, it = out.theta, out.r, out.J, out.cost, out.iterations
+    converged, history = out.converged, out.history
     n_res = r.size
     n_eff = max(starts.size / max(overlap, 1.0) * len(FIT_STATES), model.n_params + 1.0)
-    s2 = cost / max(n_res - model.n_params, 1)
-    js = jac
-    free = ~((theta <= lo) | (theta >= hi)) & np.any(jac != 0.0, axis=0)
+    informed = np.any(jac != 0.0, axis=0)
+    free = ~((theta <= lo) | (theta >= hi)) & informed
     std = np.full(model.n_params, np.nan)
     if free.any():
-        h = js[:, free].T @ js[:, free]
         try:
-            cov = np.linalg.inv(h) * s2 * (n_res / n_eff)
-            std[free] = np.sqrt(np.maximum(np.diag(cov), 0.0))
+            cov = lsq.covariance(jac, cost, free=free, inflate=n_res / n_eff)
+            # s2 uses all P parameters (as before the shared core): rescale from |free|
+            cov *= max(n_res - free.sum(), 1) / max(n_res - model.n_params, 1)
+            std[free] = np.sqrt(np.maximum(np.diag(cov)[free], 0.0))
         except np.linalg.LinAlgError:
             pass
     std[~free] = 0.0
-    informed = np.any(jac != 0.0, axis=0)
     std[~informed] = np.nan
     return FitResult(model, theta, std, cost, n_res, n_eff, it, converged, history, informed)
