@@ -49,6 +49,7 @@ from pcvfe_drake.control import failure
 from pcvfe_drake.control.course import Course
 from pcvfe_drake.diagrams.debug_layers import LAYERS
 from pcvfe_drake.diagrams.meshcat_controls import MeshcatControls
+from pcvfe_drake.diagrams.release import release_diagram
 from pcvfe_drake.diagrams.simulation import MakeSimulation, course_xy
 from pcvfe_drake.runs.run_folder import (
     RunFolder,
@@ -491,6 +492,8 @@ def run_simulation(
             reference_xy=course_xy(course),
         )
         result.held_signals = list(received[1:] if interrupted else received)
+    # Nothing of the diagram is used any more: free it (a worker runs many in one process).
+    release_diagram(diagram)
     return result
 
 
