@@ -266,6 +266,7 @@ def _estimate_table(diagram, context) -> list[dict]:
             "mu_std": float(e.theta_std[0]),
             "samples": int(e.samples),
             "status": e.status,
+            "first_fit_s": float(e.first_fit_s),
         }
         for e in table.entries
         if int(e.context_id) >= 0

@@ -3,9 +3,9 @@
 ``MakeSimulation(scenario, meshcat)`` wires the vehicle station (plant + sensing + camera, see
 ``station.py``) to the friction source and the controller; with ``estimator: pcvfe``::
 
-    station.image -> features -> clustering --context_id--> fitter
-    station.state ----------------------------------------> fitter --theta_hat--> nmpc
-    station.state ------------------------------------------------------------> nmpc
+    station.image -> features -> clustering --context_id, frame_labels--> fitter
+    station.state ------------------------------------------------------> fitter --theta_hat--> nmpc
+    station.state ------------------------------------------------------------------------> nmpc
     nmpc.actuation -> station.actuation (and fitter.actuation)
 
 Other friction sources replace clustering + fitter by one ``friction_source`` system with the
@@ -109,6 +109,9 @@ def _add_friction_source(builder, scenario: Scenario, params, station, features,
         builder.Connect(station.GetOutputPort("state"), fitter.GetInputPort("state"))
         builder.Connect(actuation, fitter.GetInputPort("actuation"))
         builder.Connect(clustering.GetOutputPort("context_id"), fitter.GetInputPort("context_id"))
+        builder.Connect(
+            clustering.GetOutputPort("frame_labels"), fitter.GetInputPort("frame_labels")
+        )
         return fitter.GetOutputPort("theta_hat"), clustering.GetOutputPort("context_id")
     if kind == "lookup":
         table = build_lookup_table(

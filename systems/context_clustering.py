@@ -13,6 +13,7 @@ from pcvfe_drake.contexts.clustering import (
     ClusteringParams,
     ClusterTable,
     ContextClusterer,
+    FrameLabels,
     StoredFeatures,
 )
 
@@ -29,6 +30,7 @@ class ContextClustering(LeafSystem):
         - context_id
         - cluster_table
         - stored_features
+        - frame_labels
 
     - ``features``: vector of ``feature_dim`` numbers, z(t) from ClipFeatures (any backend).
     - ``context_id``: 1-element vector, the current context id (an integer; -1 = noise or a
@@ -38,6 +40,10 @@ class ContextClustering(LeafSystem):
       size, first/last seen time of every context, vanished ones included).
     - ``stored_features``: abstract :class:`pcvfe_drake.contexts.clustering.StoredFeatures`, a
       copy of the bounded store (vectors, labels, times) for views; copied only when evaluated.
+    - ``frame_labels``: abstract :class:`pcvfe_drake.contexts.clustering.FrameLabels`, the stored
+      frames' times and current labels, time-ordered, with the label version (re-clusterings so
+      far) and the frame period: what a consumer (the ContextFitter) needs to relabel its own
+      samples after a re-clustering (paper eq. 5d). No feature vectors; copied when evaluated.
 
     Rates: a periodic unrestricted update every ``frame_period_s`` (default 1 / frame rate of
     ``params``, 0.1 s), at ``frame_offset_s`` after each period start (default 0), reads
@@ -111,6 +117,12 @@ class ContextClustering(LeafSystem):
             self._calc_stored,
             prerequisites_of_calc={self.abstract_state_ticket(self._clusterer_index)},
         )
+        self._frame_labels_port = self.DeclareAbstractOutputPort(
+            "frame_labels",
+            lambda: AbstractValue.Make(FrameLabels()),
+            self._calc_frame_labels,
+            prerequisites_of_calc={self.abstract_state_ticket(self._clusterer_index)},
+        )
 
     @property
     def params(self) -> ClusteringParams:
@@ -153,3 +165,6 @@ class ContextClustering(LeafSystem):
 
     def _calc_stored(self, context: Context, output: AbstractValue) -> None:
         output.set_value(self.clusterer(context).stored())
+
+    def _calc_frame_labels(self, context: Context, output: AbstractValue) -> None:
+        output.set_value(self.clusterer(context).frame_labels(self._frame_period_s))

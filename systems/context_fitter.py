@@ -9,6 +9,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, Context, EventStatus, LeafSystem, State
 
+from pcvfe_drake.contexts.cluster_table import FrameLabels
 from pcvfe_drake.estimation.context_estimator import ContextEstimator, EstimateTable, LiveFitConfig
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import NTHETA, NU, NX
@@ -24,6 +25,7 @@ class ContextFitter(LeafSystem):
         - state
         - actuation
         - context_id
+        - frame_labels (optional)
         output_ports:
         - theta_hat
         - estimate_table
@@ -31,6 +33,15 @@ class ContextFitter(LeafSystem):
     - ``state``: 7-vector, the ST state [sx, sy, delta, v, psi, psi_dot, beta] (SI units).
     - ``actuation``: 2-vector [steer_rate rad/s, accel m/s^2] applied to the vehicle.
     - ``context_id``: 1-vector, the terrain context (float-valued int; -1 = noise/unknown).
+    - ``frame_labels`` (optional): abstract :class:`pcvfe_drake.contexts.cluster_table.FrameLabels`
+      from ContextClustering: the stored frames' times and labels as the clustering now stands.
+      When its version changes (a re-clustering), the next sample update relabels the stored
+      samples (each takes the label of the frame covering its time, so the noise samples of a
+      terrain that was new join its context; paper eq. 5d) and refits the contexts whose data
+      changed at once (bounded like every refit), so a new terrain gets its first fit one
+      sample period after the re-clustering instead of at the next refit update. Left
+      unconnected (a station without clustering, or ids from elsewhere), or with
+      ``relabel=False``, samples keep the id they were taken with.
     - ``theta_hat``: 3-vector [mu, C_Sf, C_Sr] of the current context, from state (zero-order
       hold at the sample rate, no direct feedthrough). Contexts with too little data, and
       noise/unknown contexts lasting longer than ``noise_hold_s`` (default 1 s; shorter noise
@@ -42,12 +53,13 @@ class ContextFitter(LeafSystem):
       number of discarded (diverged) refits.
 
     Rates: a periodic unrestricted update every ``sample_period_s`` (default 0.01 s = 100 Hz)
-    appends (t, state, actuation) to the buffer of the current context and sets ``theta_hat``;
-    a periodic unrestricted update every ``period_s`` (default 1 s = 1 Hz, first at
-    t = ``period_s``) refits contexts that gained data, bounded per update (see
+    appends (t, state, actuation) with the current context id to the sample store and sets
+    ``theta_hat`` (and relabels and refits when ``frame_labels`` has a new version); a periodic
+    unrestricted update every ``period_s`` (default 1 s = 1 Hz, first at t = ``period_s``)
+    refits contexts whose data changed, bounded per update (see
     :class:`pcvfe_drake.estimation.context_estimator.LiveFitConfig`: ``max_contexts_per_update``,
     ``max_windows``, ``max_iterations``). When both fire at once the sample is taken first. The
-    :class:`ContextEstimator` (buffers, estimates) lives in the context's abstract state.
+    :class:`ContextEstimator` (sample store, estimates) lives in the context's abstract state.
     """
 
     def __init__(
@@ -89,6 +101,9 @@ class ContextFitter(LeafSystem):
         self._state_port = self.DeclareVectorInputPort("state", NX)
         self._actuation_port = self.DeclareVectorInputPort("actuation", NU)
         self._context_id_port = self.DeclareVectorInputPort("context_id", 1)
+        self._frame_labels_port = self.DeclareAbstractInputPort(
+            "frame_labels", AbstractValue.Make(FrameLabels())
+        )
         self._estimator_index = self.DeclareAbstractState(AbstractValue.Make(estimator))
         self._theta_index = self.DeclareDiscreteState(BasicVector(estimator.prior_theta))
         self.DeclarePeriodicUnrestrictedUpdateEvent(
@@ -140,11 +155,24 @@ class ContextFitter(LeafSystem):
             self._actuation_port.Eval(context),
             self._context_id_port.Eval(context),
         )
+        if self._relabel(context, estimator):
+            estimator.refit(context.get_time())  # a new terrain's first fit without waiting
         self._set_theta(state, estimator)
         return EventStatus.Succeeded()
 
+    def _relabel(self, context: Context, estimator: ContextEstimator) -> bool:
+        """Relabel the stored samples if ``frame_labels`` has a new version; True if it had."""
+        if not (self._config.relabel and self._frame_labels_port.HasValue(context)):
+            return False
+        frames = self._frame_labels_port.Eval(context)
+        if frames.version <= estimator.labels_version:
+            return False
+        estimator.relabel(frames.t_s, frames.labels, frames.frame_period_s, version=frames.version)
+        return True
+
     def _on_refit(self, context: Context, state: State) -> EventStatus:
         estimator = state.get_mutable_abstract_state(self._estimator_index).get_mutable_value()
+        self._relabel(context, estimator)
         estimator.refit(context.get_time())
         self._set_theta(state, estimator)
         return EventStatus.Succeeded()

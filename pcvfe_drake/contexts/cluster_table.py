@@ -86,6 +86,31 @@ class StoredFeatures:
     n_reclusterings: int = 0
 
 
+@dataclass(frozen=True)
+class FrameLabels:
+    """The stored frames' times and labels as the clustering now stands (paper eq. 5d).
+
+    What a consumer needs to relabel its own time-stamped data after a re-clustering, without
+    the feature vectors: every frame in the clusterer's bounded store, its time and its current
+    label (the latest re-clustering's, with persistent ids; frames taken since then carry their
+    online label).
+
+    Attributes:
+        t_s: (N,) times the frames were taken [s], increasing.
+        labels: (N,) their context ids (-1 noise).
+        version: re-clusterings so far (the labels change at a re-clustering; between two, frames
+            are only added or dropped).
+        frame_period_s: the camera period [s]: a frame taken at ``t_f`` is the context id from
+            ``t_f`` until the next frame (the clustering's output is a zero-order hold), so it
+            covers the data sampled in ``(t_f, t_f + frame_period_s]``.
+    """
+
+    t_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    labels: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    version: int = 0
+    frame_period_s: float = math.nan
+
+
 def match_centroids(
     previous: np.ndarray,
     epsilons: np.ndarray,

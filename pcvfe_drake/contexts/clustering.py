@@ -47,6 +47,7 @@ from threadpoolctl import threadpool_limits
 from pcvfe_drake.contexts.cluster_table import (
     ClusterRecord,
     ClusterTable,
+    FrameLabels,
     StoredFeatures,
     match_centroids,
 )
@@ -66,6 +67,7 @@ __all__ = [
     "ClusterTable",
     "ClusteringParams",
     "ContextClusterer",
+    "FrameLabels",
     "StoredFeatures",
     "detach_small_groups",
     "full_hdbscan_labels",
@@ -166,6 +168,22 @@ class ContextClusterer:
             z=self._x[used], labels=self._label[used], t_s=self._t[used],
             n_reclusterings=self._n_reclusterings,
         )  # fmt: skip
+
+    def frame_labels(self, frame_period_s: float | None = None) -> FrameLabels:
+        """The stored frames' times and current labels, time-ordered (no feature vectors).
+
+        Args:
+            frame_period_s: the camera period [s] (default ``1 / params.frame_rate_hz``).
+        """
+        period = 1.0 / self.params.frame_rate_hz if frame_period_s is None else frame_period_s
+        used = np.flatnonzero(self._used)
+        order = used[np.argsort(self._t[used], kind="stable")]
+        return FrameLabels(
+            t_s=self._t[order].copy(),
+            labels=self._label[order].copy(),
+            version=self._n_reclusterings,
+            frame_period_s=float(period),
+        )
 
     # ----------------------------------------------------------------------------------------
     # Per-frame path

@@ -1,20 +1,26 @@
-"""Online per-context friction estimation: sample buffers, bounded refits, an estimate table.
+"""Online per-context friction estimation: a labelled sample store, bounded refits, a table.
 
 :class:`ContextEstimator` is the core of the ``ContextFitter`` LeafSystem (and usable without
-Drake): samples of (time, state, input) are appended to a buffer per context id at the data rate;
-:meth:`ContextEstimator.refit` refits contexts that gained data, a bounded amount of work per
-call (at most ``max_contexts_per_update`` contexts, each on at most ``max_windows`` of its most
-recent windows for at most ``max_iterations`` Gauss-Newton iterations, warm-started from the
-previous estimate; contexts are served round-robin).
+Drake): samples of (time, state, input) are appended, labelled with the current context id, to
+one time-ordered store (:class:`pcvfe_drake.estimation.sample_store.SampleStore`) at the data
+rate; :meth:`ContextEstimator.relabel` gives the stored samples the labels of the clustering as
+it now stands (paper eq. 5d: after a re-clustering, the noise samples of a terrain that was new
+join its context); :meth:`ContextEstimator.refit` refits contexts whose data changed (samples
+gained, or relabelled in or out), a bounded amount of work per call (at most
+``max_contexts_per_update`` contexts, each on at most ``max_windows`` of its most recent windows
+for at most ``max_iterations`` Gauss-Newton iterations, warm-started from the previous estimate;
+contexts are served round-robin).
 
 Rules (the "bad input" behaviour):
 
 * samples with non-finite values are not stored (counted in ``rejected_samples``);
-* noise/unknown contexts (id < 0, or non-finite) are not stored; they map to the estimate of the
-  last known context while the noise has lasted at most ``noise_hold_s`` (a stray noise frame
-  inside a known terrain does not throw the controller back to the prior), then to the
-  unknown-context policy's theta (``pcvfe_drake.estimation.unknown_context``: ``prior``,
-  ``last_known`` or, by default, ``conservative``);
+* noise/unknown samples (id < 0, or non-finite id) are stored with the label -1 and never
+  fitted unless a relabelling gives them a context; while the current id is noise the
+  controller gets the estimate of the last known context while the noise has lasted at most
+  ``noise_hold_s`` (a stray noise frame inside a known terrain does not throw the controller
+  back to the prior), then the unknown-context policy's theta
+  (``pcvfe_drake.estimation.unknown_context``: ``prior``, ``last_known`` or, by default,
+  ``conservative``);
 * a context with fewer than ``min_windows`` usable windows keeps the prior theta and its table
   entry says so (status ``"too_little_data"``); while it is the current context the controller
   gets the unknown-context policy's theta;
@@ -22,8 +28,9 @@ Rules (the "bad input" behaviour):
   increments the context's ``diverged`` count;
 * :meth:`ContextEstimator.theta_for` always returns finite numbers.
 
-The object is copied by Drake at every state update; the buffers are chunked so that a copy shares
-the full, immutable chunks and copies only the partly filled one.
+The object is copied by Drake at every state update; the store is chunked so that a copy shares
+the full, immutable chunks and copies only the partly filled one. Memory: each label (every
+context, and noise) keeps its newest ``buffer_s`` of samples.
 """
 
 from __future__ import annotations
@@ -48,6 +55,7 @@ from pcvfe_drake.estimation.fit_options import (
     joint_options,
 )
 from pcvfe_drake.estimation.fitting import fit_gauss_newton
+from pcvfe_drake.estimation.sample_store import NOISE, SampleStore, labels_from_frames
 from pcvfe_drake.estimation.unknown_context import (
     DEFAULT_FLOOR_MU,
     DEFAULT_POLICY,
@@ -58,57 +66,6 @@ from pcvfe_drake.estimation.unknown_context import (
 from pcvfe_drake.vehicle.params import THETA_NAMES, VehicleParams
 from pcvfe_drake.vehicle.single_track import NU, NX
 
-_ROW = 1 + NX + NU  # t, state, input
-
-
-class SampleBuffer:
-    """Append-only buffer of (t, state (7), input (2)) rows keeping the newest ``capacity`` rows.
-
-    Rows are stored in chunks of ``chunk_size``; full chunks are read-only and shared between
-    copies (``copy.deepcopy`` copies only the partly filled chunk).
-    """
-
-    def __init__(self, capacity: int, chunk_size: int = 100) -> None:
-        if capacity < 1 or chunk_size < 1:
-            raise ValueError(
-                f"SampleBuffer: capacity and chunk_size must be >= 1, got {capacity}, {chunk_size}"
-            )
-        self.chunk_size = int(chunk_size)
-        self.max_chunks = max(1, math.ceil(capacity / chunk_size))
-        self._chunks: tuple[np.ndarray, ...] = ()
-        self._tail = np.empty((self.chunk_size, _ROW))
-        self._tail_n = 0
-        self.total = 0
-        """Rows appended since creation (including rows since dropped)."""
-
-    def append(self, t: float, state: np.ndarray, inputs: np.ndarray) -> None:
-        row = self._tail[self._tail_n]
-        row[0] = t
-        row[1 : 1 + NX] = state
-        row[1 + NX :] = inputs
-        self._tail_n += 1
-        self.total += 1
-        if self._tail_n == self.chunk_size:
-            full = self._tail
-            full.flags.writeable = False
-            chunks = (*self._chunks, full)
-            self._chunks = chunks[-self.max_chunks :]
-            self._tail = np.empty((self.chunk_size, _ROW))
-            self._tail_n = 0
-
-    def __len__(self) -> int:
-        return len(self._chunks) * self.chunk_size + self._tail_n
-
-    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(t (N,), states (N, 7), inputs (N, 2))`` of the stored rows, oldest first."""
-        rows = np.concatenate([*self._chunks, self._tail[: self._tail_n]], axis=0)
-        return rows[:, 0], rows[:, 1 : 1 + NX], rows[:, 1 + NX :]
-
-    def __deepcopy__(self, memo) -> SampleBuffer:
-        other = copy.copy(self)
-        other._tail = self._tail.copy()
-        return other
-
 
 @dataclass(frozen=True)
 class ContextEstimate:
@@ -118,9 +75,11 @@ class ContextEstimate:
         context_id: the context id (>= 0).
         theta: [mu, C_Sf, C_Sr] in use for this context (the prior until a fit succeeded).
         theta_std: standard deviations (NaN where not fitted / not yet fitted).
-        samples: samples received for this context.
+        samples: samples attributed to this context: received with its id, plus those a
+            relabelling moved in, minus those it moved out.
         n_windows: windows used in the last fit (0 if none).
         last_update_s: simulation time of the last successful fit [s] (NaN if none).
+        first_fit_s: simulation time of the first successful fit [s] (NaN if none).
         status: "prior" (no fit yet), "too_little_data", "fitted" (converged), "fitting"
             (iteration cap reached, continues at the next update), or "diverged" (the last
             refit diverged; theta is the last good estimate).
@@ -136,6 +95,7 @@ class ContextEstimate:
     samples: int = 0
     n_windows: int = 0
     last_update_s: float = float("nan")
+    first_fit_s: float = float("nan")
     status: str = "prior"
     fits: int = 0
     diverged: int = 0
@@ -166,6 +126,7 @@ class ContextEstimate:
             "samples": self.samples,
             "n_windows": self.n_windows,
             "last_update_s": num(self.last_update_s),
+            "first_fit_s": num(self.first_fit_s),
             "status": self.status,
             "fits": self.fits,
             "diverged": self.diverged,
@@ -183,6 +144,8 @@ class EstimateTable:
     time_s: float = float("nan")
     rejected_samples: int = 0
     noise_samples: int = 0
+    relabelled_samples: int = 0
+    labels_version: int = 0
 
     def get(self, context_id: int) -> ContextEstimate | None:
         for entry in self.entries:
@@ -196,6 +159,8 @@ class EstimateTable:
             "prior_theta": dict(zip(THETA_NAMES, self.prior_theta, strict=True)),
             "rejected_samples": self.rejected_samples,
             "noise_samples": self.noise_samples,
+            "relabelled_samples": self.relabelled_samples,
+            "labels_version": self.labels_version,
             "entries": [e.to_dict() for e in self.entries],
         }
 
@@ -220,11 +185,15 @@ class LiveFitConfig:
         unknown_floor_mu: ``conservative``'s ceiling on mu (the lowest mu expected).
         unknown_sigmas: ``conservative``'s lower confidence bound, in standard deviations.
         min_windows: fewer usable windows than this: keep the prior.
-        buffer_s: seconds of data kept per context (at ``sample_period_s``).
+        buffer_s: seconds of data kept per context, and of noise samples (at
+            ``sample_period_s``; the newest of each label).
         sample_period_s: the data rate [s] (sets the buffer capacity).
         max_windows: most recent windows used per refit.
         max_iterations: Gauss-Newton iterations per refit.
         max_contexts_per_update: contexts refitted per call of ``refit`` (round-robin).
+        relabel: after each re-clustering, give the stored samples the clustering's new labels
+            (paper eq. 5d; the ContextFitter's ``frame_labels`` input); False: every sample keeps
+            the id it was taken with (noise samples never count).
     """
 
     horizon_steps: int = DEFAULT_HORIZON
@@ -244,6 +213,7 @@ class LiveFitConfig:
     unknown_context: str = DEFAULT_POLICY
     unknown_floor_mu: float = DEFAULT_FLOOR_MU
     unknown_sigmas: float = DEFAULT_SIGMAS
+    relabel: bool = True
 
     def __post_init__(self) -> None:
         check_policy(
@@ -280,12 +250,14 @@ class LiveFitConfig:
 
 @dataclass
 class _ContextSlot:
-    buffer: SampleBuffer
-    estimate: ContextEstimate
-    samples_at_fit: int = 0
+    """One context's estimate and counters (its samples are in the shared store)."""
 
-    def __deepcopy__(self, memo) -> _ContextSlot:
-        return _ContextSlot(copy.deepcopy(self.buffer, memo), self.estimate, self.samples_at_fit)
+    estimate: ContextEstimate
+    samples: int = 0
+    """Samples attributed to the context (received, plus relabelled in, minus relabelled out)."""
+    changes: int = 0
+    """Changes to its data (samples received or relabelled in or out), ever increasing."""
+    changes_at_fit: int = 0
 
 
 @dataclass
@@ -303,12 +275,15 @@ class ContextEstimator:
     last_known_time_s: float = -math.inf
     last_sample_time_s: float = -math.inf
     last_fitted_context: int = -1
+    labels_version: int = 0
+    relabelled_samples: int = 0
 
     def __post_init__(self) -> None:
         prior = self.params.theta if self.config.prior_theta is None else self.config.prior_theta
         self._prior = tuple(float(v) for v in prior)
         capacity = max(1, int(round(self.config.buffer_s / self.config.sample_period_s)))
         self._capacity = capacity
+        self._store = SampleStore()
         if self.config.fit_stiffness:
             self._options = joint_options(
                 self.params,
@@ -323,7 +298,8 @@ class ContextEstimator:
 
     def __deepcopy__(self, memo) -> ContextEstimator:
         other = copy.copy(self)
-        other._slots = {k: copy.deepcopy(v, memo) for k, v in self._slots.items()}
+        other._slots = {k: copy.copy(v) for k, v in self._slots.items()}
+        other._store = copy.deepcopy(self._store, memo)
         return other
 
     @property
@@ -353,20 +329,75 @@ class ContextEstimator:
         if not (math.isfinite(t) and np.all(np.isfinite(state)) and np.all(np.isfinite(inputs))):
             self.rejected_samples += 1
             return -1
+        self._store.append(t, state, inputs, ident)
+        if len(self._store) > (len(self._slots) + 2) * self._capacity:
+            self._store.retain(self._capacity)  # amortised: drops at least one buffer's worth
         if ident < 0:
             self.noise_samples += 1
             return -1
-        slot = self._slots.get(ident)
-        if slot is None:
-            slot = _ContextSlot(
-                SampleBuffer(self._capacity),
-                ContextEstimate(ident, self._prior, (float("nan"),) * 3),
-            )
-            self._slots[ident] = slot
-        slot.buffer.append(t, state, inputs)
+        slot = self._slot(ident)
+        slot.samples += 1
+        slot.changes += 1
         if slot.estimate.fitted:
             self.last_fitted_context = ident
         return ident
+
+    def _slot(self, ident: int) -> _ContextSlot:
+        slot = self._slots.get(ident)
+        if slot is None:
+            slot = _ContextSlot(ContextEstimate(ident, self._prior, (float("nan"),) * 3))
+            self._slots[ident] = slot
+        return slot
+
+    def relabel(
+        self,
+        frame_t_s,
+        frame_labels,
+        frame_period_s: float,
+        version: int | None = None,
+    ) -> dict[int, int]:
+        """Give the stored samples the labels of the clustering as it now stands (eq. 5d).
+
+        Each sample takes the label of the clustering's frame that covers its time
+        (:func:`pcvfe_drake.estimation.sample_store.labels_from_frames`): the noise samples of a
+        terrain that was new when they were taken join its context once a re-clustering has
+        found it. Contexts whose data changed are refitted by the next :meth:`refit` calls
+        (round-robin, bounded as always).
+
+        Args:
+            frame_t_s: (M,) times of the clustering's stored frames [s].
+            frame_labels: (M,) their current context ids (-1 noise).
+            frame_period_s: the camera period [s].
+            version: the clustering's label version (re-clusterings so far); a version already
+                applied is skipped (None: relabel anyway).
+
+        Returns:
+            {context id: net samples gained (negative: lost)} for the contexts that changed
+            (-1: noise).
+        """
+        if version is not None:
+            if int(version) <= self.labels_version:
+                return {}
+            self.labels_version = int(version)
+        old = self._store.labels()
+        new = labels_from_frames(
+            self._store.times(), old, frame_t_s, frame_labels, float(frame_period_s)
+        )
+        moved = new != old
+        if not moved.any():
+            return {}
+        self._store.set_labels(new)
+        self.relabelled_samples += int(moved.sum())
+        gained: dict[int, int] = {}
+        for label, sign in ((old[moved], -1), (new[moved], 1)):
+            ids, counts = np.unique(label, return_counts=True)
+            for ident, count in zip(ids.tolist(), counts.tolist(), strict=True):
+                gained[ident] = gained.get(ident, 0) + sign * count
+                if ident != NOISE:
+                    slot = self._slot(ident)
+                    slot.samples += sign * count
+                    slot.changes += count
+        return {k: v for k, v in gained.items() if v}
 
     def theta_for(self, context_id: int | None = None) -> np.ndarray:
         """theta in use for ``context_id`` (default: the current one): always finite.
@@ -407,8 +438,8 @@ class ContextEstimator:
         return theta if np.all(np.isfinite(theta)) else np.array(self._prior)
 
     def pending(self) -> list[int]:
-        """Contexts that gained samples since their last refit, in round-robin order."""
-        ids = [k for k, s in sorted(self._slots.items()) if s.buffer.total > s.samples_at_fit]
+        """Contexts whose data changed since their last refit, in round-robin order."""
+        ids = [k for k, s in sorted(self._slots.items()) if s.changes > s.changes_at_fit]
         later = [k for k in ids if k >= self._next_rr]
         return later + [k for k in ids if k < self._next_rr]
 
@@ -427,9 +458,10 @@ class ContextEstimator:
     def _refit_one(self, ident: int, t_now: float, fit) -> None:
         cfg = self.config
         slot = self._slots[ident]
-        slot.samples_at_fit = slot.buffer.total
+        slot.changes_at_fit = slot.changes
         old = slot.estimate
-        t, states, inputs = slot.buffer.arrays()
+        rows = np.flatnonzero(self._store.labels() == ident)[-self._capacity :]
+        t, states, inputs = self._store.rows(rows)
         split = build_windows(
             t,
             states,
@@ -443,7 +475,7 @@ class ContextEstimator:
         )
         data = split.by_context.get(0)
         n_windows = 0 if data is None else data.n_windows
-        samples = slot.buffer.total
+        samples = slot.samples
         if n_windows < cfg.min_windows:
             skipped = ", ".join(f"{k} {v}" for k, v in split.skipped.items() if v)
             slot.estimate = replace(
@@ -490,6 +522,7 @@ class ContextEstimator:
             samples=samples,
             n_windows=data.n_windows,
             last_update_s=float(t_now),
+            first_fit_s=old.first_fit_s if old.fitted else float(t_now),
             status="fitted" if result.converged else "fitting",
             fits=old.fits + 1,
             diverged=old.diverged,
@@ -500,8 +533,7 @@ class ContextEstimator:
     def table(self, time_s: float = float("nan")) -> EstimateTable:
         """The estimate table (sample counts as of now)."""
         entries = tuple(
-            replace(slot.estimate, samples=slot.buffer.total)
-            for _, slot in sorted(self._slots.items())
+            replace(slot.estimate, samples=slot.samples) for _, slot in sorted(self._slots.items())
         )
         return EstimateTable(
             entries=entries,
@@ -509,4 +541,6 @@ class ContextEstimator:
             time_s=float(time_s),
             rejected_samples=self.rejected_samples,
             noise_samples=self.noise_samples,
+            relabelled_samples=self.relabelled_samples,
+            labels_version=self.labels_version,
         )

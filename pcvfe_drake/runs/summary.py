@@ -28,7 +28,8 @@ dict written as ``summary.json``:
   reported during the run, noise while a new terrain waits for its first re-clustering included.
 - Friction: ``mu_estimates`` (per context: id, mu_hat, std, samples, majority true terrain, its
   true mu, abs error, and the time-weighted mean and the max abs error once the context has been
-  in use for 20 s of driving, see :func:`mu_estimates`), ``mu_error_after_settle`` (the worst
+  in use for 20 s of driving, the time of its first fit and how long after the first entry into
+  its terrain that came, see :func:`mu_estimates`), ``mu_error_after_settle`` (the worst
   context's of those, and which contexts never reached 20 s), ``mu_abs_error_time_weighted``
   (|mu_hat - mu_true| over the whole run, weighted by time, the prior used while a terrain is
   still noise included).
@@ -139,7 +140,10 @@ def mu_estimates(
     """Per discovered context: the friction estimate against the true mu of its majority terrain.
 
     ``estimate_table``: the fitter's final per-context table (dicts with ``id``, ``mu``,
-    ``mu_std``, ``samples``); where a context is missing from it, the last ``mu_hat`` logged while
+    ``mu_std``, ``samples``, optionally ``status`` and ``first_fit_s``, the sim time of its first
+    successful fit); ``first_fit_after_entry_s`` is that time minus the first time the car was
+    on the majority terrain (how long a new terrain waited for an estimate of its own). Where a
+    context is missing from the table, the last ``mu_hat`` logged while
     the context was current is used and ``std`` is None.
 
     The error "after its first 20 s" (issue 7's target, ``settle_time_s``): the time-weighted
@@ -171,11 +175,13 @@ def mu_estimates(
             std = _finite_or_none(entry.get("mu_std", math.nan))
             samples = int(entry.get("samples", 0))
             status = entry.get("status")
+            first_fit = _finite_or_none(entry.get("first_fit_s", math.nan))
         else:
             est = float(mu_hat[rows[-1]])
             std = None
             samples = 0
             status = None
+            first_fit = None
         # Scored samples: reported as this context, on its majority terrain, once the context
         # has been reported for settle_time_s of driving (counted over every sample reported
         # as it, its first visit's and later ones alike).
@@ -193,6 +199,12 @@ def mu_estimates(
                 "std": std,
                 "samples": samples,
                 "fit_status": status,
+                "first_fit_s": first_fit,
+                "first_fit_after_entry_s": (
+                    None
+                    if first_fit is None or majority is None
+                    else first_fit - float(t[np.flatnonzero(terrain == majority)[0]])
+                ),
                 "time_in_context_s": float(np.sum(w[rows])),
                 "majority_terrain": majority,
                 "majority_share": (names.count(majority) / len(rows)) if majority else 0.0,

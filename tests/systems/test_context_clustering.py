@@ -53,6 +53,11 @@ def test_fixed_input_forms_one_context_after_the_first_reclustering():
     assert rec.size == pytest.approx(103)  # frames at 0.0, 0.1, ..., 10.2
     stored = system.GetOutputPort("stored_features").Eval(context)
     assert stored.n_reclusterings == 1 and stored.z.shape[1] == 4
+    # frame_labels: the same frames' times (ordered) and labels, the version, the frame period.
+    frames = system.GetOutputPort("frame_labels").Eval(context)
+    np.testing.assert_array_equal(frames.t_s, np.sort(stored.t_s))
+    assert frames.version == 1 and frames.frame_period_s == pytest.approx(0.1)
+    assert np.all(frames.labels == 0) and frames.labels.size == stored.labels.size
     assert 0 < len(stored.z) <= 103 and np.all(stored.labels == 0)
     np.testing.assert_allclose(stored.z, np.tile(z, (len(stored.z), 1)))
     assert np.all(np.diff(np.sort(stored.t_s)) > 0) and stored.t_s.max() <= 10.2 + 1e-9

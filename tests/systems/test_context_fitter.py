@@ -9,6 +9,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
+from pcvfe_drake.contexts.cluster_table import FrameLabels
 from pcvfe_drake.estimation.context_estimator import EstimateTable
 from pcvfe_drake.estimation.synthetic_drive import s_curve_drive
 from pcvfe_drake.systems.context_fitter import ContextFitter
@@ -22,10 +23,11 @@ def params():
 
 def test_ports_and_prior_with_fixed_inputs(params):
     fitter = ContextFitter(params)
-    assert [fitter.get_input_port(i).get_name() for i in range(3)] == [
+    assert [fitter.get_input_port(i).get_name() for i in range(4)] == [
         "state",
         "actuation",
         "context_id",
+        "frame_labels",
     ]
     assert fitter.GetOutputPort("theta_hat").size() == 3
     context = fitter.CreateDefaultContext()
@@ -113,3 +115,35 @@ def test_recorded_drive_converges_and_switches_context(params):
     )
     data = log.FindLog(root).data()
     assert np.all(np.isfinite(data))
+
+
+@pytest.mark.parametrize("relabel", [True, False])
+def test_frame_labels_relabel_the_noise_samples_of_a_new_terrain(params, relabel):
+    """2 s of mu 0.8 reported as noise; then the clustering's labels say it was context 5."""
+    t, S, U = s_curve_drive(params, [0.8], duration_s=2.5)
+    fitter = ContextFitter(params, period_s=1.0, relabel=relabel)
+    context = fitter.CreateDefaultContext()
+    ports = {name: fitter.GetInputPort(name) for name in ("state", "actuation", "context_id")}
+    ports["context_id"].FixValue(context, [-1.0])
+    frames = fitter.GetInputPort("frame_labels")
+    frames.FixValue(context, FrameLabels(version=0, frame_period_s=0.1))
+    simulator = Simulator(fitter, context)
+    for k in range(t.size):  # one sample per 10 ms step
+        ports["state"].FixValue(context, S[0, k])
+        ports["actuation"].FixValue(context, U[0, k])
+        simulator.AdvanceTo(t[k] + 0.005)
+    table = fitter.GetOutputPort("estimate_table").Eval(context)
+    assert table.entries == () and table.noise_samples == t.size
+    # A re-clustering: every frame so far was terrain 5.
+    ft = np.round(np.arange(0.0, t[-1], 0.1), 6)
+    frames.FixValue(context, FrameLabels(ft, np.full(ft.size, 5), 1, 0.1))
+    simulator.AdvanceTo(t[-1] + 0.015)  # the next sample update relabels, then refits
+    table = fitter.GetOutputPort("estimate_table").Eval(context)
+    if not relabel:
+        assert table.entries == () and table.relabelled_samples == 0
+        return
+    entry = table.get(5)
+    assert table.relabelled_samples == t.size - 1 and table.labels_version == 1
+    assert entry.samples == t.size - 1  # the first sample precedes every frame
+    assert entry.fitted and abs(entry.mu - 0.8) < 0.01
+    assert entry.first_fit_s == pytest.approx(t[-1] + 0.01)  # not at the next refit (3 s)
