@@ -255,7 +255,8 @@ def StartLocalMeshcat() -> Meshcat:
 
 
 def _estimate_table(diagram, context) -> list[dict]:
-    """The fitter's final per-context estimates (id, mu, mu_std, samples) from its
+    """The fitter's final per-context estimates (id, mu, mu_std, samples, identifiability,
+    the effect model's parameters) from its
     ``estimate_table`` output (``pcvfe_drake.estimation.context_estimator.EstimateTable``)."""
     fitter = diagram.GetSubsystemByName("fitter")
     table = fitter.GetOutputPort("estimate_table").Eval(fitter.GetMyContextFromRoot(context))
@@ -267,6 +268,11 @@ def _estimate_table(diagram, context) -> list[dict]:
             "samples": int(e.samples),
             "status": e.status,
             "first_fit_s": float(e.first_fit_s),
+            "mu_lower_bound": float(e.mu_lower_bound),
+            "near_limit": bool(e.near_limit),
+            "identifiable": bool(e.identifiable),
+            "mu_is_peak": bool(e.mu_is_peak),
+            "model_params": {n: float(v) for n, v, _ in e.model_params},
         }
         for e in table.entries
         if int(e.context_id) >= 0

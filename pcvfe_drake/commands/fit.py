@@ -97,8 +97,54 @@ def register(subparsers) -> None:
         "interpolated linearly, inputs averaged over each new step, labels from the nearest "
         "row (docs/drive_log.md)",
     )
+    parser.add_argument(
+        "--effects",
+        action="append",
+        default=[],
+        metavar="EFFECT[:PARAM=VALUE,...]",
+        help="fit the workbench model with this effect (repeatable; PARAM=VALUE fixes a "
+        "parameter, e.g. steering_lag:tau=0.15): the log is fitted as `pcvfe diagnose --add` "
+        "fits it (one model, mu per context, effect parameters shared, the diagnosis's "
+        "training windows), so both give the same parameters (docs/fitting.md)",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.set_defaults(func=run)
+
+
+def run_effects(args: argparse.Namespace) -> int:
+    """``--effects``: the effect model on the whole log (``effect_fit.fit_log``)."""
+    from pcvfe_drake.estimation.effect_fit import fit_log, parse_effects
+    from pcvfe_drake.workbench.data import load
+
+    specs = parse_effects(args.effects)  # unknown effects fail before reading the log
+    data = load(args.log, context_column=args.context_column, resample_hz=args.resample)
+    out = fit_log(data, load_vehicle(args.vehicle), specs)
+    out = {"log": str(args.log), "contexts_column": args.context_column, **out}
+    if args.json:
+        print(json.dumps(out, default=lambda v: None))
+        return 0
+    names = ", ".join(
+        s.name
+        + ("" if not s.fixed else f" ({', '.join(f'{k}={v:g}' for k, v in s.fixed.items())})")
+        for s in specs
+    )
+    print(
+        f"{args.log}: effect model {names}; mu is the "
+        + ("friction peak" if out["mu_is_peak"] else "single-track model's mu (a stiffness scale)")
+        + f"; {out['training_windows']} training windows (as pcvfe diagnose)"
+    )
+    print(f"{'context':>12} {'mu':>8} {'+-std':>8} {'C_Sf':>8} {'C_Sr':>8} {'mu >=':>7}  limit")
+    for label, c in out["contexts"].items():
+        th = c["theta"]
+        print(
+            f"{label:>12} {_fmt(th['mu'], 4):>8} {_fmt(c['mu_std'], 2):>8} "
+            f"{_fmt(th['C_Sf'], 4):>8} {_fmt(th['C_Sr'], 4):>8} {_fmt(c['mu_lower_bound'], 3):>7}  "
+            + ("near" if c["near_limit"] else "never near: mu barely observable")
+        )
+    for name, p in out["params"].items():
+        if "." in name:
+            print(f"  {name} = {_fmt(p['value'], 5)} +- {_fmt(p['std'], 2)} {p['unit']}")
+    return 0
 
 
 def _fmt(value: float, digits: int = 4) -> str:
@@ -106,6 +152,8 @@ def _fmt(value: float, digits: int = 4) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.effects:
+        return run_effects(args)
     params = load_vehicle(args.vehicle)
     if args.prior_rel < 0 or not math.isfinite(args.prior_rel):
         raise ValueError(f"--prior-rel must be >= 0, got {args.prior_rel}")

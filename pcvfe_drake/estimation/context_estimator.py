@@ -41,6 +41,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from pcvfe_drake.estimation.effect_fit import (
+    EffectFitter,
+    FitterEffect,
+    friction_used,
+    parse_effects,
+)
+from pcvfe_drake.estimation.estimate_table import ContextEstimate, EstimateTable
 from pcvfe_drake.estimation.fit_dataset import (
     DEFAULT_HORIZON,
     DEFAULT_STRIDE,
@@ -63,106 +70,10 @@ from pcvfe_drake.estimation.unknown_context import (
     check_policy,
     unknown_context_theta,
 )
-from pcvfe_drake.vehicle.params import THETA_NAMES, VehicleParams
+from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import NU, NX
 
-
-@dataclass(frozen=True)
-class ContextEstimate:
-    """The estimate of one context (one row of the estimate table).
-
-    Attributes:
-        context_id: the context id (>= 0).
-        theta: [mu, C_Sf, C_Sr] in use for this context (the prior until a fit succeeded).
-        theta_std: standard deviations (NaN where not fitted / not yet fitted).
-        samples: samples attributed to this context: received with its id, plus those a
-            relabelling moved in, minus those it moved out.
-        n_windows: windows used in the last fit (0 if none).
-        last_update_s: simulation time of the last successful fit [s] (NaN if none).
-        first_fit_s: simulation time of the first successful fit [s] (NaN if none).
-        status: "prior" (no fit yet), "too_little_data", "fitted" (converged), "fitting"
-            (iteration cap reached, continues at the next update), or "diverged" (the last
-            refit diverged; theta is the last good estimate).
-        fits: successful fits so far.
-        diverged: refits that diverged and were discarded.
-        loss: loss of the last successful fit (NaN if none).
-        message: a human-readable note (e.g. why the prior is used, solver warnings).
-    """
-
-    context_id: int
-    theta: tuple[float, float, float]
-    theta_std: tuple[float, float, float]
-    samples: int = 0
-    n_windows: int = 0
-    last_update_s: float = float("nan")
-    first_fit_s: float = float("nan")
-    status: str = "prior"
-    fits: int = 0
-    diverged: int = 0
-    loss: float = float("nan")
-    message: str = ""
-
-    @property
-    def mu(self) -> float:
-        return self.theta[0]
-
-    @property
-    def mu_std(self) -> float:
-        return self.theta_std[0]
-
-    @property
-    def fitted(self) -> bool:
-        """A fit has succeeded at least once (theta is an estimate, not the prior)."""
-        return self.fits > 0
-
-    def to_dict(self) -> dict:
-        def num(x):
-            return float(x) if math.isfinite(x) else None
-
-        return {
-            "context_id": self.context_id,
-            "theta": dict(zip(THETA_NAMES, map(num, self.theta), strict=True)),
-            "std": dict(zip(THETA_NAMES, map(num, self.theta_std), strict=True)),
-            "samples": self.samples,
-            "n_windows": self.n_windows,
-            "last_update_s": num(self.last_update_s),
-            "first_fit_s": num(self.first_fit_s),
-            "status": self.status,
-            "fits": self.fits,
-            "diverged": self.diverged,
-            "loss": num(self.loss),
-            "message": self.message,
-        }
-
-
-@dataclass(frozen=True)
-class EstimateTable:
-    """Per-context estimates at ``time_s``, with the prior used for noise/unknown contexts."""
-
-    entries: tuple[ContextEstimate, ...] = ()
-    prior_theta: tuple[float, float, float] = (float("nan"),) * 3
-    time_s: float = float("nan")
-    rejected_samples: int = 0
-    noise_samples: int = 0
-    relabelled_samples: int = 0
-    labels_version: int = 0
-
-    def get(self, context_id: int) -> ContextEstimate | None:
-        for entry in self.entries:
-            if entry.context_id == context_id:
-                return entry
-        return None
-
-    def to_dict(self) -> dict:
-        return {
-            "time_s": self.time_s if math.isfinite(self.time_s) else None,
-            "prior_theta": dict(zip(THETA_NAMES, self.prior_theta, strict=True)),
-            "rejected_samples": self.rejected_samples,
-            "noise_samples": self.noise_samples,
-            "relabelled_samples": self.relabelled_samples,
-            "labels_version": self.labels_version,
-            "entries": [e.to_dict() for e in self.entries],
-        }
+UNIDENTIFIED_MU = ("estimate", "lower_bound")
 
 
 @dataclass
@@ -194,6 +105,18 @@ class LiveFitConfig:
         relabel: after each re-clustering, give the stored samples the clustering's new labels
             (paper eq. 5d; the ContextFitter's ``frame_labels`` input); False: every sample keeps
             the id it was taken with (noise samples never count).
+        effects: fit the workbench model with these effects instead of the bare ST model
+            (``pcvfe_drake.estimation.effect_fit``; entries: name and fixed parameter values,
+            the others fitted per context). Empty: the ST fit (default).
+        effect_horizon_s, effect_stride_s, effect_max_windows: the effect fit's windows
+            (horizon, spacing, the newest this many per refit).
+        identifiable_std: mu's standard deviation above which a context is not identifiable.
+        near_limit_fraction: the data came near the limit when the used friction reached this
+            fraction of the fitted mu.
+        unidentified_mu: what the controller gets for a fitted context whose mu is not
+            identifiable: ``"estimate"`` (the fit, default) or ``"lower_bound"``
+            (``max(mu_lower_bound, unknown_floor_mu)``, capped at the estimate, with the
+            stiffnesses scaled so that mu * C_S, the small-slip stiffness, stays the fit's).
     """
 
     horizon_steps: int = DEFAULT_HORIZON
@@ -214,8 +137,30 @@ class LiveFitConfig:
     unknown_floor_mu: float = DEFAULT_FLOOR_MU
     unknown_sigmas: float = DEFAULT_SIGMAS
     relabel: bool = True
+    effects: list[FitterEffect] = field(default_factory=list)
+    effect_horizon_s: float = 1.0
+    effect_stride_s: float = 0.5
+    effect_max_windows: int = 100
+    identifiable_std: float = 0.05
+    near_limit_fraction: float = 0.6
+    unidentified_mu: str = "estimate"
 
     def __post_init__(self) -> None:
+        if self.unidentified_mu not in UNIDENTIFIED_MU:
+            raise ValueError(
+                f"LiveFitConfig.unidentified_mu must be one of {UNIDENTIFIED_MU}, got "
+                f"{self.unidentified_mu!r}"
+            )
+        self.effects = parse_effects(self.effects)
+        for name in ("effect_horizon_s", "effect_stride_s", "identifiable_std"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"LiveFitConfig.{name} must be > 0, got {value!r}")
+        if not (0 < self.near_limit_fraction <= 1):
+            raise ValueError(
+                f"LiveFitConfig.near_limit_fraction must be in (0, 1], got "
+                f"{self.near_limit_fraction!r}"
+            )
         check_policy(
             self.unknown_context, self.unknown_floor_mu, self.unknown_sigmas, "LiveFitConfig"
         )
@@ -226,6 +171,7 @@ class LiveFitConfig:
             "max_windows",
             "max_iterations",
             "max_contexts_per_update",
+            "effect_max_windows",
         )
         for name in positive_ints:
             value = getattr(self, name)
@@ -294,6 +240,18 @@ class ContextEstimator:
         else:
             self._options = FitOptions(
                 max_iterations=self.config.max_iterations, min_windows=self.config.min_windows
+            )
+        self._effect_fitter = None
+        if self.config.effects:
+            cfg = self.config
+            self._effect_fitter = EffectFitter(
+                self.params,
+                cfg.effects,
+                horizon_s=cfg.effect_horizon_s,
+                stride_s=cfg.effect_stride_s,
+                max_windows=cfg.effect_max_windows,
+                max_iterations=cfg.max_iterations,
+                min_windows=cfg.min_windows,
             )
 
     def __deepcopy__(self, memo) -> ContextEstimator:
@@ -418,7 +376,19 @@ class ContextEstimator:
         if context_id is None and (slot is None or not slot.estimate.fitted):
             return self.unknown_theta()
         theta = np.array(self._prior if slot is None else slot.estimate.theta)
+        if slot is not None and slot.estimate.fitted:
+            theta = self._unidentified(slot.estimate, theta)
         return theta if np.all(np.isfinite(theta)) else np.array(self._prior)
+
+    def _unidentified(self, est: ContextEstimate, theta: np.ndarray) -> np.ndarray:
+        """``unidentified_mu: lower_bound``: a context whose mu is not identifiable gets
+        ``max(mu_lower_bound, unknown_floor_mu)`` (at most its estimate), the stiffnesses
+        scaled to keep ``mu * C_S``."""
+        if self.config.unidentified_mu != "lower_bound" or est.identifiable:
+            return theta
+        bound = est.mu_lower_bound if math.isfinite(est.mu_lower_bound) else 0.0
+        mu = min(max(bound, self.config.unknown_floor_mu), theta[0])
+        return np.array([mu, theta[1] * theta[0] / mu, theta[2] * theta[0] / mu])
 
     def unknown_theta(self) -> np.ndarray:
         """theta the controller gets while the context is unknown (the configured policy)."""
@@ -462,6 +432,9 @@ class ContextEstimator:
         old = slot.estimate
         rows = np.flatnonzero(self._store.labels() == ident)[-self._capacity :]
         t, states, inputs = self._store.rows(rows)
+        if self._effect_fitter is not None:
+            self._refit_effects(slot, t, states, inputs, t_now)
+            return
         split = build_windows(
             t,
             states,
@@ -528,6 +501,77 @@ class ContextEstimator:
             diverged=old.diverged,
             loss=float(result.loss),
             message="; ".join(result.warnings),
+            **self._identifiability(old, t, states, result.theta[0], std[0]),
+        )
+
+    def _identifiability(self, old: ContextEstimate, t, states, mu: float, std: float) -> dict:
+        """The table's identifiability fields after a fit with ``mu +- std`` on the buffer."""
+        used = friction_used(t, states)
+        if math.isfinite(old.mu_lower_bound):
+            used = old.mu_lower_bound if not math.isfinite(used) else max(used, old.mu_lower_bound)
+        near = bool(math.isfinite(used) and used >= self.config.near_limit_fraction * mu)
+        ident = bool(near and math.isfinite(std) and std <= self.config.identifiable_std)
+        return {"mu_lower_bound": float(used), "near_limit": near, "identifiable": ident}
+
+    def _refit_effects(self, slot: _ContextSlot, t, states, inputs, t_now: float) -> None:
+        """``fitter.effects``: refit the context with the workbench's effect model."""
+        cfg = self.config
+        old = slot.estimate
+        samples = slot.samples
+        previous = tuple(v for _, v, _ in old.model_params) if old.fitted else None
+        try:
+            result = self._effect_fitter(t, states, inputs, previous, self._prior[0])
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
+            slot.estimate = replace(
+                old,
+                samples=samples,
+                status="diverged",
+                diverged=old.diverged + 1,
+                message=f"refit at t={t_now:.3g} s failed ({type(exc).__name__}: {exc}); "
+                f"keeping the last good {'estimate' if old.fitted else 'prior'}",
+            )
+            return
+        if result is None:
+            slot.estimate = replace(
+                old,
+                samples=samples,
+                status=old.status if old.fitted else "too_little_data",
+                message=f"too little data for the effect model (< {cfg.min_windows} windows of "
+                f"{cfg.effect_horizon_s:g} s)"
+                + ("; keeping the last estimate" if old.fitted else "; using the prior"),
+            )
+            return
+        if not (np.all(np.isfinite(result.theta)) and math.isfinite(result.loss)):
+            slot.estimate = replace(
+                old,
+                samples=samples,
+                status="diverged",
+                diverged=old.diverged + 1,
+                message=f"refit at t={t_now:.3g} s diverged; keeping the last good "
+                f"{'estimate' if old.fitted else 'prior'}",
+            )
+            return
+        slot.estimate = ContextEstimate(
+            context_id=old.context_id,
+            theta=tuple(float(v) for v in result.theta),
+            theta_std=tuple(float(v) for v in result.std),
+            samples=samples,
+            n_windows=result.n_windows,
+            last_update_s=float(t_now),
+            first_fit_s=old.first_fit_s if old.fitted else float(t_now),
+            status="fitted" if result.converged else "fitting",
+            fits=old.fits + 1,
+            diverged=old.diverged,
+            loss=result.loss,
+            message="; ".join(result.warnings),
+            mu_is_peak=result.mu_is_peak,
+            model_params=tuple(
+                (n, float(v), float(sd))
+                for n, v, sd in zip(
+                    result.param_names, result.model_theta, result.model_std, strict=True
+                )
+            ),
+            **self._identifiability(old, t, states, result.theta[0], result.std[0]),
         )
 
     def table(self, time_s: float = float("nan")) -> EstimateTable:

@@ -155,6 +155,9 @@ def mu_estimates(
     ``mu_hat`` is the estimate the controller was given at each sample (the fitter's output then),
     so the score covers the whole rest of the run, not just the final estimate; ``scored_time_s``
     is how much driving was scored. None when the context never reached ``settle_time_s``.
+    ``covered_95``: whether the final estimate's 95 % interval (+-1.96 std) holds the truth.
+    Identifiability (from the table, ``ContextEstimate``): ``mu_lower_bound`` (the friction the
+    data used), ``near_limit``, ``identifiable``, and ``model_params`` of an effect model.
     """
     t = log["t"].to_numpy(float)
     w = sample_weights(t)
@@ -176,12 +179,19 @@ def mu_estimates(
             samples = int(entry.get("samples", 0))
             status = entry.get("status")
             first_fit = _finite_or_none(entry.get("first_fit_s", math.nan))
+            ident = {
+                "mu_lower_bound": _finite_or_none(entry.get("mu_lower_bound", math.nan)),
+                "near_limit": entry.get("near_limit"),
+                "identifiable": entry.get("identifiable"),
+                "model_params": entry.get("model_params") or None,
+            }
         else:
             est = float(mu_hat[rows[-1]])
             std = None
             samples = 0
             status = None
             first_fit = None
+            ident = {}
         # Scored samples: reported as this context, on its majority terrain, once the context
         # has been reported for settle_time_s of driving (counted over every sample reported
         # as it, its first visit's and later ones alike).
@@ -213,6 +223,12 @@ def mu_estimates(
                 "abs_error_after_settle_mean": err_after,
                 "abs_error_after_settle_max": err_after_max,
                 "scored_time_s": float(np.sum(w[settled])) if err_after is not None else 0.0,
+                "covered_95": (
+                    abs(est - true_mu) <= 1.96 * std
+                    if true_mu is not None and std is not None
+                    else None
+                ),
+                **ident,
             }
         )
     return out
@@ -366,6 +382,15 @@ def _station_faults(status: Mapping[str, Any]) -> str:
     return "; ".join(parts) if parts else "no faults"
 
 
+def _limit_flag(entry: Mapping[str, Any]) -> str:
+    """The identifiability column: whether the data came near the friction limit."""
+    if entry.get("near_limit") is None:
+        return "-"
+    if not entry["near_limit"]:
+        return "never near (mu not identifiable)"
+    return "near" if entry.get("identifiable") else "near, std large"
+
+
 def summary_table(summary: Mapping[str, Any]) -> str:
     """The summary as a plain-text table for the terminal."""
 
@@ -424,7 +449,7 @@ def summary_table(summary: Mapping[str, Any]) -> str:
         lines.append("")
         lines.append(
             "context  terrain        mu_true  mu_hat   std      |err|    "
-            "after 20 s: mean  max      scored  time"
+            "after 20 s: mean  max      scored  time     mu >=   limit"
         )
         for e in est:
             lines.append(
@@ -432,6 +457,7 @@ def summary_table(summary: Mapping[str, Any]) -> str:
                 f"{fmt(e['true_mu']):>7}  {fmt(e['mu_hat']):>7}  {fmt(e['std']):>7}  "
                 f"{fmt(e['abs_error']):>7}  {fmt(e['abs_error_after_settle_mean']):>16}  "
                 f"{fmt(e.get('abs_error_after_settle_max')):>7}  "
-                f"{e.get('scored_time_s', 0.0):>6.1f} s  {e['time_in_context_s']:.1f} s"
+                f"{e.get('scored_time_s', 0.0):>6.1f} s  {e['time_in_context_s']:>6.1f} s  "
+                f"{fmt(e.get('mu_lower_bound')):>6}  {_limit_flag(e)}"
             )
     return "\n".join(lines)

@@ -100,25 +100,31 @@ def whitened_errors(
     return err[:, burn_in:, idx] / data.sigma[idx]
 
 
-def _residuals_and_jacobian(model, theta, data, starts, horizon, with_jacobian, burn_in=0):
+def _residuals_and_jacobian(
+    model, theta, data, starts, horizon, with_jacobian, burn_in=0, cols=None
+):
+    """Residuals (whitened, flattened) and their finite-difference Jacobian (columns ``cols``
+    only, default all; the other columns are zero) from one batched rollout."""
     n_p = model.n_params
     n = starts.size
     if not with_jacobian:
         r = whitened_errors(model, theta, data, starts, horizon, burn_in).reshape(-1)
         return r, None
+    cols = np.arange(n_p) if cols is None else np.asarray(cols, dtype=int)
+    n_c = cols.size
     h = FD_STEP * model.scales()
-    rows = np.tile(theta, (2 * n_p + 1, 1))
-    for j in range(n_p):
-        rows[1 + 2 * j, j] += h[j]
-        rows[2 + 2 * j, j] -= h[j]
+    rows = np.tile(theta, (2 * n_c + 1, 1))
+    for i, j in enumerate(cols):
+        rows[1 + 2 * i, j] += h[j]
+        rows[2 + 2 * i, j] -= h[j]
     theta_rows = np.repeat(rows, n, axis=0)
-    all_starts = np.tile(starts, 2 * n_p + 1)
+    all_starts = np.tile(starts, 2 * n_c + 1)
     e = whitened_errors(model, theta_rows, data, all_starts, horizon, burn_in)
-    e = e.reshape(2 * n_p + 1, -1)
+    e = e.reshape(2 * n_c + 1, -1)
     r = e[0]
-    jac = np.empty((r.size, n_p))
-    for j in range(n_p):
-        jac[:, j] = (e[1 + 2 * j] - e[2 + 2 * j]) / (2.0 * h[j])
+    jac = np.zeros((r.size, n_p))
+    for i, j in enumerate(cols):
+        jac[:, j] = (e[1 + 2 * i] - e[2 + 2 * i]) / (2.0 * h[j])
     return r, jac
 
 
@@ -138,6 +144,7 @@ def fit(
     rtol: float = 1e-7,
     overlap: float = 1.0,
     burn_in: int = 0,
+    fixed: np.ndarray | None = None,
 ) -> FitResult:
     """Levenberg-Marquardt fit of all model parameters within their bounds (projected steps).
 
@@ -155,6 +162,8 @@ def fit(
             initial yaw rate and slip starts a transient whose size depends on the parameters;
             leaving out its first ~0.25 s removes most of the bias that this noise would put
             on stiffness and lag estimates.
+        fixed: boolean mask (P,) of parameters held at their starting value (not fitted; std
+            NaN), e.g. effect parameters found by ``pcvfe diagnose`` (default: none).
     Returns:
         FitResult. ``std`` = sqrt(diag(s^2 (J^T J)^-1)) with s^2 = cost / (n_residuals - P),
         multiplied by sqrt(n_residuals / n_eff): errors inside a window are strongly
@@ -175,8 +184,13 @@ def fit(
         costs = [training_cost(model, c, data, starts, horizon, burn_in) for c in options]
         theta = options[int(np.argmin(costs))]
 
+    fixed = np.zeros(model.n_params, bool) if fixed is None else np.asarray(fixed, bool)
+    fitted_cols = np.flatnonzero(~fixed)
+
     def fun(th, need_jacobian):
-        r, jac = _residuals_and_jacobian(model, th, data, starts, horizon, need_jacobian, burn_in)
+        r, jac = _residuals_and_jacobian(
+            model, th, data, starts, horizon, need_jacobian, burn_in, fitted_cols
+        )
         if not np.all(np.isfinite(r)):
             r = np.full_like(r, np.inf)
         return r, jac
@@ -187,6 +201,7 @@ def fit(
         lo,
         hi,
         scale,
+        free=~fixed,
         settings=lsq.LsqSettings(
             max_iterations=max_iter,
             ftol=rtol,
@@ -202,8 +217,8 @@ def fit(
     converged, history = out.converged, out.history
     n_res = r.size
     n_eff = max(starts.size / max(overlap, 1.0) * len(FIT_STATES), model.n_params + 1.0)
-    informed = np.any(jac != 0.0, axis=0)
-    free = ~((theta <= lo) | (theta >= hi)) & informed
+    informed = np.any(jac != 0.0, axis=0) | fixed
+    free = ~((theta <= lo) | (theta >= hi)) & informed & ~fixed
     std = np.full(model.n_params, np.nan)
     if free.any():
         try:
@@ -214,5 +229,5 @@ def fit(
         except np.linalg.LinAlgError:
             pass
     std[~free] = 0.0
-    std[~informed] = np.nan
+    std[~informed | fixed] = np.nan
     return FitResult(model, theta, std, cost, n_res, n_eff, it, converged, history, informed)

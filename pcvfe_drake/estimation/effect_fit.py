@@ -1,0 +1,413 @@
+"""Friction fitting with the workbench's model: the single-track model plus effects.
+
+``pcvfe diagnose`` finds which effects the single-track (ST) model lacks on a log; this module
+lets the context fitter (``ContextEstimator``, scenario ``fitter.effects``) and ``pcvfe fit
+--effects`` estimate friction *with* those effects, through the same model
+(:class:`~pcvfe_drake.workbench.model.WorkbenchModel`), the same windows and cost
+(:func:`~pcvfe_drake.workbench.estimate.fit`: multi-step whitened rollout errors,
+finite-difference sensitivities in one batched rollout) and the same least-squares core
+(:mod:`pcvfe_drake.estimation.least_squares`) as the diagnosis.
+
+Per context the fitted parameters are the base ``mu`` and every effect parameter that the
+scenario does not fix (``FitterEffect.fixed``: values found by ``pcvfe diagnose``); a context's
+refit is warm-started from its previous full parameter vector.
+
+What the controller gets
+------------------------
+The NMPC's single-track model takes ``theta = [mu, C_Sf, C_Sr]``. From a fitted effect model:
+
+* ``mu`` = the fitted base mu. With an effect whose class says ``friction_is_peak = True`` this
+  is the friction *peak* (the largest lateral force per unit load), which is what the NMPC's
+  friction limit needs; otherwise it is the ST model's mu (a scale of the linear tyre);
+* ``C_Sf, C_Sr`` such that ``mu * C_S`` equals the fitted model's small-slip cornering stiffness
+  per unit axle load (measured on the model itself: the axle forces at a slip of 1e-4 rad, straight
+  running at 10 m/s, static loads), so the NMPC's linear-range dynamics are those of the fit.
+
+Identifiability (``friction_used``): how much friction the context's data actually used, the
+95th percentile of ``sqrt(a_x^2 + a_y^2) / g`` with ``a_y = v (psi_dot + beta_dot)`` and ``a_x =
+dv/dt`` from the measured states (smoothed over 0.1 s). A car that drove there without sliding
+had at least that much friction: it is a lower bound on mu. When it stays far below the fitted
+peak the data never came near the limit and a peak is barely observable.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pcvfe_drake.vehicle.params import VehicleParams
+from pcvfe_drake.vehicle.single_track import BETA, NX, PSI_DOT, V
+
+G_MPS2 = 9.81
+FRICTION_USED_QUANTILE = 0.95
+"""Quantile of the used friction ``sqrt(a_x^2 + a_y^2) / g`` taken as its lower bound on mu."""
+FRICTION_USED_SMOOTH_S = 0.1
+"""Central-difference half span [s] for the measured accelerations (noise averaging)."""
+STIFFNESS_PROBE_SLIP_RAD = 1e-4
+STIFFNESS_PROBE_SPEED_MPS = 10.0
+
+
+@dataclass
+class FitterEffect:
+    """One effect of the context fitter's model (scenario ``fitter.effects`` entry).
+
+    Attributes:
+        name: the effect's name in the workbench library (``pcvfe diagnose --list``).
+        fixed: parameter values held fixed (short names, e.g. ``{tau: 0.15}``; as found by
+            ``pcvfe diagnose``); the effect's other parameters are fitted per context.
+    """
+
+    name: str = ""
+    fixed: dict[str, float] = field(default_factory=dict)
+
+
+def parse_effects(entries) -> list[FitterEffect]:
+    """``FitterEffect`` list from names, ``"name:param=value,..."`` strings, dicts or
+    FitterEffects; unknown effects and parameters are reported by name."""
+    from pcvfe_drake.workbench.effects import get_effect
+
+    out = []
+    for entry in entries or ():
+        if isinstance(entry, FitterEffect):
+            spec = entry
+        elif isinstance(entry, dict):
+            spec = FitterEffect(str(entry.get("name", "")), dict(entry.get("fixed", {}) or {}))
+        else:
+            text = str(entry).strip()
+            name, _, rest = text.partition(":")
+            fixed = {}
+            for item in filter(None, (s.strip() for s in rest.split(","))):
+                key, eq, value = item.partition("=")
+                if not eq:
+                    raise ValueError(
+                        f"effect {text!r}: fixed parameters are written name:param=value,... "
+                        f"(got {item!r})"
+                    )
+                fixed[key.strip()] = float(value)
+            spec = FitterEffect(name.strip(), fixed)
+        effect = get_effect(spec.name)  # unknown names fail here, with the library listed
+        names = {q.name: q for q in effect.params}
+        for key, value in spec.fixed.items():
+            if key not in names:
+                raise ValueError(
+                    f"effect {spec.name}: no parameter {key!r} to fix (its parameters: "
+                    f"{', '.join(names) or 'none'})"
+                )
+            q = names[key]
+            if not (math.isfinite(value) and q.lower <= value <= q.upper):
+                raise ValueError(
+                    f"effect {spec.name}: fixed {key} = {value!r} is outside its bounds "
+                    f"[{q.lower}, {q.upper}] {q.unit}"
+                )
+        out.append(FitterEffect(effect.name, {k: float(v) for k, v in spec.fixed.items()}))
+    return out
+
+
+def friction_is_peak(model) -> bool:
+    """Whether the model's base mu is the friction peak (an effect with ``friction_is_peak``)."""
+    return any(getattr(e, "friction_is_peak", False) for e in model.effects)
+
+
+def build_model(vehicle: VehicleParams, effects, contexts=("all",)):
+    """The workbench model (base mu per context) and its fixed-parameter mask and start."""
+    from pcvfe_drake.workbench.model import WorkbenchModel
+
+    specs = parse_effects(effects)
+    model = WorkbenchModel(vehicle, [s.name for s in specs], ("mu",), list(contexts))
+    theta0 = model.initial_theta()
+    fixed = np.zeros(model.n_params, bool)
+    index = {p: i for i, p in enumerate(model.param_names)}
+    for s in specs:
+        for key, value in s.fixed.items():
+            i = index[f"{s.name}.{key}"]
+            theta0[i] = value
+            fixed[i] = True
+    return model, fixed, theta0
+
+
+def small_slip_stiffness(model, theta: np.ndarray, context: int = 0) -> np.ndarray:
+    """``mu * C_S`` per axle [1/rad] of the model at ``theta``: the lateral force per unit axle
+    load and radian of slip at a small slip (straight running, 10 m/s, no acceleration
+    command)."""
+    vp = model.vehicle
+    theta_rows = np.atleast_2d(np.asarray(theta, dtype=float))
+    base, eff = model._unpack(theta_rows, np.array([context]))
+    z = np.zeros((1, model.nz))
+    z[0, V] = STIFFNESS_PROBE_SPEED_MPS
+    z[0, BETA] = -STIFFNESS_PROBE_SLIP_RAD  # alpha_f = alpha_r = +slip
+    zdot = model.rhs(z, np.zeros((1, 2)), base, eff)
+    total = (zdot[0, BETA] + z[0, PSI_DOT]) * vp.m * STIFFNESS_PROBE_SPEED_MPS  # F_yf + F_yr
+    moment = zdot[0, PSI_DOT] * vp.I_z  # lf F_yf - lr F_yr
+    wheelbase = vp.lf + vp.lr
+    fyf = (moment + vp.lr * total) / wheelbase
+    fyr = total - fyf
+    a_long = zdot[0, V]  # the loads the model used (a resistance transfers load)
+    fz = vp.m * np.array([vp.g * vp.lr - a_long * vp.h, vp.g * vp.lf + a_long * vp.h]) / wheelbase
+    return np.array([fyf, fyr]) / (fz * STIFFNESS_PROBE_SLIP_RAD)
+
+
+def controller_theta(model, theta: np.ndarray, context: int = 0) -> np.ndarray:
+    """``[mu, C_Sf, C_Sr]`` for the NMPC's ST model from a fitted effect model (see the module
+    docstring): mu the fitted base mu, ``mu * C_S`` the model's small-slip stiffness."""
+    mu_idx = next(
+        i for i, p in enumerate(model.params) if p.effect is None and p.context == context
+    )
+    mu = float(theta[mu_idx])
+    k = small_slip_stiffness(model, theta, context)
+    return np.array([mu, k[0] / mu, k[1] / mu])
+
+
+def friction_used(t: np.ndarray, states: np.ndarray, quantile: float = FRICTION_USED_QUANTILE):
+    """Lower bound on mu from the measured states: the ``quantile`` of ``sqrt(a_x^2 + a_y^2) / g``
+    over samples whose neighbours +-0.1 s are evenly spaced (NaN with fewer than 20 such)."""
+    t = np.asarray(t, dtype=float)
+    x = np.asarray(states, dtype=float)
+    if t.size < 3:
+        return float("nan")
+    dt = float(np.median(np.diff(t)))
+    m = max(1, int(round(FRICTION_USED_SMOOTH_S / max(dt, 1e-9))))
+    if t.size <= 2 * m:
+        return float("nan")
+    span = t[2 * m :] - t[: -2 * m]
+    ok = np.abs(span - 2 * m * dt) <= 0.1 * 2 * m * dt
+    ax = (x[2 * m :, V] - x[: -2 * m, V]) / np.where(ok, span, 1.0)
+    beta_dot = (x[2 * m :, BETA] - x[: -2 * m, BETA]) / np.where(ok, span, 1.0)
+    mid = x[m:-m]
+    ay = mid[:, V] * (mid[:, PSI_DOT] + beta_dot)
+    use = ok & (mid[:, V] >= 1.0)
+    if use.sum() < 20:
+        return float("nan")
+    return float(np.quantile(np.hypot(ax, ay)[use] / G_MPS2, quantile))
+
+
+def drive_data_from_arrays(t: np.ndarray, states: np.ndarray, inputs: np.ndarray, source: str):
+    """A one-context :class:`~pcvfe_drake.workbench.data.DriveData` from buffer arrays (time
+    gaps allowed: the initial-state smoothing runs per gap-free segment, windows never span a
+    gap), noise scales estimated as ``pcvfe diagnose`` does."""
+    from pcvfe_drake.workbench.data import (
+        NOISE_STRIDE_S,
+        DriveData,
+        denoised_delta_sigma,
+        initial_state_estimates,
+        robust_noise_sigma,
+    )
+
+    t = np.asarray(t, dtype=float)
+    x = np.asarray(states, dtype=float).copy()
+    u = np.asarray(inputs, dtype=float)
+    dt = float(np.median(np.diff(t)))
+    x[:, 4] = np.unwrap(x[:, 4])
+    breaks = np.flatnonzero(np.abs(np.diff(t) - dt) > 0.5 * dt) + 1
+    x0 = np.empty_like(x)
+    for seg in np.split(np.arange(t.size), breaks):
+        x0[seg] = initial_state_estimates(x[seg], u[seg], dt)
+    longest = max(np.split(np.arange(t.size), breaks), key=len)
+    strides = max(1, int(round(NOISE_STRIDE_S / dt)))
+    sigma = np.array([robust_noise_sigma(x[longest, i], strides) for i in range(NX)])
+    sigma = np.maximum(sigma, 1e-4 * np.maximum(np.ptp(x, axis=0), 1e-6))
+    return DriveData(
+        t,
+        dt,
+        x,
+        u,
+        np.zeros(t.size, dtype=int),
+        ["all"],
+        sigma,
+        source,
+        x0,
+        x0_delta_sigma=denoised_delta_sigma(x[longest], u[longest], dt),
+    )
+
+
+@dataclass
+class EffectFitResult:
+    """One context's fit of the effect model (duck-compatible with ``FitResult`` where the
+    ``ContextEstimator`` reads it).
+
+    Attributes:
+        theta, std: the controller's ``[mu, C_Sf, C_Sr]`` (see the module docstring) and their
+            standard deviations (mu's from the fit; the stiffnesses' NaN).
+        model_theta, model_std: the fitted model's full parameter vector and its std.
+        param_names: names of ``model_theta``.
+        loss: the training cost per residual (whitened, ~1 when the model explains the data to
+            the noise).
+        status, converged, iterations, n_windows, warnings: as ``FitResult``.
+        mu_is_peak: whether mu is the friction peak.
+    """
+
+    theta: np.ndarray
+    std: np.ndarray
+    model_theta: np.ndarray
+    model_std: np.ndarray
+    param_names: list[str]
+    loss: float
+    status: str
+    converged: bool
+    iterations: int
+    n_windows: int
+    mu_is_peak: bool
+    warnings: list[str] = field(default_factory=list)
+
+
+@dataclass
+class EffectFitter:
+    """Fits one context's buffer with the effect model (the online path of ``fitter.effects``).
+
+    Windows of ``horizon_s`` (default 1 s, as ``pcvfe diagnose``) every ``stride_s``, the first
+    ``burn_in_s`` of each left out of the cost, at v >= 1 m/s, not spanning a time gap; the
+    newest ``max_windows`` are used, at most ``max_iterations`` Levenberg-Marquardt iterations
+    per refit (warm-started).
+    """
+
+    vehicle: VehicleParams
+    effects: list = field(default_factory=list)
+    horizon_s: float = 1.0
+    burn_in_s: float = 0.25
+    stride_s: float = 0.5
+    max_windows: int = 100
+    max_iterations: int = 5
+    min_windows: int = 10
+
+    def __post_init__(self) -> None:
+        self.model, self.fixed, self.theta_init = build_model(self.vehicle, self.effects)
+        self.mu_is_peak = friction_is_peak(self.model)
+
+    def start_vector(self, previous=None, mu_start: float | None = None) -> np.ndarray:
+        """The warm start: the previous full vector if it fits this model, else the initial
+        vector with mu = ``mu_start``."""
+        if previous is not None and len(previous) == self.model.n_params:
+            return np.asarray(previous, dtype=float)
+        theta = self.theta_init.copy()
+        if mu_start is not None and math.isfinite(mu_start):
+            theta[0] = mu_start
+        return theta
+
+    def windows(self, data) -> tuple[np.ndarray, int, int]:
+        from pcvfe_drake.workbench.data import window_starts
+
+        horizon = max(2, int(round(self.horizon_s / data.dt)))
+        stride = max(1, int(round(self.stride_s / data.dt)))
+        burn_in = min(int(round(self.burn_in_s / data.dt)), horizon - 1)
+        starts = window_starts(data, horizon, stride, "all")
+        return starts[-self.max_windows :], horizon, burn_in
+
+    def __call__(self, t, states, inputs, previous=None, mu_start=None) -> EffectFitResult | None:
+        """Fit the buffer; None when it holds fewer than ``min_windows`` windows."""
+        from pcvfe_drake.workbench.estimate import fit
+
+        if len(t) < 10:
+            return None
+        data = drive_data_from_arrays(t, states, inputs, "context buffer")
+        starts, horizon, burn_in = self.windows(data)
+        if starts.size < self.min_windows:
+            return None
+        res = fit(
+            self.model,
+            data,
+            starts,
+            horizon,
+            theta0=self.start_vector(previous, mu_start),
+            max_iter=self.max_iterations,
+            overlap=self.horizon_s / self.stride_s,
+            burn_in=burn_in,
+            fixed=self.fixed,
+        )
+        return to_result(self.model, res, starts.size)
+
+
+def to_result(model, res, n_windows: int) -> EffectFitResult:
+    """An :class:`EffectFitResult` from a workbench ``FitResult`` (context 0)."""
+    theta = controller_theta(model, res.theta)
+    std = np.full(3, np.nan)
+    std[0] = res.std[0]
+    warnings = []
+    at = res.at_bound()
+    if at[0]:
+        warnings.append(f"mu at its bound ({res.theta[0]:.3g})")
+    return EffectFitResult(
+        theta=theta,
+        std=std,
+        model_theta=res.theta.copy(),
+        model_std=res.std.copy(),
+        param_names=model.param_names,
+        loss=float(res.cost / max(res.n_residuals, 1)),
+        status="converged" if res.converged else "max_iterations",
+        converged=bool(res.converged),
+        iterations=int(res.n_iter),
+        n_windows=int(n_windows),
+        mu_is_peak=friction_is_peak(model),
+        warnings=warnings,
+    )
+
+
+def fit_log(
+    data,
+    vehicle: VehicleParams,
+    effects,
+    identifiable_std: float = 0.05,
+    near_limit_fraction: float = 0.6,
+) -> dict:
+    """``pcvfe fit --effects``: the effect model fitted on a whole log as ``pcvfe diagnose
+    --add`` fits it (one model, mu per context, the effect parameters shared; the diagnosis's
+    training windows, start and solver), so both give the same parameters on the same data.
+
+    Returns a JSON-ready dict: ``effects``, ``params`` (every parameter: value, std, unit, ...),
+    ``mu_is_peak``, and per context the controller's theta, mu's std, its lower bound from the
+    friction used, ``near_limit`` and ``identifiable``.
+    """
+    from pcvfe_drake.workbench.estimate import fit
+    from pcvfe_drake.workbench.ranking import Workbench, _steps
+
+    wb = Workbench(data, vehicle)
+    model, fixed, theta_init = build_model(wb.base_model.vehicle, effects, data.context_names)
+    base = wb.baseline
+    theta0 = model.transfer(base.theta, base.model)
+    theta0[fixed] = theta_init[fixed]
+    candidates = []
+    for e in model.effects:
+        idx = [i for i in model.effect_param_indices(e.name) if not fixed[i]]
+        if e.starts and idx:
+            for start in e.starts:
+                c = theta0.copy()
+                c[model.effect_param_indices(e.name)] = start
+                c[fixed] = theta_init[fixed]
+                candidates.append(c)
+    cfg = wb.config
+    res = fit(
+        model,
+        data,
+        wb.train_starts,
+        wb.h_fit,
+        theta0=theta0,
+        candidates=candidates,
+        max_iter=cfg.max_iter,
+        burn_in=min(_steps(cfg.fit_burn_in_s, data), wb.h_fit - 1),
+        fixed=fixed,
+    )
+    contexts = {}
+    for c, label in enumerate(data.context_names):
+        theta = controller_theta(model, res.theta, c)
+        mu_idx = next(i for i, p in enumerate(model.params) if p.effect is None and p.context == c)
+        rows = data.context == c
+        used = friction_used(data.t[rows], data.x[rows])
+        std = float(res.std[mu_idx])
+        near = bool(math.isfinite(used) and used >= near_limit_fraction * theta[0])
+        contexts[label] = {
+            "theta": dict(zip(("mu", "C_Sf", "C_Sr"), map(float, theta), strict=True)),
+            "mu_std": std,
+            "mu_lower_bound": used,
+            "near_limit": near,
+            "identifiable": bool(near and math.isfinite(std) and std <= identifiable_std),
+        }
+    return {
+        "effects": [{"name": s.name, "fixed": s.fixed} for s in parse_effects(effects)],
+        "params": res.params_dict(),
+        "mu_is_peak": friction_is_peak(model),
+        "train_cost": float(res.cost),
+        "iterations": int(res.n_iter),
+        "converged": bool(res.converged),
+        "training_windows": int(wb.train_starts.size),
+        "contexts": contexts,
+    }

@@ -1,0 +1,133 @@
+"""The per-context estimate table of the online fitter (``ContextEstimator``).
+
+:class:`ContextEstimate` is one context's row (theta, its standard deviations, fit status and
+counts, and the identifiability of mu: its lower bound from the friction the data used, whether
+the data came near the limit); :class:`EstimateTable` is the table the ``ContextFitter`` outputs.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from pcvfe_drake.vehicle.params import THETA_NAMES
+
+
+@dataclass(frozen=True)
+class ContextEstimate:
+    """The estimate of one context (one row of the estimate table).
+
+    Attributes:
+        context_id: the context id (>= 0).
+        theta: [mu, C_Sf, C_Sr] in use for this context (the prior until a fit succeeded).
+        theta_std: standard deviations (NaN where not fitted / not yet fitted).
+        samples: samples attributed to this context: received with its id, plus those a
+            relabelling moved in, minus those it moved out.
+        n_windows: windows used in the last fit (0 if none).
+        last_update_s: simulation time of the last successful fit [s] (NaN if none).
+        first_fit_s: simulation time of the first successful fit [s] (NaN if none).
+        status: "prior" (no fit yet), "too_little_data", "fitted" (converged), "fitting"
+            (iteration cap reached, continues at the next update), or "diverged" (the last
+            refit diverged; theta is the last good estimate).
+        fits: successful fits so far.
+        diverged: refits that diverged and were discarded.
+        loss: loss of the last successful fit (NaN if none).
+        message: a human-readable note (e.g. why the prior is used, solver warnings).
+        mu_lower_bound: the largest friction the context's data used (a high quantile of
+            ``sqrt(a_x^2 + a_y^2) / g`` from the measured states, the largest over its refits;
+            ``pcvfe_drake.estimation.effect_fit.friction_used``): mu is at least this (NaN
+            before the first refit).
+        near_limit: the data came near the friction limit (``mu_lower_bound >=
+            near_limit_fraction * mu``); False: a friction peak is barely observable here.
+        identifiable: near_limit and mu's standard deviation at most ``identifiable_std``.
+        mu_is_peak: mu is the friction peak (a fitted effect model with a peak tyre).
+        model_params: the fitted effect model's parameters, ``((name, value, std), ...)``
+            (empty for the ST fit).
+    """
+
+    context_id: int
+    theta: tuple[float, float, float]
+    theta_std: tuple[float, float, float]
+    samples: int = 0
+    n_windows: int = 0
+    last_update_s: float = float("nan")
+    first_fit_s: float = float("nan")
+    status: str = "prior"
+    fits: int = 0
+    diverged: int = 0
+    loss: float = float("nan")
+    message: str = ""
+    mu_lower_bound: float = float("nan")
+    near_limit: bool = False
+    identifiable: bool = False
+    mu_is_peak: bool = False
+    model_params: tuple = ()
+
+    @property
+    def mu(self) -> float:
+        return self.theta[0]
+
+    @property
+    def mu_std(self) -> float:
+        return self.theta_std[0]
+
+    @property
+    def fitted(self) -> bool:
+        """A fit has succeeded at least once (theta is an estimate, not the prior)."""
+        return self.fits > 0
+
+    def to_dict(self) -> dict:
+        def num(x):
+            return float(x) if math.isfinite(x) else None
+
+        return {
+            "context_id": self.context_id,
+            "theta": dict(zip(THETA_NAMES, map(num, self.theta), strict=True)),
+            "std": dict(zip(THETA_NAMES, map(num, self.theta_std), strict=True)),
+            "samples": self.samples,
+            "n_windows": self.n_windows,
+            "last_update_s": num(self.last_update_s),
+            "first_fit_s": num(self.first_fit_s),
+            "status": self.status,
+            "fits": self.fits,
+            "diverged": self.diverged,
+            "loss": num(self.loss),
+            "message": self.message,
+            "mu_lower_bound": num(self.mu_lower_bound),
+            "near_limit": self.near_limit,
+            "identifiable": self.identifiable,
+            "mu_is_peak": self.mu_is_peak,
+            "model_params": {
+                n: {"value": num(v), "std": num(sd)} for n, v, sd in self.model_params
+            },
+        }
+
+
+@dataclass(frozen=True)
+class EstimateTable:
+    """Per-context estimates at ``time_s``, with the prior used for noise/unknown contexts."""
+
+    entries: tuple[ContextEstimate, ...] = ()
+    prior_theta: tuple[float, float, float] = (float("nan"),) * 3
+    time_s: float = float("nan")
+    rejected_samples: int = 0
+    noise_samples: int = 0
+    relabelled_samples: int = 0
+    labels_version: int = 0
+
+    def get(self, context_id: int) -> ContextEstimate | None:
+        for entry in self.entries:
+            if entry.context_id == context_id:
+                return entry
+        return None
+
+    def to_dict(self) -> dict:
+        return {
+            "time_s": self.time_s if math.isfinite(self.time_s) else None,
+            "prior_theta": dict(zip(THETA_NAMES, self.prior_theta, strict=True)),
+            "rejected_samples": self.rejected_samples,
+            "noise_samples": self.noise_samples,
+            "relabelled_samples": self.relabelled_samples,
+            "labels_version": self.labels_version,
+            "entries": [e.to_dict() for e in self.entries],
+        }
