@@ -1,0 +1,91 @@
+"""CPU per online refit of one context: the single-track fit against the effect-model fit.
+
+The ``ContextFitter`` refits up to 2 contexts per 1 s update, each warm-started on its buffer
+(60 s at 100 Hz). This drives a ``ContextEstimator`` through ``--seconds`` of a synthetic
+saturating-tyre drive (``workbench.synth``, brush tyre, stiffness mu 0.8, peak 0.7, survey-grade
+noise), one 1 s update at a time, once with the ST fit (default ``fitter``) and once per effect
+list given (``fitter.effects``), and reports the CPU time per refit (median and 95th percentile,
+``time.process_time``) and the ratio to the ST fit, measured in the same run.
+
+Usage: python benchmarks/context_refit_speed.py [--seconds 90] [--effects tire_saturation ...]
+Last stdout line: one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+from pcvfe_drake.estimation.context_estimator import ContextEstimator, LiveFitConfig
+from pcvfe_drake.vehicle.params import ford_escort
+from pcvfe_drake.workbench import synth
+
+STATES = ["sx", "sy", "delta", "v", "psi", "psi_dot", "beta"]
+
+
+def drive(est: ContextEstimator, t, S, U) -> dict:
+    cpu = []
+    last = t[0]
+    for k in range(t.size):
+        est.add_sample(t[k], S[k], U[k], 0)
+        if t[k] - last >= 1.0 - 1e-9:
+            last = t[k]
+            c0 = time.process_time()
+            est.refit(float(t[k]))
+            cpu.append(time.process_time() - c0)
+    entry = est.table().get(0)
+    cpu = np.array(cpu[10:])  # from 10 s on (the first seconds have too little data)
+    return {
+        "refits": int(cpu.size),
+        "cpu_median_s": float(np.median(cpu)),
+        "cpu_p95_s": float(np.quantile(cpu, 0.95)),
+        "cpu_max_s": float(np.max(cpu)),
+        "mu": entry.mu,
+        "mu_std": entry.mu_std,
+        "mu_lower_bound": entry.mu_lower_bound,
+        "model_params": {n: v for n, v, _ in entry.model_params},
+    }
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=90.0)
+    parser.add_argument(
+        "--effects", nargs="*", default=["tire_saturation"], help="effect lists, ';'-separated"
+    )
+    args = parser.parse_args()
+    vp = ford_escort()
+    truth = synth.Truth(mu=0.8, mu_peak=0.7)
+    print(f"simulating {args.seconds:g} s of the synthetic drive at 100 Hz", flush=True)
+    df = synth.simulate_truths([truth], vp, duration_s=args.seconds, rate_hz=100.0, seed=0)[0]
+    t = df["t"].to_numpy()
+    S = df[STATES].to_numpy()
+    U = df[["steer_rate", "accel"]].to_numpy()
+    st = drive(ContextEstimator(vp, LiveFitConfig()), t, S, U)
+    print(f"single-track: {st}", flush=True)
+    runs = {}
+    for spec in args.effects:
+        effects = [e for e in spec.split(";") if e]
+        res = drive(ContextEstimator(vp, LiveFitConfig(effects=effects)), t, S, U)
+        res["cpu_ratio_vs_st"] = res["cpu_median_s"] / st["cpu_median_s"]
+        runs[spec] = res
+        print(f"{spec}: {res}", flush=True)
+    print(
+        json.dumps(
+            {
+                "benchmark": "context_refit_speed",
+                "seconds": args.seconds,
+                "truth": {"mu": 0.8, "mu_peak": 0.7},
+                "single_track": st,
+                "effects": runs,
+            }
+        )
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
