@@ -39,7 +39,14 @@ from pcvfe_drake.workbench.effects import known_effects
 from pcvfe_drake.workbench.report import diagnose
 
 ORIGINAL = ["drag", "rolling_resistance", "steering_lag", "input_delay", "tire_saturation"]
-NEW = ["gyro_bias", "speed_scale", "steering_offset", "friction_speed", "friction_load"]
+NEW = [
+    "gyro_bias",
+    "speed_scale",
+    "steering_offset",
+    "friction_speed",
+    "friction_load",
+    "peak_tyre",
+]
 QUICK_COMBOS = [
     ("input_delay", "rolling_resistance"),
     ("steering_lag", "tire_saturation"),

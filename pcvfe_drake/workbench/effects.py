@@ -91,6 +91,8 @@ class StepContext:
         axle: ``"front"`` or ``"rear"`` inside the ``friction`` and ``tire`` hooks.
         fz_static: the static load [N] of that axle (for load sensitivity).
         mu_scale: the product of the ``friction`` factors of that axle (N,) (in ``tire``).
+        mu: the row's base friction coefficient ``mu`` (N,) (of its context); with a
+            ``friction_is_peak`` tyre it is the friction peak.
     """
 
     x: np.ndarray
@@ -102,6 +104,7 @@ class StepContext:
     axle: str = ""
     fz_static: float = 0.0
     mu_scale: np.ndarray | float = 1.0
+    mu: np.ndarray | float = 1.0
 
 
 class Effect:
@@ -123,6 +126,11 @@ class Effect:
     signature_label: ClassVar[str] = ""
     #: Starting points tried before the local fit (one row per start); None = ``initial`` only.
     starts: ClassVar[tuple[tuple[float, ...], ...] | None] = None
+    #: True for a tyre law with which the base parameter ``mu`` IS the friction peak (the
+    #: largest lateral force / Fz of an axle, times the friction factors), not a factor on
+    #: the small-slip stiffness; code downstream (fitters, friction sources, reports) reads
+    #: base mu as the peak when a model has such an effect.
+    friction_is_peak: ClassVar[bool] = False
 
     @property
     def n_states(self) -> int:
@@ -178,6 +186,12 @@ class Effect:
         that starts with states ``s0`` and ST state ``x_start``; ``x_stage`` is the ST state
         at that time (N, 7)."""
         raise NotImplementedError
+
+    def stiffness_mu(self, mu: np.ndarray, vehicle, p: dict) -> np.ndarray | None:
+        """For a tyre law whose small-slip stiffness is not ``mu C_S Fz``: the friction level
+        (N,) that would give the linear tyre its stiffness (the model's integration step is
+        chosen from it); None when the stiffness is the baseline's."""
+        return None
 
     def max_step(self, p: dict) -> float | None:
         """Largest integration step [s] the effect tolerates (e.g. a fast time constant)."""

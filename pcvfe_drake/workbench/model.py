@@ -12,7 +12,8 @@ followed by the effects' own states)::
     6. slip angles            alpha_f = delta_w - beta - lf r / v,  alpha_r = -beta + lr r / v
     7. friction hooks         mu_axle = mu x the factors (friction_speed, friction_load)
     8. tire forces            F_y = mu_axle C_S Fz alpha (linear), or a tire hook
-                              (tire_saturation; it sees the state and the friction factor)
+                              (tire_saturation, peak_tyre; it sees the state, the friction
+                              factor and the base mu)
     9. yaw and slip           r' = (lf F_yf - lr F_yr) / I_z,  beta' = (F_yf + F_yr) / (m v) - r
                               (r = psi_dot);  v' = a_x
    10. state_rates hooks      the effects' own states (steering_lag)
@@ -200,7 +201,7 @@ class WorkbenchModel:
         vp = self.vehicle
         x = z[:, :NX]
         steer, acc = applied_inputs(x, u, vp)
-        ctx = StepContext(x, z[:, NX:NX], steer, acc, vp)
+        ctx = StepContext(x, z[:, NX:NX], steer, acc, vp, mu=base["mu"])
         for e, sl in zip(self.effects, self._state_slices, strict=True):
             ctx.states = z[:, sl]
             acc = e.accel(acc, ctx, eff[e.name])
@@ -265,15 +266,22 @@ class WorkbenchModel:
                 zdot[:, sl] = 0.0
         return zdot
 
-    def stable_step(self, base: dict, speeds: np.ndarray) -> float:
+    def stable_step(self, base: dict, speeds: np.ndarray, eff: dict | None = None) -> float:
         """Largest RK4 step [s] for the lateral dynamics at the lowest speed in ``speeds``.
 
         The yaw/slip eigenvalues are about ``-mu C_S g max(1, m lf lr / I_z) / v`` (they grow
-        like 1/v); the step keeps ``h |lambda| <= RK4_STABLE_HLAMBDA``.
+        like 1/v); the step keeps ``h |lambda| <= RK4_STABLE_HLAMBDA``. A tyre effect whose
+        small-slip stiffness is not ``mu C_S`` says so with ``stiffness_mu`` (``eff``: the
+        effects' parameter dicts).
         """
         vp = self.vehicle
         v_min = max(float(np.min(speeds)) if np.size(speeds) else 1.0, V_FLOOR_MPS)
-        stiff = float(np.max(base["mu"] * np.maximum(base["C_Sf"], base["C_Sr"])))
+        mu = base["mu"]
+        for e in self.effects:
+            alt = e.stiffness_mu(base["mu"], vp, eff[e.name]) if eff is not None else None
+            if alt is not None:
+                mu = np.maximum(mu, alt)
+        stiff = float(np.max(mu * np.maximum(base["C_Sf"], base["C_Sr"])))
         lam = stiff * vp.g * max(1.0, vp.m * vp.lf * vp.lr / vp.I_z) / v_min
         return RK4_STABLE_HLAMBDA / max(lam, 1e-9)
 
@@ -321,7 +329,7 @@ class WorkbenchModel:
         Z[:, 0] = np.concatenate(parts, axis=1)
         limits = [e.max_step(eff[e.name]) for e in self.effects]
         limits = [m for m in limits if m is not None and m > 0]
-        limits.append(self.stable_step(base, data.x[idx, V]))
+        limits.append(self.stable_step(base, data.x[idx, V], eff))
         substeps = int(min(MAX_SUBSTEPS, max(1, np.ceil(data.dt / min(limits) - 1e-9))))
         h = data.dt / substeps
         pairs = zip(self.effects, self._state_slices, strict=True)

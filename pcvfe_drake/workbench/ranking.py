@@ -41,6 +41,10 @@ METHOD = (
 )
 
 
+PEAK_MU_START_FACTORS = (1.0, 0.8, 0.6)
+"""Factors on the fitted base mu tried as starts when a ``friction_is_peak`` tyre is added."""
+
+
 @dataclass(frozen=True)
 class DiagnoseConfig:
     """Settings of a diagnosis (times in seconds)."""
@@ -100,13 +104,19 @@ class Workbench:
         self.n_fits += 1
         theta0 = model.initial_theta() if warm is None else model.transfer(warm.theta, warm.model)
         candidates = []
+        mu_idx = [i for i, p in enumerate(model.params) if p.effect is None and p.name[:2] == "mu"]
         for e in model.effects:
             if e.starts and (warm is None or e.name not in warm.model.effect_names):
                 idx = model.effect_param_indices(e.name)
+                # a tyre whose peak is mu: the linear fit's mu is no peak (it sets the
+                # stiffness), so lower peaks are tried from the start as well
+                factors = PEAK_MU_START_FACTORS if e.friction_is_peak else (1.0,)
                 for start in e.starts:
-                    c = theta0.copy()
-                    c[idx] = start
-                    candidates.append(c)
+                    for f in factors:
+                        c = theta0.copy()
+                        c[idx] = start
+                        c[mu_idx] = c[mu_idx] * f
+                        candidates.append(c)
         return fit(
             model,
             self.data,

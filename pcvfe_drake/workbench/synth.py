@@ -57,6 +57,12 @@ class Truth:
         speed_scale: speed sensor reading / true speed [-].
         mu_speed_slope: friction falls by this fraction per m/s above 15 m/s [s/m].
         mu_load_sens: friction falls by this fraction per unit relative axle-load increase.
+        mf_peak: peak friction of a magic-formula tire (inf: none): the lateral force is
+            ``D sin(C atan(K alpha / (C D)))`` with ``D = mf_peak Fz`` and the stiffness
+            ``K = mu C_S Fz (mf_peak / mu)^mf_stiffness_exponent`` (friction factors of
+            speed and load scale both).
+        mf_shape: its shape factor C [-].
+        mf_stiffness_exponent: how its stiffness follows the peak (0: not at all) [-].
     """
 
     mu: float | None = None
@@ -72,6 +78,9 @@ class Truth:
     speed_scale: float = 1.0
     mu_speed_slope: float = 0.0
     mu_load_sens: float = 0.0
+    mf_peak: float = math.inf
+    mf_shape: float = 1.35
+    mf_stiffness_exponent: float = 0.0
 
 
 PLANTED: dict[str, tuple[Truth, str, float]] = {
@@ -87,13 +96,15 @@ PLANTED: dict[str, tuple[Truth, str, float]] = {
     "speed_scale": (Truth(speed_scale=1.03), "k", 1.03),
     "friction_speed": (Truth(mu_speed_slope=0.03), "k_v", 0.03),
     "friction_load": (Truth(mu_load_sens=0.5), "k_z", 0.5),
+    "peak_tyre": (Truth(mf_peak=0.7, mf_stiffness_exponent=0.5), "k_s", 0.5),
 }
 """Realistic planted magnitudes per effect: (truth, the parameter's name, its planted value).
 Ford Escort class car: CdA 0.75 m^2 (Cd 0.36 x 2.1 m^2), c_rr 0.015, steering lag 0.15 s,
 powertrain dead time 0.17 s, peak friction 0.8 (damp asphalt), 3 % / -2 % grade,
 40 kW drive power, 0.01 rad (0.6 deg) steering-encoder offset, 0.005 rad/s (0.3 deg/s) gyro
 bias, a 3 % speed-sensor scale error, friction falling 3 % per m/s of speed (wet asphalt), a load
-sensitivity of 0.5."""
+sensitivity of 0.5, a magic-formula tyre (shape 1.35) whose friction peak is 0.7 (wet asphalt)
+with a stiffness that follows it by half (exponent 0.5)."""
 
 
 LATERAL_PATTERN_MPS2 = np.array([1.0, 5.5, 2.5, 6.0, 3.5, 5.0])
@@ -218,6 +229,14 @@ def _brush_inside(alpha, a, c_alpha, f_max, slip_sat, mu_peak):
     return np.where(np.isfinite(mu_peak), out, c_alpha * alpha)
 
 
+def _magic(alpha, fz, stiffness, peak_mu, shape):
+    """Lateral magic-formula force (curvature 0); linear where the peak is infinite."""
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        d = peak_mu * fz
+        out = d * np.sin(shape * np.arctan(stiffness * alpha / (shape * d)))
+    return np.where(np.isfinite(peak_mu), out, stiffness * alpha)
+
+
 def _truth_rates(vp, tr, s, steer_cmd, acc_cmd):
     """Truth plant derivative; s = (B, 8) [sx, sy, delta, v, psi, r, beta, delta_w]."""
     delta, v, psi, r, beta, delta_w = s[:, 2], s[:, 3], s[:, 4], s[:, 5], s[:, 6], s[:, 7]
@@ -245,6 +264,26 @@ def _truth_rates(vp, tr, s, steer_cmd, acc_cmd):
     peak_r = tr["mu_peak"] * mu_r / tr["mu"]
     fyf = _brush(alpha_f, fzf, mu_f * vp.C_Sf * fzf, peak_f)
     fyr = _brush(alpha_r, fzr, mu_r * vp.C_Sr * fzr, peak_r)
+    if np.any(np.isfinite(tr["mf_peak"])):
+        with np.errstate(invalid="ignore", divide="ignore"):
+            follow = (tr["mf_peak"] / tr["mu"]) ** tr["mf_exp"]
+        follow = np.where(np.isfinite(tr["mf_peak"]), follow, 1.0)
+        mf_f = _magic(
+            alpha_f,
+            fzf,
+            follow * mu_f * vp.C_Sf * fzf,
+            tr["mf_peak"] * mu_f / tr["mu"],
+            tr["mf_shape"],
+        )
+        mf_r = _magic(
+            alpha_r,
+            fzr,
+            follow * mu_r * vp.C_Sr * fzr,
+            tr["mf_peak"] * mu_r / tr["mu"],
+            tr["mf_shape"],
+        )
+        fyf = np.where(np.isfinite(tr["mf_peak"]), mf_f, fyf)
+        fyr = np.where(np.isfinite(tr["mf_peak"]), mf_r, fyr)
     out = np.empty_like(s)
     out[:, 0] = v * np.cos(psi + beta)
     out[:, 1] = v * np.sin(psi + beta)
@@ -295,6 +334,9 @@ def simulate_truths(
         "p_max_kw": col(lambda t: t.p_max_kw),
         "mu_speed_slope": col(lambda t: t.mu_speed_slope),
         "mu_load_sens": col(lambda t: t.mu_load_sens),
+        "mf_peak": col(lambda t: t.mf_peak),
+        "mf_shape": col(lambda t: t.mf_shape),
+        "mf_exp": col(lambda t: t.mf_stiffness_exponent),
     }
     delay = col(lambda t: t.accel_delay)
     s = np.zeros((b, 8))
