@@ -79,3 +79,34 @@ def test_planted_magic_formula_truth_matches_the_effect():
     model = WorkbenchModel(vp).with_effects("peak_tyre")
     base, eff = model._unpack(np.tile([0.6, 0.4], (n, 1)), np.zeros(n, int))
     assert np.allclose(model.rhs(s[:, :7], u, base, eff), truth, atol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def planted_reports():
+    from pcvfe_drake.workbench.data import prepare
+    from pcvfe_drake.workbench.report import diagnose
+
+    truth, _, _ = synth.PLANTED["peak_tyre"]
+    truths = [truth, synth.PLANTED["tire_saturation"][0]]
+    logs = synth.simulate_truths(truths, duration_s=90.0, rate_hz=20.0, seed=0, substeps=2)
+    return [diagnose(prepare(df, name))[0] for df, name in zip(logs, ("mf", "brush"), strict=True)]
+
+
+def test_loop_selects_the_peak_tyre_and_reads_mu_as_the_peak(planted_reports):
+    """Planted: a magic-formula tyre, peak 0.7, stiffness nominal (exponent 0), 90 s log."""
+    report = planted_reports[0]
+    assert [s["name"] for s in report["selected"]] == ["peak_tyre"]
+    params = report["final"]["params"]
+    assert abs(params["mu"]["value"] - 0.7) <= 0.03 * 0.7, params  # mu IS the peak
+    assert abs(params["peak_tyre.k_s"]["value"] - 0.0) <= 0.1, params
+    assert not params["peak_tyre.k_s"]["at_bound"]
+    final = report["final"]
+    assert final["heldout_multistep_error"] <= 1.2 * final["noise_floor"], final
+    assert report["verdict"]["kind"] == "explained", report["verdict"]["text"]
+    # the linear baseline reads a friction that is neither the peak nor the nominal
+    assert abs(report["baseline"]["params"]["mu"]["value"] - 0.7) > 0.05
+
+
+def test_brush_truth_still_selects_tire_saturation_not_the_peak_tyre(planted_reports):
+    report = planted_reports[1]
+    assert [s["name"] for s in report["selected"]] == ["tire_saturation"]

@@ -27,7 +27,6 @@ SINGLES = [
     "steering_offset",
     "friction_speed",
     "friction_load",
-    "peak_tyre",
 ]
 COMBOS = {
     "input_delay+rolling_resistance": ("input_delay", "rolling_resistance"),

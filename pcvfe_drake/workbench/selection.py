@@ -14,7 +14,8 @@ Starting from the baseline (or the model the user gives with ``--add``):
    - and none of its parameters sits at a bound (a parameter at a bound is flagged, its
      uncertainty is not defined and the effect is never called significant);
 
-2. *add* the significant effect with the largest held-out error drop;
+2. *add* the significant effect with the largest held-out error drop (equal drops: the larger
+   likelihood-ratio statistic);
 3. *backward check*: every earlier effect of the model is taken out again in turn; one whose
    removal the likelihood-ratio test does not reject (p >= ``alpha``) is removed (the newer
    effect explains what it did) and is not offered again;
@@ -152,7 +153,9 @@ def run_selection(wb, candidates: list[str], start: list[str], max_steps: int = 
         trials = [try_effect(wb, cur, cur_eval, name, len(pool)) for name in pool]
         for t in trials:
             t.signature = sigs.get(t.name, {}) if not rounds else {}
-        trials.sort(key=lambda t: t.drop, reverse=True)
+        # equal held-out drops (two effects both reaching the noise floor cap the drop at 1)
+        # are decided by the training likelihood
+        trials.sort(key=lambda t: (t.drop, t.lr), reverse=True)
         if not rounds:
             first = trials
         last = trials

@@ -96,7 +96,7 @@ PLANTED: dict[str, tuple[Truth, str, float]] = {
     "speed_scale": (Truth(speed_scale=1.03), "k", 1.03),
     "friction_speed": (Truth(mu_speed_slope=0.03), "k_v", 0.03),
     "friction_load": (Truth(mu_load_sens=0.5), "k_z", 0.5),
-    "peak_tyre": (Truth(mf_peak=0.7, mf_stiffness_exponent=0.5), "k_s", 0.5),
+    "peak_tyre": (Truth(mf_peak=0.7), "k_s", 0.0),
 }
 """Realistic planted magnitudes per effect: (truth, the parameter's name, its planted value).
 Ford Escort class car: CdA 0.75 m^2 (Cd 0.36 x 2.1 m^2), c_rr 0.015, steering lag 0.15 s,
@@ -104,7 +104,8 @@ powertrain dead time 0.17 s, peak friction 0.8 (damp asphalt), 3 % / -2 % grade,
 40 kW drive power, 0.01 rad (0.6 deg) steering-encoder offset, 0.005 rad/s (0.3 deg/s) gyro
 bias, a 3 % speed-sensor scale error, friction falling 3 % per m/s of speed (wet asphalt), a load
 sensitivity of 0.5, a magic-formula tyre (shape 1.35) whose friction peak is 0.7 (wet asphalt)
-with a stiffness that follows it by half (exponent 0.5)."""
+with the nominal small-slip stiffness (stiffness exponent 0: the public PC-VFE simulator's
+friction mapping; its planted value is 0, so it is checked with an absolute tolerance)."""
 
 
 LATERAL_PATTERN_MPS2 = np.array([1.0, 5.5, 2.5, 6.0, 3.5, 5.0])
@@ -166,13 +167,18 @@ def design_excitation(
     return Excitation(v_ref, coast, phase, freq, lat)
 
 
-def driver_commands(vp: VehicleParams, ex: Excitation, k: int, x: np.ndarray):
+def driver_commands(
+    vp: VehicleParams, ex: Excitation, k: int, x: np.ndarray, grip_scale: float = 1.0
+):
     """Commands (steer_rate (B,), accel (B,)) of the driving program at sample k for true
-    single-track states x (B, 7): a steering sweep tracked by a P loop and a P speed loop."""
+    single-track states x (B, 7): a steering sweep tracked by a P loop and a P speed loop.
+    ``grip_scale`` scales the lateral-acceleration targets and the braking circle (a driver
+    who knows the surface drives each one as close to its limit)."""
     v = x[:, 3]
     wheelbase = vp.lf + vp.lr
     steer_limit = 0.95 * min(abs(vp.delta_dot_min), vp.delta_dot_max)
-    amp = np.minimum(ex.lat_target[k] * wheelbase / np.maximum(v, 4.0) ** 2, 0.3)
+    lat_target = grip_scale * ex.lat_target[k]
+    amp = np.minimum(lat_target * wheelbase / np.maximum(v, 4.0) ** 2, 0.3)
     # like a driver, corner less while braking hard (avoids spinning a saturated car)
     braking = (~ex.coast[k]) & (ex.v_ref[k] < v - 2.0)
     amp = np.where(braking, 0.5 * amp, amp)
@@ -190,7 +196,8 @@ def driver_commands(vp: VehicleParams, ex: Excitation, k: int, x: np.ndarray):
     steer = np.clip(d_rate + 3.0 * (d_des - x[:, 2]), -steer_limit, steer_limit)
     # brake within a friction circle: less braking while cornering hard
     lat = np.abs(v * x[:, 5])
-    brake_max = np.clip(np.sqrt(np.maximum(BRAKE_CIRCLE_MPS2**2 - lat**2, 0.0)), 1.0, 3.5)
+    circle = grip_scale * BRAKE_CIRCLE_MPS2
+    brake_max = np.clip(np.sqrt(np.maximum(circle**2 - lat**2, 0.0)), 1.0, 3.5 * min(grip_scale, 1))
     acc = np.where(ex.coast[k], 0.0, np.clip(0.8 * (ex.v_ref[k] - v), -brake_max, 2.5))
     return steer, acc
 
@@ -372,6 +379,11 @@ def simulate_truths(
     ]
 
 
+MB_GRIP_FRACTION = 0.85
+"""The multi-body driver's largest lateral-acceleration target as a fraction of mu g (the
+excitation's pattern, 1.0-6.5 m/s^2, is scaled to reach it on every surface)."""
+
+
 def simulate_multibody(
     vehicle: str = "ford_escort",
     duration_s: float = 60.0,
@@ -380,30 +392,65 @@ def simulate_multibody(
     noise: MeasurementNoise | None = SURVEY_INS_NOISE,
     mu: float | None = None,
     v0_mps: float = 10.0,
+    friction_mapping: str = "peak_and_stiffness",
+    terrains: dict[str, float] | None = None,
+    segment_s: float = 10.0,
+    grip_fraction: float | None = None,
 ) -> pd.DataFrame:
     """A drive log of CommonRoad's multi-body model (``pcvfe_drake.vehicle.mb_truth.MbTruth``:
-    Pacejka
-    tires with combined slip, load transfer, suspension, wheel spin) under the same driving
-    program, integrated with LSODA between samples."""
+    Pacejka tires with combined slip, load transfer, suspension, wheel spin) under the same
+    driving program, integrated with LSODA between samples.
+
+    Args:
+        friction_mapping: what a terrain's mu changes in the MB tyre
+            (``mb_truth.FRICTION_SCALINGS``: ``peak_and_stiffness``, ``peak``,
+            ``lateral_peak``).
+        mu: one friction level for the whole log (default: the tyre's nominal 1.0489).
+        terrains: instead, ``{name: mu}``: the car drives ``segment_s`` on each in turn
+            (cycling), and the log gets a ``terrain`` column (one workbench context each).
+        grip_fraction: the driver scales the excitation's lateral-acceleration targets so
+            that the largest is this fraction of ``mu g`` on each surface, and brakes within
+            the same fraction (None: the planted-effect program unscaled when ``mu`` and
+            ``terrains`` are None, else ``MB_GRIP_FRACTION``).
+    """
     from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
 
     vp = load_vehicle(vehicle)
-    truth = MbTruth(vehicle)
-    mu = truth.mu_nominal if mu is None else float(mu)
+    truth = MbTruth(vehicle, friction_scaling=friction_mapping)
+    if terrains is not None and mu is not None:
+        raise ValueError("simulate_multibody: give mu or terrains, not both")
+    if terrains is not None and not terrains:
+        raise ValueError("simulate_multibody: terrains must name at least one surface")
+    scaled = grip_fraction is not None or mu is not None or terrains is not None
+    fraction = MB_GRIP_FRACTION if grip_fraction is None else float(grip_fraction)
+    surfaces = (
+        dict(terrains)
+        if terrains is not None
+        else {"": truth.mu_nominal if mu is None else float(mu)}
+    )
+    names = list(surfaces)
     dt = 1.0 / rate_hz
     ex = design_excitation(vp, duration_s, dt, seed)
     n = ex.v_ref.size
+    seg = max(1, int(round(segment_s / dt)))
+    surface = np.array([names[(k // seg) % len(names)] for k in range(n)])
+    top = float(np.max(LATERAL_PATTERN_MPS2)) + 0.5
     x_mb = truth.initial_state(np.array([0.0, 0.0, 0.0, v0_mps, 0.0, 0.0, 0.0]))
     states = np.empty((n, 7))
     steer_log = np.empty(n)
     acc_log = np.empty(n)
     for k in range(n):
+        mu_k = surfaces[surface[k]]
+        grip = fraction * mu_k * vp.g / top if scaled else 1.0
         states[k] = st_state(x_mb)
-        steer, acc = driver_commands(vp, ex, k, states[k][None, :])
+        steer, acc = driver_commands(vp, ex, k, states[k][None, :], grip)
         steer_log[k], acc_log[k] = steer[0], acc[0]
         if k < n - 1:
-            x_mb = truth.integrate(x_mb, [steer_log[k], acc_log[k]], mu, dt)
-    return _to_log(states, steer_log, acc_log, dt, noise, seed + 101)
+            x_mb = truth.integrate(x_mb, [steer_log[k], acc_log[k]], mu_k, dt)
+    df = _to_log(states, steer_log, acc_log, dt, noise, seed + 101)
+    if terrains is not None:
+        df["terrain"] = surface
+    return df
 
 
 def _to_log(states, steer, acc, dt, noise, seed, truth: Truth | None = None) -> pd.DataFrame:
