@@ -33,7 +33,6 @@ from pcvfe_drake.control.nmpc import NmpcConfig
 from pcvfe_drake.diagrams.debug_layers import AddDebugLayers
 from pcvfe_drake.diagrams.station import SIM_ONLY_OUTPUTS, MakeVehicleStation
 from pcvfe_drake.estimation.lookup import build_lookup_table
-from pcvfe_drake.estimation.ukf import UkfConfig
 from pcvfe_drake.perception.features import make_extractor
 from pcvfe_drake.perception.terrain import TerrainMap
 from pcvfe_drake.runs.friction_sources import fixed_mu
@@ -153,7 +152,7 @@ def _add_friction_source(builder, scenario: Scenario, params, station, features,
         sigma = StateSensorModel(scenario.sensing, scenario.seed).sigma
         source = builder.AddNamedSystem(
             "friction_source",
-            UkfFriction(params, sigma, UkfConfig(period_s=rates.fitter_sample_period_s)),
+            UkfFriction(params, sigma, scenario.ukf_config()),
         )
         builder.Connect(station.GetOutputPort("state"), source.GetInputPort("state"))
         builder.Connect(actuation, source.GetInputPort("actuation"))

@@ -10,6 +10,7 @@ import pytest
 from pcvfe_drake.contexts.clustering import ClusteringParams
 from pcvfe_drake.control.nmpc import NmpcConfig
 from pcvfe_drake.estimation.context_estimator import LiveFitConfig
+from pcvfe_drake.estimation.ukf import UkfConfig
 from pcvfe_drake.perception.camera import CameraConfig
 from pcvfe_drake.runs.scenario import (
     DEFAULT_SCENARIO,
@@ -89,6 +90,7 @@ def test_the_scenario_embeds_the_core_configs():
     assert type(s.fitter) is LiveFitConfig and type(s.nmpc) is NmpcConfig
     assert s.fitter == LiveFitConfig() and s.nmpc == NmpcConfig()
     assert s.clustering == ClusteringParams()
+    assert type(s.ukf) is UkfConfig and s.ukf == UkfConfig()
     assert s.camera == CameraConfig(exposure_s=0.002, exposure_jitter=0.05, noise_std=3.0)
 
 
@@ -169,6 +171,13 @@ def test_simulator_settings_mirror_drakes_simulator_config():
         ("camera: {fov_deg: 200}", "CameraConfig.fov_deg = 200.0 is out of range"),
         ("fitter: {prior_theta: [1.0, -2.0, 3.0]}", "LiveFitConfig.prior_theta must be 3"),
         ("simulator: {max_step_size: 0}", "simulator.max_step_size=0.0"),
+        ("ukf: {mu_walk_std: 0}", "ukf: UkfConfig.mu_walk_std=0.0 must be > 0"),
+        ("ukf: {process_std: [0.1, 0.1]}", "UkfConfig.process_std must be 7 numbers > 0"),
+        ("ukf: {mu_bounds: [1.0, 0.5]}", "UkfConfig.mu_bounds=[1.0, 0.5] must be [lo, hi]"),
+        ("ukf: {mu0: 3.0}", "UkfConfig.mu0=3.0 must be None or within mu_bounds"),
+        ("ukf: {alpha: 0}", "UkfConfig.alpha=0.0 must be in (0, 1]"),
+        ("ukf: {period_s: 0.02}", "'ukf.period_s' is set from rates.fitter_sample_period_s"),
+        ("ukf: {mu_walk: 0.1}", "unknown field 'ukf.mu_walk'"),
         ("name: [1, 2", "not valid YAML"),
         ("- 1\n- 2", "the document must be a mapping"),
     ],

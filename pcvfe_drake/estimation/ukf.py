@@ -22,7 +22,7 @@ discrete state and the filterpy object is only a workspace.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
@@ -36,9 +36,12 @@ NXA = NX + 1
 """Length of the filter state (ST state and mu)."""
 
 
-@dataclass(frozen=True)
+@dataclass
 class UkfConfig:
     """Tuning of the friction UKF (SI units; densities per sqrt(s)).
+
+    The scenario's ``ukf:`` section (``estimator: ukf``); lists, not tuples, so that a scenario
+    file can set them. Checked at construction (``dataclasses.replace`` checks again).
 
     Attributes:
         period_s: filter step [s] (one predict + update per measurement).
@@ -48,17 +51,22 @@ class UkfConfig:
             step of 0.3 is followed within a few seconds of cornering).
         process_std: model-error densities of the 7 ST states [unit/sqrt(s)].
         min_sigma: floor on the measurement standard deviations (state order).
-        mu_bounds: mu is clipped to this range (model and estimate).
-        alpha, beta, kappa: Merwe sigma-point parameters.
+        mu_bounds: [lo, hi], mu is clipped to this range (model and estimate).
+        alpha, beta, kappa: Merwe sigma-point parameters (0 < alpha <= 1, beta >= 0, and
+            n + kappa > 0 for the filter's n = 8 states).
     """
 
     period_s: float = 0.01
     mu0: float | None = None
     mu0_std: float = 0.3
     mu_walk_std: float = 0.05
-    process_std: tuple[float, ...] = (0.05, 0.05, 0.005, 0.2, 0.01, 0.1, 0.02)
-    min_sigma: tuple[float, ...] = (1e-3, 1e-3, 1e-4, 1e-3, 1e-4, 1e-3, 1e-4)
-    mu_bounds: tuple[float, float] = (0.05, 2.0)
+    process_std: list[float] = field(
+        default_factory=lambda: [0.05, 0.05, 0.005, 0.2, 0.01, 0.1, 0.02]
+    )
+    min_sigma: list[float] = field(
+        default_factory=lambda: [1e-3, 1e-3, 1e-4, 1e-3, 1e-4, 1e-3, 1e-4]
+    )
+    mu_bounds: list[float] = field(default_factory=lambda: [0.05, 2.0])
     alpha: float = 0.1
     beta: float = 2.0
     kappa: float = 0.0
@@ -73,10 +81,24 @@ class UkfConfig:
         for name in ("process_std", "min_sigma"):
             value = np.asarray(getattr(self, name), dtype=float)
             if value.shape != (NX,) or not np.all(np.isfinite(value)) or np.any(value <= 0):
-                raise ValueError(f"UkfConfig.{name} must be {NX} numbers > 0, got {value!r}")
-        lo, hi = self.mu_bounds
-        if not (0 < lo < hi):
-            raise ValueError(f"UkfConfig.mu_bounds={self.mu_bounds!r} must be 0 < lo < hi")
+                raise ValueError(
+                    f"UkfConfig.{name} must be {NX} numbers > 0, got {getattr(self, name)!r}"
+                )
+        bounds = np.asarray(self.mu_bounds, dtype=float)
+        if bounds.shape != (2,) or not (0 < bounds[0] < bounds[1] < math.inf):
+            raise ValueError(
+                f"UkfConfig.mu_bounds={self.mu_bounds!r} must be [lo, hi] with 0 < lo < hi"
+            )
+        if self.mu0 is not None and not (bounds[0] <= self.mu0 <= bounds[1]):
+            raise ValueError(
+                f"UkfConfig.mu0={self.mu0!r} must be None or within mu_bounds {self.mu_bounds!r}"
+            )
+        if not (math.isfinite(self.alpha) and 0 < self.alpha <= 1):
+            raise ValueError(f"UkfConfig.alpha={self.alpha!r} must be in (0, 1]")
+        if not (math.isfinite(self.beta) and self.beta >= 0):
+            raise ValueError(f"UkfConfig.beta={self.beta!r} must be >= 0")
+        if not (math.isfinite(self.kappa) and NXA + self.kappa > 0):
+            raise ValueError(f"UkfConfig.kappa={self.kappa!r} must be > -{NXA} (n + kappa > 0)")
 
 
 class _BatchedUkf(UnscentedKalmanFilter):

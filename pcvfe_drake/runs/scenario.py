@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pcvfe_drake.contexts.clustering_params import ClusteringParams
 from pcvfe_drake.control.nmpc_config import NmpcConfig
 from pcvfe_drake.estimation.context_estimator import LiveFitConfig
+from pcvfe_drake.estimation.ukf import UkfConfig
 from pcvfe_drake.perception.camera import CameraConfig
 from pcvfe_drake.perception.features import DESCRIPTOR_BACKEND
 from pcvfe_drake.runs.friction_sources import (
@@ -149,18 +150,20 @@ DERIVED_FIELDS: dict[str, str] = {
     "clustering.seed": "seed",
     "fitter.sample_period_s": "rates.fitter_sample_period_s",
     "nmpc.dt_s": "rates.nmpc_period_s",
+    "ukf.period_s": "rates.fitter_sample_period_s",
 }
 """Fields of the embedded configs that the scenario sets from another field (the value): a
 scenario file must not name them, and :meth:`Scenario.clustering_params`,
-:meth:`Scenario.fit_config`, :meth:`Scenario.nmpc_config` fill them in."""
+:meth:`Scenario.fit_config`, :meth:`Scenario.nmpc_config`, :meth:`Scenario.ukf_config` fill them
+in."""
 
 
 @dataclass
 class Scenario:
     """One closed-loop run. Every field has a default; YAML files name only what they change.
 
-    ``camera``, ``clustering``, ``fitter`` and ``nmpc`` are the core's own configs
-    (``CameraConfig``, ``ClusteringParams``, ``LiveFitConfig``, ``NmpcConfig``): their fields,
+    ``camera``, ``clustering``, ``fitter``, ``nmpc`` and ``ukf`` are the core's own configs
+    (``CameraConfig``, ``ClusteringParams``, ``LiveFitConfig``, ``NmpcConfig``, ``UkfConfig``): their fields,
     defaults, documentation and validation are those of the core, in one place. The camera's
     scenario default switches the realistic effects on (see ``_scenario_camera``).
     """
@@ -209,6 +212,8 @@ class Scenario:
     (``pcvfe_drake.runs.friction_sources``)."""
     fixed: FixedFrictionSettings = field(default_factory=FixedFrictionSettings)
     lookup: LookupSettings = field(default_factory=LookupSettings)
+    ukf: UkfConfig = field(default_factory=UkfConfig)
+    """Tuning of the UKF friction source (``estimator: ukf``; ``pcvfe_drake.estimation.ukf``)."""
     stop_on_failure: bool = True
     """End the run at the first catastrophic failure (``pcvfe_drake.control.failure``)."""
 
@@ -249,6 +254,10 @@ class Scenario:
     def fit_config(self) -> LiveFitConfig:
         """``fitter`` with its data rate (``rates.fitter_sample_period_s``) filled in."""
         return dataclasses.replace(self.fitter, sample_period_s=self.rates.fitter_sample_period_s)
+
+    def ukf_config(self) -> UkfConfig:
+        """``ukf`` with its filter step (``rates.fitter_sample_period_s``) filled in."""
+        return dataclasses.replace(self.ukf, period_s=self.rates.fitter_sample_period_s)
 
     def nmpc_config(self) -> NmpcConfig:
         """``nmpc`` with its step (``rates.nmpc_period_s``) filled in."""
@@ -396,6 +405,7 @@ def scenario_problems(scenario: Scenario) -> list[str]:
         "clustering": ClusteringParams(),
         "fitter": LiveFitConfig(),
         "nmpc": NmpcConfig(),
+        "ukf": UkfConfig(),
     }
     for dotted, source in DERIVED_FIELDS.items():
         group, name = dotted.split(".")
@@ -411,6 +421,7 @@ def scenario_problems(scenario: Scenario) -> list[str]:
         problems += _config_problems("clustering", s.clustering_params)
         problems += _config_problems("fitter", s.fit_config)
         problems += _config_problems("nmpc", lambda: s.nmpc_config().validate())
+        problems += _config_problems("ukf", s.ukf_config)
     need(bool(s.features.backend.strip()), "features.backend", s.features.backend, "empty")
     need(
         s.friction_mapping in FRICTION_SCALINGS,

@@ -35,6 +35,17 @@ def test_every_source_runs_and_feeds_what_it_should(estimator, tmp_path):
         assert np.all(np.isfinite(mu_hat)) and mu_hat[-1] != mu_hat[0]
 
 
+def test_the_ukf_tuning_comes_from_the_scenario():
+    overrides = {**SHORT, "estimator": "ukf", "ukf.mu_walk_std": 0.1, "ukf.mu0": 0.6}
+    scenario = apply_overrides(load_scenario("paper_eval"), overrides)
+    ukf = MakeSimulation(scenario).diagram.GetSubsystemByName("friction_source").ukf
+    assert ukf.config.mu_walk_std == 0.1 and ukf.mu0 == 0.6
+    assert ukf.config.period_s == scenario.rates.fitter_sample_period_s
+    assert ukf.config.process_std == scenario.ukf.process_std
+    with pytest.raises(ValueError, match="UkfConfig.mu_walk_std=-1"):
+        apply_overrides(scenario, {"ukf.mu_walk_std": -1.0}).validate()
+
+
 def test_kmpc_switches_the_model_and_bad_overrides_are_named():
     scenario = apply_overrides(load_scenario("paper_eval"), {**SHORT, "estimator": "kmpc"})
     parts = MakeSimulation(scenario)
