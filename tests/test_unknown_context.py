@@ -18,9 +18,11 @@ def test_policies_on_known_numbers():
     np.testing.assert_array_equal(unknown_context_theta("prior", PRIOR, fitted, last), PRIOR)
     np.testing.assert_array_equal(unknown_context_theta("last_known", PRIOR, fitted, last), last)
     np.testing.assert_array_equal(unknown_context_theta("last_known", PRIOR, fitted, None), PRIOR)
-    # conservative: min(floor 0.5, 0.6 - 0.02, 0.45 - 0.1, 0.8) = 0.35; stiffnesses unchanged
+    # conservative: min(floor 0.5, 0.6 - 0.02, 0.45 - 0.1, 0.8) = 0.35; the stiffnesses scaled so
+    # that mu * C_S (the single-track tyre's small-slip stiffness) stays the prior's 1.05 * 20
     th = unknown_context_theta("conservative", PRIOR, fitted, last, floor_mu=0.5, sigmas=2.0)
-    np.testing.assert_allclose(th, [0.35, 20.0, 20.0])
+    np.testing.assert_allclose(th, [0.35, 60.0, 60.0])
+    np.testing.assert_allclose(th[0] * th[1:], PRIOR[0] * PRIOR[1:])
     # nothing fitted yet: the floor
     assert unknown_context_theta("conservative", PRIOR, [], None, floor_mu=0.3)[0] == 0.3
     with pytest.raises(ValueError, match="unknown_context"):

@@ -95,6 +95,9 @@ class LiveFitConfig:
             ``"conservative"`` (``pcvfe_drake.estimation.unknown_context``).
         unknown_floor_mu: ``conservative``'s ceiling on mu (the lowest mu expected).
         unknown_sigmas: ``conservative``'s lower confidence bound, in standard deviations.
+        unknown_keeps_stiffness: ``conservative`` scales C_Sf, C_Sr by ``prior_mu / mu`` so that
+            the single-track tyre's small-slip stiffness ``mu * C_S`` stays the prior's (only the
+            friction limit is lowered); False: the prior's C_S with the lower mu.
         min_windows: fewer usable windows than this: keep the prior.
         buffer_s: seconds of data kept per context, and of noise samples (at
             ``sample_period_s``; the newest of each label).
@@ -136,6 +139,7 @@ class LiveFitConfig:
     unknown_context: str = DEFAULT_POLICY
     unknown_floor_mu: float = DEFAULT_FLOOR_MU
     unknown_sigmas: float = DEFAULT_SIGMAS
+    unknown_keeps_stiffness: bool = True
     relabel: bool = True
     effects: list[FitterEffect] = field(default_factory=list)
     effect_horizon_s: float = 1.0
@@ -404,6 +408,7 @@ class ContextEstimator:
             None if last is None else last.estimate.theta,
             floor_mu=cfg.unknown_floor_mu,
             sigmas=cfg.unknown_sigmas,
+            keep_stiffness=cfg.unknown_keeps_stiffness,
         )
         return theta if np.all(np.isfinite(theta)) else np.array(self._prior)
 

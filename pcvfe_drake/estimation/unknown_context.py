@@ -13,7 +13,12 @@ context has no fit yet (too little data). The policy decides the friction used m
   on the course; 0.3 by default, the paper map's patchy grass). Safe by construction: slower on
   a new terrain until it has its own fit.
 
-Only mu changes; the stiffnesses stay at the prior's values.
+``prior`` and ``last_known`` hand over a whole theta. ``conservative`` lowers the friction limit
+only: in the single-track model the tyre's small-slip stiffness is ``mu * C_S``, so its C_Sf,
+C_Sr are the prior's scaled by ``prior_mu / mu`` (the prior's stiffness kept). Lowering mu alone
+would tell the NMPC that the tyres are softer than they are: it steers too much, and on the
+default lap the lateral error RMS doubled (0.012 -> 0.024 m, 0.057 m while the policy was in
+use; docs/friction_sources.md).
 """
 
 from __future__ import annotations
@@ -47,6 +52,7 @@ def unknown_context_theta(
     *,
     floor_mu: float = DEFAULT_FLOOR_MU,
     sigmas: float = DEFAULT_SIGMAS,
+    keep_stiffness: bool = True,
 ) -> np.ndarray:
     """theta [mu, C_Sf, C_Sr] to use while the context is unknown.
 
@@ -57,6 +63,9 @@ def unknown_context_theta(
         last_known_theta: theta of the last context with an estimate (None: none yet).
         floor_mu: ``conservative``'s upper limit on mu.
         sigmas: ``conservative``'s confidence multiplier.
+        keep_stiffness: ``conservative`` keeps the prior's small-slip stiffness ``mu * C_S``
+            (C_S scaled by ``prior_mu / mu``); False: the prior's C_Sf, C_Sr as they are (the
+            behaviour before; the NMPC then believes softer tyres).
     """
     theta = np.array(prior_theta, dtype=float).reshape(3)
     if policy == "prior":
@@ -72,5 +81,11 @@ def unknown_context_theta(
         if math.isfinite(m):
             lcb = m - sigmas * (std if math.isfinite(std) else 0.0)
             mu = min(mu, lcb)
-    theta[0] = max(mu, 0.05)
+    mu = max(mu, 0.05)
+    # The single-track tyre's small-slip stiffness is mu * C_S: keep the prior's, so that only
+    # the friction limit is lowered (a lower mu alone would also tell the controller that the
+    # tyres are softer than they are; it then steers too much: docs/friction_sources.md).
+    if keep_stiffness:
+        theta[1:] *= theta[0] / mu
+    theta[0] = mu
     return theta

@@ -45,8 +45,9 @@ def test_ports_and_prior_with_fixed_inputs(params):
     entry = table.get(3)
     assert entry.samples == 50  # t = 0, 0.01, ..., 0.49 (the update at 0.5 is still due)
     assert entry.status == "prior" and not entry.fitted
-    # No fit yet: the default unknown-context policy ("conservative"): the floor mu 0.3.
-    expected = [0.3, params.C_Sf, params.C_Sr]
+    # No fit yet: the default unknown-context policy ("conservative"): the floor mu 0.3, with the
+    # prior's small-slip stiffness mu * C_S.
+    expected = [0.3, params.C_Sf * params.mu / 0.3, params.C_Sr * params.mu / 0.3]
     np.testing.assert_array_equal(fitter.GetOutputPort("theta_hat").Eval(context), expected)
 
     # Non-finite state: not stored, and the output stays finite.
@@ -111,7 +112,8 @@ def test_recorded_drive_converges_and_switches_context(params):
     # Context -1 at the end, for longer than noise_hold_s: the conservative policy's mu, the
     # floor 0.3 (both fitted contexts' lower bounds, 0.45 - 2 std and 0.8 - 2 std, lie above).
     np.testing.assert_array_equal(
-        fitter.GetOutputPort("theta_hat").Eval(fc), [0.3, params.C_Sf, params.C_Sr]
+        fitter.GetOutputPort("theta_hat").Eval(fc),
+        [0.3, params.C_Sf * params.mu / 0.3, params.C_Sr * params.mu / 0.3],
     )
     data = log.FindLog(root).data()
     assert np.all(np.isfinite(data))
