@@ -15,12 +15,13 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from pydrake.lcm import DrakeLcm, DrakeLcmParams
+from pydrake.lcm import DrakeLcmParams
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.lcm import LcmBuses
 from pydrake.systems.primitives import LogVectorOutput
 
+from pcvfe_drake.diagrams.lcm_buses import shared_drake_lcm
 from pcvfe_drake.diagrams.vehicle_bridge import MakeVehicleBridge
 from pcvfe_drake.hardware.latency import LatencyRecorder
 from pcvfe_drake.lcmtypes import lcmt_vehicle_actuation, lcmt_vehicle_state
@@ -67,7 +68,7 @@ def run_vehicle_bridge(
     ``truth.csv`` and ``bridge.json`` into ``out_dir`` when given."""
     hw = scenario.hardware
     bus = hw.lcm_buses[hw.bus]
-    lcm = DrakeLcm(DrakeLcmParams(lcm_url=bus.lcm_url, channel_suffix=bus.channel_suffix))
+    lcm = shared_drake_lcm(DrakeLcmParams(lcm_url=bus.lcm_url, channel_suffix=bus.channel_suffix))
     buses = LcmBuses()
     buses.Add(hw.bus, lcm)
     recorder = LatencyRecorder()

@@ -14,6 +14,9 @@ from pathlib import Path
 
 from pcvfe_drake.runs.scenario import DEFAULT_SCENARIO
 
+HUB_IDLE_EXIT_S = 3.0
+"""The local hub ends this many seconds after its last client (bridge or station) left."""
+
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
@@ -80,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     from pcvfe_drake.diagrams.run_vehicle_bridge import run_vehicle_bridge
     from pcvfe_drake.diagrams.scenario_io import load_scenario
     from pcvfe_drake.hardware.latency import format_latency
-    from pcvfe_drake.hardware.tcpq_hub import HubProcess
+    from pcvfe_drake.hardware.tcpq_hub import HubProcess, hub_listening
 
     scenario = with_lcm_url(load_scenario(args.scenario), args.lcm_url)
     hw = scenario.hardware
@@ -92,9 +95,16 @@ def run(args: argparse.Namespace) -> int:
     want_hub = args.hub if args.hub is not None else port is not None
     if want_hub and port is None:
         raise ValueError(f"--hub needs a tcpq://127.0.0.1:PORT URL, not {url!r}")
-    hub = HubProcess(port) if want_hub else None
+    hub, note = None, ""
+    if want_hub and hub_listening(port):
+        note = " (the local hub already running there)"
+    elif want_hub:
+        # Detached, ending by itself once its last client left: a station still connected when
+        # the bridge ends must not lose its hub (the LCM C library aborts the station then).
+        hub = HubProcess(port, idle_exit_s=HUB_IDLE_EXIT_S, detach=True)
+        note = " (local hub)"
     try:
-        print(f"vehicle bridge: {scenario.name} on {url}" + (" (local hub)" if hub else ""))
+        print(f"vehicle bridge: {scenario.name} on {url}{note}")
         print(f"  state -> {hw.state_channel}, camera -> {hw.image_channel}, "
               f"actuation <- {hw.actuation_channel}")  # fmt: skip
 
@@ -112,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
         )
     finally:
         if hub is not None:
-            hub.close()
+            hub.release()
     print(format_latency(result.latency))
     print(json.dumps(result.to_dict()))
     return 130 if result.stopped_because == "interrupted" else 0

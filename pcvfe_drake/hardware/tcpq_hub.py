@@ -15,6 +15,14 @@ this is the same protocol in Python:
 
 ``LcmTcpqHub(port=0)`` picks a free port (``hub.url`` is the ``tcpq://127.0.0.1:PORT`` to give
 both processes). The hub binds to 127.0.0.1 only.
+
+The hub must outlive its clients. When the hub goes away under a connected client, the LCM C
+library closes the client's socket and then hands ``select()`` the file descriptor -1 on the
+client's next ``HandleSubscriptions``, which aborts the client process ("bit out of range 0 -
+FD_SETSIZE on fd_set"): a crash of the station, not a timeout its watchdog could handle.
+``HubProcess(..., idle_exit_s=S, detach=True)`` therefore runs the hub in its own session,
+where ``release()`` leaves it running, and the hub ends by itself ``S`` seconds after its last
+client left (``--idle-exit``); ``pcvfe vehicle-bridge`` starts its hub that way.
 """
 
 from __future__ import annotations
@@ -23,6 +31,7 @@ import re
 import socket
 import struct
 import threading
+import time
 
 MAGIC_SERVER = 0x287617FA
 MAGIC_CLIENT = 0x287617FB
@@ -84,6 +93,8 @@ class LcmTcpqHub:
         self._closed = threading.Event()
         self._accept_thread: threading.Thread | None = None
         self.messages_relayed = 0
+        self.clients_seen = 0
+        self._idle_since = time.monotonic()
 
     @property
     def url(self) -> str:
@@ -104,6 +115,12 @@ class LcmTcpqHub:
     def close(self) -> None:
         self._closed.set()
         try:
+            # shutdown() wakes the accept() blocked in the accept thread; close() alone would
+            # leave the socket listening until that call returned.
+            self._server.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+        try:
             self._server.close()
         except OSError:
             pass
@@ -115,6 +132,22 @@ class LcmTcpqHub:
             except OSError:
                 pass
             client.sock.close()
+
+    def wait_idle(self, idle_s: float, first_client_s: float) -> str:
+        """Block until no client has been connected for ``idle_s`` seconds after the last one
+        left, or none came within ``first_client_s``; returns which."""
+        while not self._closed.is_set():
+            time.sleep(min(0.1, idle_s))
+            with self._lock:
+                connected, idle_since = len(self._clients), self._idle_since
+            quiet = time.monotonic() - idle_since
+            if connected:
+                continue
+            if self.clients_seen and quiet > idle_s:
+                return "idle"
+            if not self.clients_seen and quiet > first_client_s:
+                return "no client"
+        return "closed"
 
     def _accept(self) -> None:
         while not self._closed.is_set():
@@ -135,6 +168,7 @@ class LcmTcpqHub:
             sock.sendall(struct.pack(">II", MAGIC_SERVER, PROTOCOL_VERSION))
             with self._lock:
                 self._clients.append(client)
+                self.clients_seen += 1
             while not self._closed.is_set():
                 kind = _recv_u32(sock)
                 channel = _recv_exact(sock, _recv_u32(sock)).decode("utf-8", "replace")
@@ -153,6 +187,7 @@ class LcmTcpqHub:
             with self._lock:
                 if client in self._clients:
                     self._clients.remove(client)
+                    self._idle_since = time.monotonic()
             try:
                 sock.close()
             except OSError:
@@ -175,17 +210,28 @@ class HubProcess:
     A hub must not share a Python process with a ``DrakeLcm`` client: the LCM C library waits
     for the hub's answers while holding the GIL, so a hub thread in the same process could never
     answer. ``HubProcess(port=0)`` starts the child, waits (at most ``timeout_s``) until it
-    listens, and ``close()`` ends it.
+    listens, and ``close()`` ends it. With ``idle_exit_s`` the hub ends by itself that long after
+    its last client left (or ``max(30, idle_exit_s)`` s without any client); with ``detach`` it
+    runs in its own session (a Ctrl-C in the terminal does not reach it) and ``release()``
+    leaves it running for the clients still connected.
     """
 
-    def __init__(self, port: int = 0, timeout_s: float = 10.0) -> None:
+    def __init__(
+        self,
+        port: int = 0,
+        timeout_s: float = 10.0,
+        *,
+        idle_exit_s: float | None = None,
+        detach: bool = False,
+    ) -> None:
         import subprocess
         import sys
 
+        command = [sys.executable, "-m", "pcvfe_drake.hardware.tcpq_hub", "--port", str(int(port))]
+        if idle_exit_s is not None:
+            command += ["--idle-exit", str(float(idle_exit_s))]
         self._proc = subprocess.Popen(
-            [sys.executable, "-m", "pcvfe_drake.hardware.tcpq_hub", "--port", str(int(port))],
-            stdout=subprocess.PIPE,
-            text=True,
+            command, stdout=subprocess.PIPE, text=True, start_new_session=detach
         )
         line = _readline_with_timeout(self._proc, timeout_s)
         if not line.startswith("tcpq://"):
@@ -200,6 +246,25 @@ class HubProcess:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    @property
+    def pid(self) -> int:
+        return self._proc.pid
+
+    def wait(self, timeout_s: float) -> int | None:
+        """The hub's exit status once it has ended within ``timeout_s`` (None: still running)."""
+        import subprocess
+
+        try:
+            return self._proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            return None
+
+    def release(self) -> None:
+        """Stop managing the hub without ending it (it must have ``idle_exit_s``, so it ends by
+        itself once its clients are gone)."""
+        if self._proc.stdout is not None:
+            self._proc.stdout.close()
+
     def close(self) -> None:
         if self._proc.poll() is None:
             self._proc.terminate()
@@ -210,6 +275,18 @@ class HubProcess:
                 self._proc.wait(timeout=5)
         if self._proc.stdout is not None:
             self._proc.stdout.close()
+
+
+def hub_listening(port: int, timeout_s: float = 0.5) -> bool:
+    """Whether something accepts TCP connections on 127.0.0.1:``port`` (a hub left running by an
+    earlier bridge for its clients)."""
+    try:
+        with socket.create_connection((HOST, int(port)), timeout=timeout_s) as sock:
+            # Say nothing and hang up: the hub drops a connection without a handshake.
+            sock.shutdown(socket.SHUT_RDWR)
+        return True
+    except OSError:
+        return False
 
 
 def _readline_with_timeout(proc, timeout_s: float) -> str:
@@ -225,11 +302,20 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = argparse.ArgumentParser(description="LCM tcpq hub on 127.0.0.1")
     parser.add_argument("--port", type=int, default=7700, help="TCP port (0: a free one)")
+    parser.add_argument(
+        "--idle-exit",
+        type=float,
+        default=None,
+        help="end this many seconds after the last client left (default: run until killed)",
+    )
     args = parser.parse_args(argv)
     hub = LcmTcpqHub(args.port).start()
     print(hub.url, flush=True)
     try:
-        threading.Event().wait()
+        if args.idle_exit is None:
+            threading.Event().wait()
+        else:
+            hub.wait_idle(args.idle_exit, max(30.0, args.idle_exit))
     except KeyboardInterrupt:
         pass
     finally:

@@ -1,6 +1,9 @@
 """The LCM station: the simulated station's ports, end to end against the vehicle bridge in one
 process (memq://), and the safe behaviour when the state stream stops."""
 
+import gc
+import os
+
 import numpy as np
 import pytest
 from pydrake.lcm import DrakeLcm
@@ -17,6 +20,7 @@ from pcvfe_drake.diagrams.station import (
 )
 from pcvfe_drake.diagrams.vehicle_bridge import MakeVehicleBridge
 from pcvfe_drake.hardware.settings import LcmBusSettings
+from pcvfe_drake.hardware.tcpq_hub import HubProcess
 from pcvfe_drake.lcmtypes import lcmt_vehicle_actuation, lcmt_vehicle_state
 from pcvfe_drake.runs.scenario import Scenario
 from pcvfe_drake.systems.nmpc import Nmpc
@@ -156,3 +160,27 @@ def test_bridge_logs_the_plants_true_state():
     np.testing.assert_array_equal(
         truth, inner.GetOutputPort("true_state").Eval(inner.GetMyContextFromRoot(ctx))
     )
+
+
+def open_fds() -> int:
+    return len(os.listdir("/proc/self/fd"))
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/fd"), reason="counts /proc/self/fd (Linux)")
+def test_building_many_stations_on_one_url_does_not_leak_sockets():
+    # pydrake never frees a diagram holding Python systems, so each station used to keep its
+    # own DrakeLcm (a socket) for the life of the process; past 1024 descriptors the LCM C
+    # library aborts in select(). One DrakeLcm per URL and process keeps the count flat.
+    with HubProcess(port=0) as hub:
+        scenario = memq_scenario()
+        scenario.hardware.lcm_buses = {"default": LcmBusSettings(lcm_url=hub.url)}
+        counts = []
+        for _ in range(8):
+            station = MakeVehicleStation(scenario, hardware=True)
+            simulator = Simulator(station)
+            station.GetInputPort("actuation").FixValue(simulator.get_mutable_context(), [0, 0])
+            simulator.AdvanceTo(0.05)
+            del simulator, station
+            gc.collect()
+            counts.append(open_fds())
+        assert counts[-1] == counts[0], counts
