@@ -1,98 +1,171 @@
-"""VehicleStateReceiver: the vehicle's LCM state messages, checked by a watchdog, as a state
-vector."""
+"""VehicleStateReceiver: every LCM state message of the vehicle, checked by a watchdog and handed
+out at its own time, as a state vector."""
 
 from __future__ import annotations
+
+import math
+import struct
+import time
+from collections.abc import Callable
 
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, Context, EventStatus, LeafSystem, State
 
-from pcvfe_drake.hardware.watchdog import StreamLimits, StreamStatus, is_new, require_positive
+from pcvfe_drake.hardware.playout import MessageQueue, Playout, PlayoutLimits, check_queue
+from pcvfe_drake.hardware.watchdog import StreamStatus, require_positive
 from pcvfe_drake.lcmtypes import lcmt_vehicle_state
 from pcvfe_drake.vehicle.single_track import NX
 
 
+def decode_state(data: bytes) -> tuple[int, np.ndarray | None, str]:
+    """``(utime, state, problem)`` of an encoded ``lcmt_vehicle_state`` (problem: a watchdog
+    rejection reason or ``""``)."""
+    try:
+        msg = lcmt_vehicle_state.decode(data)
+    except (ValueError, struct.error):  # another type's fingerprint, or cut short
+        return 0, None, "malformed"
+    x = np.asarray(msg.state, dtype=float)
+    if x.shape != (NX,) or not np.all(np.isfinite(x)):
+        return msg.utime, None, "non_finite"
+    if not msg.valid:
+        return msg.utime, None, "invalid"
+    return msg.utime, x, ""
+
+
 class VehicleStateReceiver(LeafSystem):
-    """Turns the latest ``lcmt_vehicle_state`` into the station's ``state``, or NaN.
+    """Turns the vehicle's ``lcmt_vehicle_state`` messages into the station's ``state``, or NaN.
 
     .. pydrake_system::
 
         name: VehicleStateReceiver
-        input_ports:
-        - message
         output_ports:
         - state
         - state_utime
         - status
 
-    Ports:
-        message: input, abstract ``pcvfe_drake.lcmtypes.lcmt_vehicle_state`` (from an
-            ``LcmSubscriberSystem``, which holds the newest message received).
-        state: output (7) ``[sx m, sy m, delta rad, v m/s, psi rad, psi_dot rad/s, beta rad]``:
-            the newest accepted message's state while it is younger than ``timeout_s``, else
-            all NaN (the NMPC's fallback: its last plan shifted, then braking).
-        state_utime: output (1), the newest accepted message's ``utime`` [us] (-1: none).
-        status: output, abstract :class:`pcvfe_drake.hardware.watchdog.StreamStatus` named
-            ``"state"`` (counts of accepted and rejected messages by reason).
+    Like Drake's ``LcmSubscriberSystem`` it has no input port: its messages come from a
+    :class:`pcvfe_drake.hardware.playout.MessageQueue` that an LCM subscription fills (the
+    hardware station subscribes it: ``lcm.Subscribe(channel, queue.push)``), and events move
+    them into the context. Unlike that system it keeps every message, not only the newest.
 
-    Rate: a periodic unrestricted update every ``period_s`` looks at the input; a message it has
-    not seen (another ``utime``) is checked by :func:`pcvfe_drake.hardware.watchdog.check_message`
-    (non-finite, invalid, out of order, late by more than ``max_delay_s``; the delay on the
-    wall clock with ``wall_clock=True``, as on hardware, else on the context time). A default
-    message
-    (``utime`` 0, what the subscriber holds before the first message) is never taken.
+    Ports:
+        state: output (7) ``[sx m, sy m, delta rad, v m/s, psi rad, psi_dot rad/s, beta rad]``:
+            the message handed out last while that was at most ``timeout_s`` ago, else all NaN
+            (the NMPC's fallback: its last plan shifted, then braking).
+        state_utime: output (1), that message's ``utime`` [us] (-1: none yet).
+        status: output, abstract :class:`pcvfe_drake.hardware.watchdog.StreamStatus` named
+            ``"state"`` (counts of accepted, handed out, superseded and rejected messages by
+            reason; the station's lag behind the wall clock).
+
+    Rate: a periodic unrestricted update every ``period_s`` drains the queue, checks every
+    message in arrival order (malformed, non-finite, invalid, duplicate, out of order, late by
+    more than ``max_delay_s``; delays on the wall clock with ``wall_clock=True``, as on
+    hardware, else on the context time) and hands out the newest message that is due at the
+    context time (:mod:`pcvfe_drake.hardware.playout`): a station catching up on wall time
+    after a stall sees each message at its own tick.
+
+    ``pump(timeout_ms)`` (e.g. the bus's ``DrakeLcm.HandleSubscriptions``), when given, is
+    called with 0 at each check before the queue is drained, so a message that arrived while
+    the simulator slept to keep pace is taken at once. With ``first_message_timeout_s`` > 0 an
+    initialization event waits (wall clock, pumping) until the queue holds a message and raises
+    naming ``source`` if none comes.
     """
 
     def __init__(
-        self, *, period_s: float, timeout_s: float, max_delay_s: float, wall_clock: bool = False
+        self,
+        *,
+        queue: MessageQueue,
+        period_s: float,
+        timeout_s: float,
+        max_delay_s: float,
+        wall_clock: bool = False,
+        rate: float = 1.0,
+        clock: Callable[[], float] = time.monotonic,
+        first_message_timeout_s: float = 0.0,
+        pump: Callable[[int], int] | None = None,
+        source: str = "the state channel",
     ) -> None:
         super().__init__()
         require_positive("VehicleStateReceiver", period_s=period_s)
-        self.limits = StreamLimits(timeout_s, max_delay_s, wall_clock)
-        self._message_port = self.DeclareAbstractInputPort(
-            "message", AbstractValue.Make(lcmt_vehicle_state())
+        self.limits = PlayoutLimits(
+            timeout_s=timeout_s,
+            max_delay_s=max_delay_s,
+            wall_clock=wall_clock,
+            rate=rate,
+            max_hold_s=max_delay_s if math.isfinite(max_delay_s) else timeout_s,
         )
+        self._queue = queue
+        self._clock = clock
+        self._first_message_timeout_s = float(first_message_timeout_s)
+        self._pump = pump
+        self._source = source
         self._state_index = self.DeclareDiscreteState(np.full(NX + 1, np.nan))
-        self._status_index = self.DeclareAbstractState(
-            AbstractValue.Make(StreamStatus(name="state", last_seen_utime=0))
+        self._playout_index = self.DeclareAbstractState(
+            AbstractValue.Make(Playout(StreamStatus(name="state")))
         )
+        if self._first_message_timeout_s > 0:
+            self.DeclareInitializationUnrestrictedUpdateEvent(self._wait_for_first_message)
         self.DeclarePeriodicUnrestrictedUpdateEvent(
             period_sec=period_s, offset_sec=0.0, update=self._check
         )
-        self._out_state = self.DeclareVectorOutputPort("state", NX, self._calc_state)
+        self._out_state = self.DeclareVectorOutputPort(
+            "state",
+            NX,
+            self._calc_state,
+            prerequisites_of_calc={self.all_state_ticket(), self.time_ticket()},
+        )
         self._out_utime = self.DeclareVectorOutputPort(
             "state_utime",
             1,
             self._calc_utime,
             prerequisites_of_calc={self.discrete_state_ticket(self._state_index)},
         )
-        self._out_status = self.DeclareStateOutputPort("status", self._status_index)
+        self._out_status = self.DeclareAbstractOutputPort(
+            "status",
+            lambda: AbstractValue.Make(StreamStatus()),
+            self._calc_status,
+            prerequisites_of_calc={self.abstract_state_ticket(self._playout_index)},
+        )
 
-    def _status(self, context: Context) -> StreamStatus:
-        return context.get_abstract_state(self._status_index).get_value()
+    def _playout(self, context: Context) -> Playout:
+        return context.get_abstract_state(self._playout_index).get_value()
+
+    def _wait_for_first_message(self, context: Context, state: State) -> EventStatus:
+        deadline = time.monotonic() + self._first_message_timeout_s
+        while not len(self._queue) and time.monotonic() < deadline:
+            if self._pump is None:
+                time.sleep(0.01)
+            else:
+                self._pump(10)
+        if not len(self._queue):
+            raise RuntimeError(
+                f"VehicleStateReceiver: no state message on {self._source} within "
+                f"{self._first_message_timeout_s} s (hardware.first_message_timeout_s); is the "
+                "vehicle (or `pcvfe vehicle-bridge`) running on that URL?"
+            )
+        return EventStatus.Succeeded()
 
     def _check(self, context: Context, state: State) -> EventStatus:
-        t = context.get_time()
-        status = self._status(context)
-        msg = self._message_port.Eval(context)
-        if is_new(status, msg.utime):
-            x = np.asarray(msg.state, dtype=float)
-            problem = ""
-            if x.shape != (NX,) or not np.all(np.isfinite(x)):
-                problem = "non_finite"
-            elif not msg.valid:
-                problem = "invalid"
-            status, accepted = self.limits.check(status, t, msg.utime, problem)
-            if accepted:
-                state.get_mutable_discrete_state(self._state_index).set_value(
-                    np.concatenate([x, [float(msg.utime)]])
-                )
-        status = self.limits.settle(status, t)
-        state.get_mutable_abstract_state(self._status_index).set_value(status)
+        if self._pump is not None:
+            self._pump(0)  # what has arrived since the last step, not only up to it
+        arrivals = []
+        for item in self._queue.drain():
+            utime, x, problem = decode_state(item.data)
+            arrivals.append((utime, item.wall_s, x, problem))
+        wall = self._clock() if self.limits.wall_clock else None
+        playout, out = check_queue(
+            self._playout(context), context.get_time(), wall, arrivals, self.limits
+        )
+        if out is not None:
+            state.get_mutable_discrete_state(self._state_index).set_value(
+                np.concatenate([out.payload, [float(out.utime)]])
+            )
+        state.get_mutable_abstract_state(self._playout_index).set_value(playout)
         return EventStatus.Succeeded()
 
     def _calc_state(self, context: Context, output: BasicVector) -> None:
-        status = self._status(context)
+        status = self._playout(context).status
         if self.limits.condition(status, context.get_time()) == "ok":
             output.SetFromVector(context.get_discrete_state(self._state_index).value()[:NX])
         else:
@@ -101,3 +174,6 @@ class VehicleStateReceiver(LeafSystem):
     def _calc_utime(self, context: Context, output: BasicVector) -> None:
         utime = context.get_discrete_state(self._state_index).value()[NX]
         output.SetFromVector([utime if np.isfinite(utime) else -1.0])
+
+    def _calc_status(self, context: Context, output: AbstractValue) -> None:
+        output.set_value(self._playout(context).status)

@@ -9,7 +9,10 @@ rejection           when
 ``non_finite``      a state with a NaN or infinite component
 ``invalid``         the sender marked the message invalid (no fix, ...)
 ``malformed``       the payload cannot be decoded (wrong size, unknown pixel format, ...)
-``out_of_order``    its timestamp is not newer than the newest accepted one (repeats too)
+``duplicate``       its timestamp is that of the newest accepted one (a repeat; the
+                    queue-draining receivers of the LCM station, ``playout.py``)
+``out_of_order``    its timestamp is older than the newest accepted one (the receivers that
+                    look at a held message count repeats here too)
 ``late``            its transport delay exceeds the smallest delay seen so far by more than
                     ``max_delay_s`` (the sender's clock need not agree with the station's:
                     only differences of delay count; the smallest delay may rise by
@@ -36,7 +39,7 @@ CONDITIONS = ("ok", "waiting", "timeout")
 """What a stream's output is now: fresh data, nothing accepted yet, or no acceptance for longer
 than the timeout. The numeric code of a condition is its index."""
 
-REJECTIONS = ("non_finite", "invalid", "malformed", "out_of_order", "late")
+REJECTIONS = ("non_finite", "invalid", "malformed", "duplicate", "out_of_order", "late")
 """Reasons a message is rejected."""
 
 DRIFT_ALLOWANCE = 0.05
@@ -73,6 +76,29 @@ class StreamStatus:
     timeouts: int = 0
     """How many times the stream went from ``ok`` to ``timeout``."""
     was_ok: bool = False
+    admitted_utime: int | None = None
+    """Timestamp of the newest accepted message, handed out or still pending (queue-draining
+    receivers, ``pcvfe_drake.hardware.playout``; ``accepted_utime`` is the one handed out)."""
+    released: int = 0
+    """Accepted messages handed out (one per check at most)."""
+    superseded: int = 0
+    """Accepted messages never handed out: a newer one was due at the same check."""
+    checks: int = 0
+    """Checks of the receiver (``released / checks``: the share with a fresh message)."""
+    clock_origin_s: float = math.inf
+    """Wall time [s] of station time 0 on the pacing (the smallest ``wall - t / rate``)."""
+    clock_origin_wall_s: float = math.nan
+    """Wall time [s] of the check that last set ``clock_origin_s``."""
+    lag_s: float = 0.0
+    """How far the station's time was behind the wall clock at the last check [s]."""
+    max_lag_s: float = 0.0
+    lag_sum_s: float = 0.0
+    """Sum of the lag over the checks [s] (``/ checks``: the mean lag)."""
+    hold_sum_s: float = 0.0
+    """Sum over the messages handed out of how long after their arrival (on the station's
+    clock) the station's clock reached them [s]: the time a lagging station held them back."""
+    clock_resets: int = 0
+    """Times the pacing origin was re-anchored (a lag beyond the limit)."""
 
     def rejected_count(self, reason: str | None = None) -> int:
         """Rejections for ``reason`` (None: all)."""
@@ -83,15 +109,26 @@ class StreamStatus:
         return t_s - self.accepted_t_s if math.isfinite(self.accepted_t_s) else math.inf
 
     def to_dict(self) -> dict:
-        return {
+        out = {
             "accepted": self.accepted,
             "rejected": dict(self.rejected),
             "last_rejection": self.last_rejection,
             "timeouts": self.timeouts,
         }
+        if self.checks:
+            out.update(
+                released=self.released,
+                superseded=self.superseded,
+                checks=self.checks,
+                max_lag_s=self.max_lag_s,
+                mean_lag_s=self.lag_sum_s / self.checks,
+                mean_hold_s=self.hold_sum_s / max(self.released, 1),
+                clock_resets=self.clock_resets,
+            )
+        return out
 
 
-def _with_rejection(status: StreamStatus, reason: str, t_s: float) -> StreamStatus:
+def with_rejection(status: StreamStatus, reason: str, t_s: float) -> StreamStatus:
     counts = dict(status.rejected)
     counts[reason] = counts.get(reason, 0) + 1
     return replace(
@@ -130,14 +167,14 @@ def check_message(
     if problem:
         if problem not in REJECTIONS:
             raise ValueError(f"unknown rejection reason {problem!r} (known: {REJECTIONS})")
-        return _with_rejection(status, problem, t_s), False
+        return with_rejection(status, problem, t_s), False
     if status.accepted_utime is not None and utime <= status.accepted_utime:
-        return _with_rejection(status, "out_of_order", t_s), False
+        return with_rejection(status, "out_of_order", t_s), False
     arrival = t_s if arrival_s is None else float(arrival_s)
     delay = arrival - utime * 1e-6
     reference = reference_delay(status, arrival)
     if math.isfinite(reference) and delay - reference > max_delay_s:
-        return _with_rejection(status, "late", t_s), False
+        return with_rejection(status, "late", t_s), False
     reference = min(reference, delay)
     return (
         replace(
