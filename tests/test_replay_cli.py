@@ -1,5 +1,7 @@
 """`pcvfe replay` reruns a deterministic run to the same numbers."""
 
+import json
+
 import numpy as np
 import pandas as pd
 
@@ -30,3 +32,4 @@ def test_replay_of_a_run_reproduces_its_contexts_and_estimates(tmp_path):
     assert {"mu_hat", "f_00", "steer_rate", "mu_true", "true_sx"} <= set(numeric)
     np.testing.assert_array_equal(a[numeric].to_numpy(), b[numeric].to_numpy())
     assert (replay / "summary.json").is_file()
+    assert json.loads((replay / "replay.json").read_text())["exact"] is True

@@ -58,3 +58,13 @@ def test_missing_frames_and_bad_times_are_named(tmp_path):
     log.loc[3, "t"] = 0.1
     with pytest.raises(ValueError, match="not increasing"):
         ReplayLog.from_frame(log, tmp_path)
+
+
+def test_fidelity_says_what_a_replay_cannot_reproduce(tmp_path):
+    every = ReplayLog.from_frame(drive(tmp_path, frames=range(6)), tmp_path)
+    assert every.fidelity(sample_period_s=0.1, camera_period_s=0.1)["exact"]
+    sparse = ReplayLog.from_frame(drive(tmp_path), tmp_path)  # frames at 0, 0.2, 0.4
+    report = sparse.fidelity(sample_period_s=0.01, camera_period_s=0.1)
+    assert not report["exact"] and report["frames"] == 3 and report["camera_frames"] == 6
+    assert "held for 10 samples" in report["reasons"][0]
+    assert "3 of 6 camera frames" in report["reasons"][1]

@@ -6,6 +6,7 @@ pydrake is imported inside :func:`run`.
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 
@@ -59,10 +60,20 @@ def run(args: argparse.Namespace) -> int:
     else:
         raise FileNotFoundError(f"replay: {source} is neither a run folder nor a drive log")
     scenario = scenario.with_run_length(duration_s=log.duration_s)
+    rates = scenario.rates
+    fidelity = log.fidelity(rates.fitter_sample_period_s, rates.camera_period_s)
+    if not fidelity["exact"]:
+        print(
+            "replay: not an exact rerun of the recording (docs/hardware.md, Replay):\n  "
+            + "\n  ".join(fidelity["reasons"])
+        )
     if args.out.resolve() == source.resolve():
         raise ValueError("replay: --out must not be the source run folder")
     args.out.mkdir(parents=True, exist_ok=True)
     save_scenario(scenario, args.out / "scenario.yaml")
+    (args.out / "replay.json").write_text(
+        json.dumps({"source": str(source), **fidelity}, indent=2) + "\n"
+    )
     meshcat = StartLocalMeshcat() if args.meshcat else None
     t0 = time.perf_counter()
     result = run_simulation(

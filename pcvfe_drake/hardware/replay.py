@@ -63,6 +63,45 @@ class ReplayLog:
     def has_truth(self) -> bool:
         return self.mu_true is not None
 
+    def fidelity(self, sample_period_s: float, camera_period_s: float) -> dict:
+        """What a replay of this log can reproduce, for a fitter sampling every
+        ``sample_period_s`` and a camera every ``camera_period_s``: ``{"exact": bool,
+        "log_period_s", "frame_period_s", "frames", "camera_frames", "reasons": [...]}``.
+
+        A replay feeds the estimator the logged rows and frames. It equals the original run
+        (where that run was deterministic) only when every fitter sample has its row (rows at
+        least as often as the fitter samples) and every camera frame was saved; otherwise the
+        fitter sees each row's state held until the next row (a 20 Hz log: five samples per
+        row, four of them stale), and the clustering sees a frame only where one was saved (the
+        frames in between are blank: features NaN, context noise), so contexts and estimates
+        differ.
+        """
+        dt = np.diff(self.t_s)
+        log_period = float(np.median(dt)) if len(dt) else math.nan
+        reasons = []
+        if not (log_period <= sample_period_s * (1 + 1e-6)):
+            reasons.append(
+                f"rows every {log_period:g} s, the fitter samples every {sample_period_s:g} s: "
+                f"it sees each row's state held for {log_period / sample_period_s:.0f} samples"
+            )
+        camera_frames = int(self.duration_s / camera_period_s + 1e-6) + 1
+        frames = len(self.frame_paths)
+        frame_dt = np.diff(self.frame_t_s)
+        frame_period = float(np.median(frame_dt)) if len(frame_dt) else math.nan
+        if frames < camera_frames - 1:
+            reasons.append(
+                f"{frames} of {camera_frames} camera frames saved (one every "
+                f"{frame_period:g} s): the clustering sees no image between them"
+            )
+        return {
+            "exact": not reasons,
+            "log_period_s": log_period,
+            "frame_period_s": frame_period,
+            "frames": frames,
+            "camera_frames": camera_frames,
+            "reasons": reasons,
+        }
+
     def _row_at(self, t_s: float) -> int:
         return max(0, int(np.searchsorted(self.t_s, t_s + _EPS_S, side="right")) - 1)
 
