@@ -14,7 +14,19 @@ state message to the actuation computed after it (median, p99), the station's wa
 (late, out of order, timeouts) and the share of 100 Hz states it accepted. The load average is
 printed: timings on a shared machine depend on it.
 
+Keeping up: the share of the station's 100 Hz checks that got a fresh state (a message not seen
+at an earlier check: what the fitter samples), the rows of the drive log without a state (the
+NMPC's fallback at each), the watchdog's timeouts and rejections, messages superseded (arrived,
+accepted, never the current one) and the station's largest lag behind the wall clock.
+
+``--before-tree DIR`` also runs the rehearsal with the Python code of another source tree (a
+package folder laid out as installed: ``DIR/pcvfe_drake`` with ``systems``, ``diagrams``,
+``textures`` inside; see ``docs/hardware.md``), alternating with this tree ``--repeats`` times,
+so a change to the station is measured before and after under the same load; ``--hold``
+rehearses with each given ``hardware.playout_hold_s``.
+
 Usage: python benchmarks/hardware_rehearsal.py [--duration S | --laps N] [--rate R] [--quick]
+       [--no-baseline] [--before-tree DIR] [--hold S ...] [--repeats N]
 Last stdout line: one JSON object.
 """
 
@@ -83,46 +95,16 @@ def contexts_vs_truth(log: pd.DataFrame, truth: pd.DataFrame, terrain_mu: dict) 
     return out, off
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenario", default="paper_sim")
-    parser.add_argument("--duration", type=float, default=60.0)
-    parser.add_argument("--laps", type=float, default=None)
-    parser.add_argument("--rate", type=float, default=1.0, help="pace (1.0: real time)")
-    parser.add_argument("--quick", action="store_true", help="15 s of driving")
-    args = parser.parse_args()
-    if args.quick:
-        args.duration, args.laps = 15.0, None
-    from pcvfe_drake.diagrams.scenario_io import load_scenario
-    from pcvfe_drake.runs.scenario import build_terrain_map
-
-    scenario = load_scenario(args.scenario)
-    terrain_mu = {t.name: t.mu for t in build_terrain_map(scenario).terrains}
-    work = Path(tempfile.mkdtemp(prefix="hw_rehearsal_"))
-    load0 = os.getloadavg()[0]
-    print(f"load average {load0:.1f}; work folder {work}", flush=True)
-
-    print("all-in-one simulation ...", flush=True)
-    t0 = time.perf_counter()
-    subprocess.run(
-        pcvfe(
-            "simulate",
-            args.scenario,
-            *length_args(args),
-            "--no-meshcat",
-            "--no-progress",
-            "--out",
-            str(work / "sim"),
-        ),
-        check=True,
-        stdout=subprocess.DEVNULL,
-    )
-    sim_wall = time.perf_counter() - t0
-    sim_summary = json.loads((work / "sim" / "summary.json").read_text())
-
-    print(f"rehearsal at {args.rate}x real time ...", flush=True)
+def rehearsal(
+    args, scenario, terrain_mu, work: Path, env: dict | None, hold_s: float | None = None
+) -> dict:
+    """One rehearsal (bridge + hardware station, two processes) in ``work``; ``env``: the
+    environment of both processes (None: this one); ``hold_s``: the station's
+    ``hardware.playout_hold_s`` (None: the scenario's)."""
+    work.mkdir(parents=True, exist_ok=True)
     url = f"tcpq://127.0.0.1:{free_port()}"
     bridge_duration = (args.duration if not args.laps else scenario.max_duration_s) + 60.0
+    load0 = os.getloadavg()[0]
     bridge = subprocess.Popen(
         pcvfe(
             "vehicle-bridge",
@@ -141,9 +123,12 @@ def main() -> int:
         ),
         stdout=subprocess.PIPE,
         text=True,
+        env=env,
+        cwd=work,  # not the checkout: its folders would shadow the --before-tree code
     )
     override = work / "rate.yaml"
-    override.write_text(f"hardware:\n  realtime_rate: {args.rate}\n")
+    hold = "" if hold_s is None else f"  playout_hold_s: {hold_s}\n"
+    override.write_text(f"hardware:\n  realtime_rate: {args.rate}\n{hold}")
     try:
         subprocess.run(
             pcvfe(
@@ -162,6 +147,8 @@ def main() -> int:
             ),
             check=True,
             stdout=subprocess.DEVNULL,
+            env=env,
+            cwd=work,
         )
         out, _ = bridge.communicate(timeout=120)
     finally:
@@ -172,8 +159,123 @@ def main() -> int:
     hw_log = pd.read_csv(work / "hw" / "drive_log.csv")
     truth = pd.read_csv(work / "bridge" / "truth.csv")
     hw_contexts, offset = contexts_vs_truth(hw_log, truth, terrain_mu)
-    state = hw_summary["station_status"]["streams"]["state"]
+    streams = hw_summary["station_status"]["streams"]
+    state = streams["state"]
+    checks = hw_summary["sim_time_s"] / scenario.hardware.watchdog_period_s
     expected_states = hw_summary["sim_time_s"] / scenario.hardware.state_period_s
+    # A check has a fresh state when it takes a message not seen before: every accepted message
+    # with the newest-only subscriber, every one handed out with the queue (``released``).
+    fresh = state.get("released", state["accepted"])
+    rows_lost = hw_summary.get("rows_skipped_state_not_finite") or 0
+    return {
+        "load_average_start": load0,
+        "load_average_end": os.getloadavg()[0],
+        "sim_time_s": hw_summary["sim_time_s"],
+        "wall_s": hw_summary["wall_time_s"],
+        "realtime_factor": hw_summary["realtime_factor"],
+        "realtime_factor_cpu": hw_summary.get("realtime_factor_cpu"),
+        "contexts": hw_summary["contexts_discovered"],
+        "laps": hw_summary.get("laps_completed"),
+        "lap_time_s": hw_summary.get("lap_time_s"),
+        "estimates": hw_contexts,
+        "truth_time_offset_s": offset,
+        "latency_ms": bridge_report["latency"],
+        "station_status": hw_summary["station_status"],
+        "states_accepted_share": state["accepted"] / max(expected_states, 1.0),
+        "checks_with_fresh_state_share": fresh / max(checks, 1.0),
+        "state_timeouts": state["timeouts"],
+        "camera_timeouts": streams["camera"]["timeouts"],
+        "states_rejected": state["rejected"],
+        "states_superseded": state.get("superseded"),
+        "max_lag_s": state.get("max_lag_s"),
+        "mean_lag_s": state.get("mean_lag_s"),
+        "mean_hold_s": state.get("mean_hold_s"),
+        "rows_lost": rows_lost,
+        "rows_lost_share": rows_lost / max(rows_lost + len(hw_log), 1),
+        "nmpc_fallbacks": hw_summary.get("nmpc_fallbacks"),
+        "bridge_actuation": bridge_report["actuation"],
+    }
+
+
+def brief(name: str, r: dict) -> str:
+    lat = r["latency_ms"]
+    return (
+        f"{name}: load {r['load_average_start']:.1f}, mean lag {r['mean_lag_s']} s, fresh state at "
+        f"{100 * r['checks_with_fresh_state_share']:.1f} % of checks, accepted "
+        f"{100 * r['states_accepted_share']:.1f} % of states, rows without state "
+        f"{100 * r['rows_lost_share']:.1f} %, timeouts state {r['state_timeouts']} camera "
+        f"{r['camera_timeouts']}, rejected {r['states_rejected']}, latency median "
+        f"{lat['median_ms']} ms p99 {lat['p99_ms']} ms"
+    )
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenario", default="paper_sim")
+    parser.add_argument("--duration", type=float, default=60.0)
+    parser.add_argument("--laps", type=float, default=None)
+    parser.add_argument("--rate", type=float, default=1.0, help="pace (1.0: real time)")
+    parser.add_argument("--quick", action="store_true", help="15 s of driving")
+    parser.add_argument("--no-baseline", action="store_true", help="skip the all-in-one simulation")
+    parser.add_argument(
+        "--before-tree", default=None, help="also rehearse with the code of this package folder"
+    )
+    parser.add_argument("--repeats", type=int, default=1, help="rehearsals per variant")
+    parser.add_argument(
+        "--hold",
+        type=float,
+        nargs="+",
+        default=None,
+        help="rehearse with each of these hardware.playout_hold_s [s] (default: the scenario's)",
+    )
+    args = parser.parse_args()
+    if args.quick:
+        args.duration, args.laps = 15.0, None
+    from pcvfe_drake.diagrams.scenario_io import load_scenario
+    from pcvfe_drake.runs.scenario import build_terrain_map
+
+    scenario = load_scenario(args.scenario)
+    terrain_mu = {t.name: t.mu for t in build_terrain_map(scenario).terrains}
+    work = Path(tempfile.mkdtemp(prefix="hw_rehearsal_"))
+    load0 = os.getloadavg()[0]
+    print(f"load average {load0:.1f}; work folder {work}", flush=True)
+
+    sim_summary, sim_wall = None, None
+    if not args.no_baseline:
+        print("all-in-one simulation ...", flush=True)
+        t0 = time.perf_counter()
+        subprocess.run(
+            pcvfe(
+                "simulate",
+                args.scenario,
+                *length_args(args),
+                "--no-meshcat",
+                "--no-progress",
+                "--out",
+                str(work / "sim"),
+            ),
+            check=True,
+            stdout=subprocess.DEVNULL,
+        )
+        sim_wall = time.perf_counter() - t0
+        sim_summary = json.loads((work / "sim" / "summary.json").read_text())
+
+    variants: list[tuple[str, dict | None, float | None]] = []
+    if args.before_tree:
+        tree = str(Path(args.before_tree).resolve())
+        variants.append(("before", dict(os.environ, PYTHONPATH=tree), None))
+    if args.hold:
+        variants += [(f"after_hold_{h:g}s", None, h) for h in args.hold]
+    else:
+        variants.append(("after", None, None))
+    runs: dict[str, list[dict]] = {name: [] for name, _, _ in variants}
+    for k in range(args.repeats):
+        for name, env, hold in variants:
+            print(f"rehearsal ({name}) {k + 1} at {args.rate}x real time ...", flush=True)
+            r = rehearsal(args, scenario, terrain_mu, work / f"{name}{k}", env, hold)
+            runs[name].append(r)
+            print("  " + brief(name, r), flush=True)
+    hw = runs[variants[-1][0]][0]
     sim_contexts = [
         {
             "id": e["id"],
@@ -182,7 +284,7 @@ def main() -> int:
             "mu_hat": e["mu_hat"],
             "abs_error": e["abs_error"],
         }  # fmt: skip
-        for e in sim_summary["mu_estimates"]
+        for e in (sim_summary or {}).get("mu_estimates", [])
     ]
     result = {
         "benchmark": "hardware_rehearsal",
@@ -190,7 +292,9 @@ def main() -> int:
         "rate": args.rate,
         "load_average_start": load0,
         "load_average_end": os.getloadavg()[0],
-        "all_in_one": {
+        "all_in_one": None
+        if sim_summary is None
+        else {
             "sim_time_s": sim_summary["sim_time_s"],
             "wall_s": sim_wall,
             "contexts": sim_summary["contexts_discovered"],
@@ -198,26 +302,13 @@ def main() -> int:
             "lap_time_s": sim_summary.get("lap_time_s"),
             "estimates": sim_contexts,
         },
-        "rehearsal": {
-            "sim_time_s": hw_summary["sim_time_s"],
-            "wall_s": hw_summary["wall_time_s"],
-            "realtime_factor": hw_summary["realtime_factor"],
-            "realtime_factor_cpu": hw_summary.get("realtime_factor_cpu"),
-            "contexts": hw_summary["contexts_discovered"],
-            "laps": hw_summary.get("laps_completed"),
-            "lap_time_s": hw_summary.get("lap_time_s"),
-            "estimates": hw_contexts,
-            "truth_time_offset_s": offset,
-            "latency_ms": bridge_report["latency"],
-            "station_status": hw_summary["station_status"],
-            "states_accepted_share": state["accepted"] / max(expected_states, 1.0),
-            "rows_lost": hw_summary.get("rows_skipped_state_not_finite"),
-            "nmpc_fallbacks": hw_summary.get("nmpc_fallbacks"),
-            "bridge_actuation": bridge_report["actuation"],
-        },
+        "rehearsal": hw,
+        "runs": runs,
     }
     for name in ("all_in_one", "rehearsal"):
         r = result[name]
+        if r is None:
+            continue
         print(f"{name}: {r['contexts']} contexts, laps {r['laps']}, lap time {r['lap_time_s']}")
         for e in r["estimates"]:
             print(f"   context {e['id']} {e['terrain']:<13} mu_true {e['mu_true']} "

@@ -5,8 +5,9 @@ builds the station the way ``manipulation``'s hardware station does: LCM buses f
 scenario's ``hardware.lcm_buses`` (``diagrams/lcm_buses.py``), an ``LcmPublisherSystem`` for
 the actuation, and small translator systems between LCM messages and the station's ports.
 The two sensor channels are subscribed into ``MessageQueue`` s (``=>``) instead of
-``LcmSubscriberSystem`` s, which hold only the newest message: the receivers drain every
-message and hand each out at its own time (``pcvfe_drake.hardware.playout``)::
+``LcmSubscriberSystem`` s, which hold only the newest message: the receivers drain and check
+every message (``pcvfe_drake.hardware.playout``; ``hardware.playout_hold_s`` > 0 also replays
+a stall's messages one per tick)::
 
     PCVFE_STATE     => state queue  -> state_receiver  --state-------------> (state)
     PCVFE_IMAGE     => image queue  -> camera_receiver --image-------------> (image)
@@ -93,6 +94,7 @@ def MakeHardwareStation(
             max_delay_s=hw.state_max_delay_s,
             wall_clock=wall_clock,
             rate=hw.realtime_rate,
+            max_hold_s=hw.playout_hold_s,
             first_message_timeout_s=hw.first_message_timeout_s,
             pump=lcm.HandleSubscriptions,
             source=f"channel {hw.state_channel} of {url}",
@@ -111,6 +113,7 @@ def MakeHardwareStation(
             max_delay_s=hw.image_max_delay_s,
             wall_clock=wall_clock,
             rate=hw.realtime_rate,
+            max_hold_s=hw.playout_hold_s,
             pump=lcm.HandleSubscriptions,
         ),
     )

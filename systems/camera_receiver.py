@@ -3,7 +3,6 @@ handed out at its own time, as the station's image."""
 
 from __future__ import annotations
 
-import math
 import struct
 import time
 from collections.abc import Callable
@@ -61,7 +60,8 @@ class CameraReceiver(LeafSystem):
     frame (one that does not decode is rejected as ``malformed``; the watchdog rejects
     ``duplicate``, ``out_of_order`` and ``late`` frames, ``max_delay_s`` on the wall clock with
     ``wall_clock=True``, as on hardware, else on the context time) and hands out the newest frame
-    due at the context time (:mod:`pcvfe_drake.hardware.playout`). ``pump(timeout_ms)``, when
+    due at the context time (:mod:`pcvfe_drake.hardware.playout`; held back up to
+    ``max_hold_s``, default 0: the newest). ``pump(timeout_ms)``, when
     given (the bus's ``DrakeLcm.HandleSubscriptions``), is called with 0 before each drain.
 
     Drake's ``LcmImageArrayToImages`` decodes the same message, but it raises on a malformed
@@ -80,6 +80,7 @@ class CameraReceiver(LeafSystem):
         max_delay_s: float,
         wall_clock: bool = False,
         rate: float = 1.0,
+        max_hold_s: float = 0.0,
         clock: Callable[[], float] = time.monotonic,
         pump: Callable[[int], int] | None = None,
     ) -> None:
@@ -90,7 +91,7 @@ class CameraReceiver(LeafSystem):
             max_delay_s=max_delay_s,
             wall_clock=wall_clock,
             rate=rate,
-            max_hold_s=max_delay_s if math.isfinite(max_delay_s) else timeout_s,
+            max_hold_s=max_hold_s,
         )
         self._queue = queue
         self._clock = clock

@@ -3,7 +3,6 @@ out at its own time, as a state vector."""
 
 from __future__ import annotations
 
-import math
 import struct
 import time
 from collections.abc import Callable
@@ -62,8 +61,11 @@ class VehicleStateReceiver(LeafSystem):
     message in arrival order (malformed, non-finite, invalid, duplicate, out of order, late by
     more than ``max_delay_s``; delays on the wall clock with ``wall_clock=True``, as on
     hardware, else on the context time) and hands out the newest message that is due at the
-    context time (:mod:`pcvfe_drake.hardware.playout`): a station catching up on wall time
-    after a stall sees each message at its own tick.
+    context time (:mod:`pcvfe_drake.hardware.playout`). With ``max_hold_s`` 0 (the default)
+    that is the newest message; with more, a station catching up on wall time after a stall
+    sees each message at its own tick, holding messages back up to ``max_hold_s``. The
+    timeout counts on the wall clock as the station maps it: the late ticks of a stall, run
+    at one wall instant, do not age the data.
 
     ``pump(timeout_ms)`` (e.g. the bus's ``DrakeLcm.HandleSubscriptions``), when given, is
     called with 0 at each check before the queue is drained, so a message that arrived while
@@ -81,6 +83,7 @@ class VehicleStateReceiver(LeafSystem):
         max_delay_s: float,
         wall_clock: bool = False,
         rate: float = 1.0,
+        max_hold_s: float = 0.0,
         clock: Callable[[], float] = time.monotonic,
         first_message_timeout_s: float = 0.0,
         pump: Callable[[int], int] | None = None,
@@ -93,7 +96,7 @@ class VehicleStateReceiver(LeafSystem):
             max_delay_s=max_delay_s,
             wall_clock=wall_clock,
             rate=rate,
-            max_hold_s=max_delay_s if math.isfinite(max_delay_s) else timeout_s,
+            max_hold_s=max_hold_s,
         )
         self._queue = queue
         self._clock = clock

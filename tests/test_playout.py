@@ -69,9 +69,19 @@ def test_holding_is_bounded_a_station_far_behind_skips_ahead():
 
 
 def test_pending_messages_are_bounded():
-    limits = PlayoutLimits(timeout_s=0.05, wall_clock=True, max_pending=2)
+    limits = PlayoutLimits(timeout_s=0.05, wall_clock=True, max_pending=2, max_hold_s=1.0)
     p, _ = check_queue(Playout(StreamStatus()), 0.0, 10.0, [], limits)
     arrivals = [(k * 10_000, 10.0 + k * 0.01, k, "") for k in range(5)]
     p, out = check_queue(p, 0.0, 10.04, arrivals, limits)
     # Only the two newest stay; the first released was the oldest still kept.
     assert p.status.superseded == 3 and out is None and [q.payload for q in p.pending] == [3, 4]
+
+
+def test_holding_zero_hands_out_the_newest():
+    limits = PlayoutLimits(timeout_s=0.05, wall_clock=True)  # max_hold_s = 0
+    p, _ = check_queue(Playout(StreamStatus()), 0.0, 10.0, [], limits)
+    arrivals = [(k * 10_000, 10.0 + k * 0.01 + 0.001, k, "") for k in range(5)]
+    p, out = check_queue(p, 0.01, 10.06, arrivals, limits)
+    assert out.payload == 4 and p.pending == () and p.status.superseded == 4
+    with pytest.raises(ValueError, match="max_hold_s"):
+        PlayoutLimits(timeout_s=0.05, max_hold_s=-1.0)

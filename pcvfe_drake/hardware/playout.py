@@ -16,10 +16,15 @@ although every message arrived. The hardware station's receivers avoid both:
 - an accepted message is *due* at the station time at which it would have arrived had the
   station kept pace with the wall clock and the network been as fast as it has ever been
   (``utime`` plus the reference delay, both on the station's clock). :func:`release` hands out,
-  at each check, the newest message that is due and keeps the others pending. A station that
-  runs behind real time and catches up therefore sees each message at its own tick, as an
-  on-time station would, instead of the newest one held over several ticks; the fitter, which
-  samples the station's state at 100 Hz, gets each sample at its time stamp.
+  at each check, the newest message that is due, holding newer ones back at most
+  ``max_hold_s`` (default 0: always the newest). With a hold, a station that runs behind real
+  time and catches up sees each message at its own tick, as an on-time station would, instead
+  of the newest one held over several ticks (the fitter, which samples the station's state at
+  100 Hz, gets each sample at its time stamp), at the price of giving the controller states
+  up to ``max_hold_s`` older while it lags;
+- the timeout counts on the wall clock as the station maps it (``StreamStatus.age_s``): the late
+  ticks of a stall run at one wall instant and do not age the data, so a station that catches
+  up does not time out a stream whose messages all arrived.
 
 Clocks. On the simulated clock (``wall_clock=False``, tests in one process) a message arrives
 at the check that drains it. On the wall clock (hardware) the arrival is the wall time at which
@@ -29,9 +34,7 @@ ahead of the wall clock, so the smallest is the on-time one; the station's lag b
 is the difference), allowed to rise 0.5 %/s (``ORIGIN_DRIFT``) and re-anchored when the lag
 exceeds ``max_lag_s`` (a paused or re-paced simulator), so a wrong origin is soon forgotten.
 Holding is bounded: the current message is never older than the newest accepted one by more than
-``max_hold_s``. Within that a station catching up after a short stall replays each message at
-its tick; a station that stays further behind skips ahead to fresh states, so its controller
-never steers on ever older ones.
+``max_hold_s``; a station that stays further behind skips ahead to fresh states.
 
 ``late`` is judged at the check, on the station's clock: a message the station drains while it
 catches up is not late for being drained late (it sat in the station's own socket), only one
@@ -144,8 +147,7 @@ class PlayoutLimits:
     kept waiting at most (beyond it the oldest are skipped, counted as ``superseded``);
     ``max_lag_s``: a lag behind real time beyond this re-anchors the pacing origin;
     ``max_hold_s``: the current message is never older than the newest accepted one by more
-    than this (a station that stays behind real time skips ahead rather than steer on ever
-    older states; the hardware station uses the stream's ``max_delay_s``).
+    than this (0: always the newest; the hardware station uses ``hardware.playout_hold_s``).
     """
 
     timeout_s: float
@@ -154,16 +156,14 @@ class PlayoutLimits:
     rate: float = 1.0
     max_pending: int = 200
     max_lag_s: float = 2.0
-    max_hold_s: float = 0.05
+    max_hold_s: float = 0.0
 
     def __post_init__(self) -> None:
         require_positive(
-            "PlayoutLimits",
-            timeout_s=self.timeout_s,
-            rate=self.rate,
-            max_lag_s=self.max_lag_s,
-            max_hold_s=self.max_hold_s,
+            "PlayoutLimits", timeout_s=self.timeout_s, rate=self.rate, max_lag_s=self.max_lag_s
         )
+        if not (math.isfinite(self.max_hold_s) and self.max_hold_s >= 0):
+            raise ValueError(f"PlayoutLimits: max_hold_s must be >= 0, got {self.max_hold_s!r}")
         if not self.max_delay_s > 0:
             raise ValueError(f"PlayoutLimits: max_delay_s must be > 0, got {self.max_delay_s!r}")
 
@@ -276,6 +276,7 @@ def release(playout: Playout, t_s: float, limits: PlayoutLimits) -> tuple[Playou
             status,
             accepted_utime=out.utime,
             accepted_t_s=t_s,
+            accepted_lag_s=status.lag_s,
             released=status.released + 1,
             superseded=status.superseded + n_due - 1,
             hold_sum_s=status.hold_sum_s + max(0.0, out.arrival_s - t_s),

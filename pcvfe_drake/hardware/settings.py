@@ -52,6 +52,13 @@ class HardwareSettings:
     """Clock on which the receivers measure message delays: ``"wall"`` (hardware: a station
     that fell behind real time and catches up does not take fresh messages for late ones) or
     ``"sim"`` (the station's simulated time: deterministic, for tests in one process)."""
+    playout_hold_s: float = 0.0
+    """How long [s] the receivers may hold a message back so that a station running behind real
+    time takes each message at its own tick (``pcvfe_drake.hardware.playout``): 0 hands out the
+    newest message at every check (the NMPC steers on the freshest state; after a stall the
+    fitter sees that state held over the late ticks); more replays a stall's messages one per
+    tick but gives the NMPC states up to that much older while the station lags (measured in
+    docs/hardware.md)."""
     image_timeout_s: float = 0.35
     """No accepted camera frame for this long: the station's ``image`` becomes blank (features
     NaN, context noise) and ``station_status`` says ``timeout``."""
@@ -98,7 +105,7 @@ def hardware_problems(settings: HardwareSettings) -> list[str]:
         value = getattr(settings, f.name)
         if f.type is not float:
             continue
-        least = 0.0 if f.name == "first_message_timeout_s" else None
+        least = 0.0 if f.name in ("first_message_timeout_s", "playout_hold_s") else None
         ok = isinstance(value, int | float) and math.isfinite(value)
         ok = ok and (value >= least if least is not None else value > 0)
         if not ok:

@@ -91,6 +91,8 @@ class StreamStatus:
     """Wall time [s] of the check that last set ``clock_origin_s``."""
     lag_s: float = 0.0
     """How far the station's time was behind the wall clock at the last check [s]."""
+    accepted_lag_s: float = 0.0
+    """``lag_s`` at the check that handed out the newest accepted message [s]."""
     max_lag_s: float = 0.0
     lag_sum_s: float = 0.0
     """Sum of the lag over the checks [s] (``/ checks``: the mean lag)."""
@@ -105,8 +107,14 @@ class StreamStatus:
         return sum(n for r, n in self.rejected if reason is None or r == reason)
 
     def age_s(self, t_s: float) -> float:
-        """Seconds since the newest acceptance (inf before the first)."""
-        return t_s - self.accepted_t_s if math.isfinite(self.accepted_t_s) else math.inf
+        """Seconds since the newest acceptance (inf before the first), on the wall clock as the
+        station's clock maps it: a station catching up on a stall runs its late ticks at one
+        wall instant, and its lag behind real time (``lag_s``, from the queue-draining
+        receivers; 0 elsewhere) shrinks as fast as its time advances, so its data do not age
+        in those ticks."""
+        if not math.isfinite(self.accepted_t_s):
+            return math.inf
+        return t_s - self.accepted_t_s + (self.lag_s - self.accepted_lag_s)
 
     def to_dict(self) -> dict:
         out = {

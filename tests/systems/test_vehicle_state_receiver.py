@@ -125,8 +125,8 @@ class FakeWall:
 
 def test_a_station_catching_up_after_a_stall_gets_each_state_at_its_own_tick():
     wall = FakeWall(100.0)
-    # max_delay_s (also the longest a message is held for its tick) above the 60 ms stall.
-    rig = Rig(period_s=0.01, max_delay_s=0.1, wall_clock=True, clock=wall)
+    # Messages may be held 100 ms for their ticks (hardware.playout_hold_s): above the stall.
+    rig = Rig(period_s=0.01, max_delay_s=0.1, max_hold_s=0.1, wall_clock=True, clock=wall)
     sent = []
 
     def car_sends_until(t_car):  # the car's 100 Hz messages, each 2 ms on the wire
@@ -157,3 +157,26 @@ def test_a_station_catching_up_after_a_stall_gets_each_state_at_its_own_tick():
     assert s.max_lag_s == pytest.approx(0.115 - 0.0005 - 0.06, abs=1e-3)
     # The newest messages (sent at 100.10 and 100.11 s) wait for their ticks.
     assert s.accepted == 12 and s.released == 11
+
+
+def test_without_holding_a_stall_gives_the_newest_state_and_no_false_timeout():
+    # playout_hold_s = 0 (the default): the newest message at every check. The late ticks of a
+    # 60 ms stall see no new message, but they run at one wall instant: the data do not age
+    # in them (the lag shrinks as the station's time advances), so no timeout.
+    wall = FakeWall(100.0)
+    rig = Rig(period_s=0.01, max_delay_s=0.1, wall_clock=True, clock=wall)
+    for k in range(6):
+        rig.queue.push(message(k * 10_000, X + k).encode(), 100.0 + k * 0.01 + 0.002)
+        wall.t = 100.0 + k * 0.01 + 0.005
+        rig.sim.AdvanceTo(k * 0.01 + 0.006)
+    for k in range(6, 12):
+        rig.queue.push(message(k * 10_000, X + k).encode(), 100.0 + k * 0.01 + 0.002)
+    wall.t = 100.125
+    seen = []
+    for k in range(6, 13):
+        rig.sim.AdvanceTo(k * 0.01 + 0.001)
+        seen.append(rig.utime())
+        assert np.all(np.isfinite(rig.state()))
+    assert seen[0] == 110_000 and set(seen) == {110_000}
+    s = rig.status()
+    assert s.timeouts == 0 and s.superseded == 5 and s.rejected_count() == 0
