@@ -11,9 +11,14 @@ NMPC's piecewise-constant command, for delays below one NMPC period). The fitter
 the NMPC see exactly what they see in the all-in-one run; only the plant gets the command late.
 
 Runs the scenario once per delay (0 = the all-in-one baseline, in the same run) and prints the
-per-context mu estimates and their relative error against the truth.
+per-context mu estimates and their relative error against the truth. With ``--lcm-loop`` also
+the whole LCM path in one process without load (the hardware station and the vehicle bridge
+on one ``memq://`` bus, simulated clock): the LCM loop's structural timing (states taken at
+100 Hz checks, commands applied at the bridge's next check) without the stalls of a loaded
+machine.
 
 Usage: python benchmarks/actuation_delay.py [--delays 0 0.037] [--laps 1 | --duration S]
+       [--lcm-loop]
 Last stdout line: one JSON object.
 """
 
@@ -58,12 +63,58 @@ def delayed_station(scenario, delay_s: float):
     return diagram
 
 
+def lcm_loop_station(scenario):
+    """The hardware station and the vehicle bridge in one diagram on one ``memq://`` bus (the
+    whole LCM path: state messages checked at 100 Hz, commands published 2 ms after each NMPC
+    update and applied at the bridge's next check), on the simulated clock, as fast as
+    possible: the LCM loop's structural delays without any load. Exports the hardware
+    station's ports and the bridge's truth (so the summary scores it)."""
+    import dataclasses
+
+    from pydrake.lcm import DrakeLcm
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.lcm import LcmBuses
+
+    from pcvfe_drake.diagrams.station import MakeVehicleStation
+    from pcvfe_drake.diagrams.vehicle_bridge import MakeVehicleBridge
+    from pcvfe_drake.hardware.settings import LcmBusSettings
+
+    hw = dataclasses.replace(
+        scenario.hardware,
+        lcm_buses={"default": LcmBusSettings(lcm_url="memq://")},
+        bus="default",
+        first_message_timeout_s=0.0,
+        lateness_clock="sim",
+    )
+    scenario = dataclasses.replace(scenario, hardware=hw)
+    buses = LcmBuses()
+    buses.Add("default", DrakeLcm("memq://"))
+    builder = DiagramBuilder()
+    bridge = builder.AddNamedSystem("bridge", MakeVehicleBridge(scenario, lcm_buses=buses))
+    station = builder.AddNamedSystem(
+        "lcm_station", MakeVehicleStation(scenario, hardware=True, lcm_buses=buses)
+    )
+    builder.ExportInput(station.GetInputPort("actuation"), "actuation")
+    for name in ("state", "image", "station_status"):
+        builder.ExportOutput(station.GetOutputPort(name), name)
+    for name in ("true_mu", "true_terrain", "true_state"):
+        builder.ExportOutput(bridge.GetOutputPort(name), name)
+    diagram = builder.Build()
+    diagram.set_name("vehicle_station")
+    return diagram
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenario", default="paper_sim")
     parser.add_argument("--delays", type=float, nargs="+", default=[0.0, 0.037])
     parser.add_argument("--laps", type=float, default=1.0)
     parser.add_argument("--duration", type=float, default=None)
+    parser.add_argument(
+        "--lcm-loop",
+        action="store_true",
+        help="also run the LCM station and the bridge in one process on memq:// (no load)",
+    )
     args = parser.parse_args()
     from pcvfe_drake.diagrams.run_simulation import run_simulation
     from pcvfe_drake.diagrams.scenario_io import load_scenario
@@ -79,10 +130,14 @@ def main() -> int:
     load0 = os.getloadavg()[0]
     print(f"load average {load0:.1f}; work folder {work}", flush=True)
     runs = []
-    for delay in args.delays:
-        folder = RunFolder(work / f"delay_{delay * 1000:.0f}ms")
+    variants = [(f"delay_{d * 1000:.0f}ms", d) for d in args.delays]
+    if args.lcm_loop:
+        variants.append(("lcm_loop_memq", None))
+    for name, delay in variants:
+        folder = RunFolder(work / name)
         folder.prepare()
         t0 = time.perf_counter()
+        station = lcm_loop_station(scenario) if delay is None else delayed_station(scenario, delay)
         result = run_simulation(
             scenario,
             folder,
@@ -90,7 +145,7 @@ def main() -> int:
             write_outputs=True,
             debug_layers=False,
             controls=False,
-            station=delayed_station(scenario, delay),
+            station=station,
         )
         s = result.summary
         estimates = [
@@ -105,6 +160,7 @@ def main() -> int:
         ]
         runs.append(
             {
+                "variant": name,
                 "delay_s": delay,
                 "wall_s": time.perf_counter() - t0,
                 "sim_time_s": s["sim_time_s"],
@@ -114,7 +170,7 @@ def main() -> int:
                 "estimates": estimates,
             }
         )
-        print(f"delay {delay * 1000:.0f} ms: {s['contexts_discovered']} contexts, "
+        print(f"{name}: {s['contexts_discovered']} contexts, "
               f"lap time {s.get('lap_time_s')}", flush=True)  # fmt: skip
         for e in estimates:
             rel = "" if e["rel_error"] is None else f" ({100 * e['rel_error']:+.1f} %)"
