@@ -18,7 +18,7 @@ on one ``memq://`` bus, simulated clock): the LCM loop's structural timing (stat
 machine.
 
 Usage: python benchmarks/actuation_delay.py [--delays 0 0.037] [--laps 1 | --duration S]
-       [--lcm-loop]
+       [--lcm-loop] [--quick]
 Last stdout line: one JSON object.
 """
 
@@ -115,7 +115,10 @@ def main() -> int:
         action="store_true",
         help="also run the LCM station and the bridge in one process on memq:// (no load)",
     )
+    parser.add_argument("--quick", action="store_true", help="20 s instead of a lap")
     args = parser.parse_args()
+    if args.quick:
+        args.duration = 20.0
     from pcvfe_drake.diagrams.run_simulation import run_simulation
     from pcvfe_drake.diagrams.scenario_io import load_scenario
     from pcvfe_drake.runs.run_folder import RunFolder

@@ -9,7 +9,7 @@ reports for each: the run's disk use (drive log, frames) per simulated minute, i
 simulated second, the replay's CPU time, and how far the replay's estimates and contexts are
 from the original's.
 
-Usage: python benchmarks/replay_log_cost.py [--scenario paper_sim] [--duration 40]
+Usage: python benchmarks/replay_log_cost.py [--scenario paper_sim] [--duration 40] [--quick]
 Last stdout line: one JSON object.
 """
 
@@ -75,7 +75,10 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenario", default="paper_sim")
     parser.add_argument("--duration", type=float, default=40.0)
+    parser.add_argument("--quick", action="store_true", help="12 s")
     args = parser.parse_args()
+    if args.quick:
+        args.duration = 12.0
     work = Path(tempfile.mkdtemp(prefix="replay_cost_"))
     (work / "replayable.yaml").write_text(REPLAYABLE)
     load0 = os.getloadavg()[0]
