@@ -111,8 +111,9 @@ class LiveFitConfig:
         effects: fit the workbench model with these effects instead of the bare ST model
             (``pcvfe_drake.estimation.effect_fit``; entries: name and fixed parameter values,
             the others fitted per context). Empty: the ST fit (default).
-        effect_horizon_s, effect_stride_s, effect_max_windows: the effect fit's windows
-            (horizon, spacing, the newest this many per refit).
+        effect_horizon_s, effect_stride_s, effect_max_windows, effect_min_windows: the
+            effect fit's windows (horizon, spacing, the newest this many per refit, fewer than
+            this many: keep the prior).
         identifiable_std: mu's standard deviation above which a context is not identifiable.
         near_limit_fraction: the data came near the limit when the used friction reached this
             fraction of the fitted mu.
@@ -145,6 +146,7 @@ class LiveFitConfig:
     effect_horizon_s: float = 1.0
     effect_stride_s: float = 0.5
     effect_max_windows: int = 100
+    effect_min_windows: int = 10
     identifiable_std: float = 0.05
     near_limit_fraction: float = 0.6
     unidentified_mu: str = "estimate"
@@ -176,6 +178,7 @@ class LiveFitConfig:
             "max_iterations",
             "max_contexts_per_update",
             "effect_max_windows",
+            "effect_min_windows",
         )
         for name in positive_ints:
             value = getattr(self, name)
@@ -255,7 +258,7 @@ class ContextEstimator:
                 stride_s=cfg.effect_stride_s,
                 max_windows=cfg.effect_max_windows,
                 max_iterations=cfg.max_iterations,
-                min_windows=cfg.min_windows,
+                min_windows=cfg.effect_min_windows,
             )
 
     def __deepcopy__(self, memo) -> ContextEstimator:
@@ -541,8 +544,8 @@ class ContextEstimator:
                 old,
                 samples=samples,
                 status=old.status if old.fitted else "too_little_data",
-                message=f"too little data for the effect model (< {cfg.min_windows} windows of "
-                f"{cfg.effect_horizon_s:g} s)"
+                message=f"too little data for the effect model (< {cfg.effect_min_windows} "
+                f"windows of {cfg.effect_horizon_s:g} s)"
                 + ("; keeping the last estimate" if old.fitted else "; using the prior"),
             )
             return

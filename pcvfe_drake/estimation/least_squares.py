@@ -281,12 +281,14 @@ def covariance(
     free: np.ndarray | None = None,
     prior_precision: np.ndarray | None = None,
     inflate: float = 1.0,
+    dof: int | None = None,
 ) -> np.ndarray:
     """Parameter covariance from the Jacobian at the solution (Gauss-Newton information).
 
     ``cov = (J_f^T J_f / s2 + Lambda_prior)^-1 * inflate`` on the free parameters ``f`` with
-    ``s2 = ssr / (m - p)`` the residual variance; rows and columns of parameters not free are
-    zero. ``inflate`` > 1 widens it when residuals are correlated (e.g. ``m / n_eff``).
+    ``s2 = ssr / dof`` the residual variance (``dof`` default ``m - p_free``); rows and
+    columns of parameters not free are zero. ``inflate`` > 1 widens it when residuals are
+    correlated (e.g. ``m / n_eff``).
     Raises ``numpy.linalg.LinAlgError`` when the information matrix is singular.
     """
     m, p_all = J.shape
@@ -294,7 +296,7 @@ def covariance(
     if free_idx.dtype == bool:
         free_idx = np.flatnonzero(free_idx)
     prec = np.zeros(p_all) if prior_precision is None else np.asarray(prior_precision, float)
-    s2 = ssr / max(m - free_idx.size, 1)
+    s2 = ssr / max(m - free_idx.size if dof is None else dof, 1)
     Jf = J[:, free_idx]
     info = _gram(Jf) / max(s2, 1e-300) + np.diag(prec[free_idx])
     cov_f = np.linalg.inv(info) * inflate

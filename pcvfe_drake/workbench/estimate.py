@@ -145,6 +145,8 @@ def fit(
     overlap: float = 1.0,
     burn_in: int = 0,
     fixed: np.ndarray | None = None,
+    prior_mean: np.ndarray | None = None,
+    prior_sd: np.ndarray | None = None,
 ) -> FitResult:
     """Levenberg-Marquardt fit of all model parameters within their bounds (projected steps).
 
@@ -164,6 +166,8 @@ def fit(
             on stiffness and lag estimates.
         fixed: boolean mask (P,) of parameters held at their starting value (not fitted; std
             NaN), e.g. effect parameters found by ``pcvfe diagnose`` (default: none).
+        prior_mean, prior_sd: an optional Gaussian prior per parameter (sd inf: none), in the
+            cost as ``((theta - mean) / sd)^2`` and in the covariance.
     Returns:
         FitResult. ``std`` = sqrt(diag(s^2 (J^T J)^-1)) with s^2 = cost / (n_residuals - P),
         multiplied by sqrt(n_residuals / n_eff): errors inside a window are strongly
@@ -185,6 +189,10 @@ def fit(
         theta = options[int(np.argmin(costs))]
 
     fixed = np.zeros(model.n_params, bool) if fixed is None else np.asarray(fixed, bool)
+    precision = np.zeros(model.n_params)
+    if prior_sd is not None:
+        precision = 1.0 / np.asarray(prior_sd, dtype=float) ** 2
+    mean = theta.copy() if prior_mean is None else np.asarray(prior_mean, dtype=float)
     fitted_cols = np.flatnonzero(~fixed)
 
     def fun(th, need_jacobian):
@@ -202,6 +210,8 @@ def fit(
         hi,
         scale,
         free=~fixed,
+        prior_mean=mean,
+        prior_precision=precision,
         settings=lsq.LsqSettings(
             max_iterations=max_iter,
             ftol=rtol,
@@ -213,7 +223,8 @@ def fit(
             predicted_check=False,
         ),
     )
-    theta, r, jac, cost, it = out.theta, out.r, out.J, out.cost, out.iterations
+    theta, r, jac, it = out.theta, out.r, out.J, out.iterations
+    cost = float(r @ r)  # the data's part (the prior's is in out.cost)
     converged, history = out.converged, out.history
     n_res = r.size
     n_eff = max(starts.size / max(overlap, 1.0) * len(FIT_STATES), model.n_params + 1.0)
@@ -222,9 +233,15 @@ def fit(
     std = np.full(model.n_params, np.nan)
     if free.any():
         try:
-            cov = lsq.covariance(jac, cost, free=free, inflate=n_res / n_eff)
-            # s2 uses all P parameters (as before the shared core): rescale from |free|
-            cov *= max(n_res - free.sum(), 1) / max(n_res - model.n_params, 1)
+            inflate = n_res / n_eff
+            cov = lsq.covariance(
+                jac,
+                float(r @ r),
+                free=free,
+                prior_precision=precision * inflate,  # (J^T J / (s2 inflate) + prior)^-1
+                inflate=inflate,
+                dof=n_res - model.n_params,
+            )
             std[free] = np.sqrt(np.maximum(np.diag(cov)[free], 0.0))
         except np.linalg.LinAlgError:
             pass
