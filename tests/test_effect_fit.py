@@ -80,6 +80,21 @@ def test_controller_theta_keeps_the_small_slip_stiffness():
         np.testing.assert_allclose(th[0] * th[1:], k, rtol=1e-12)
 
 
+def test_peak_tyre_theta_is_the_peak_with_the_fitted_stiffness():
+    vp = ford_escort()
+    # k_s = 0: the small-slip stiffness stays the nominal mu's, whatever the peak
+    model, fixed, theta = build_model(vp, ["peak_tyre:k_s=0"])
+    assert fixed.tolist() == [False, True]
+    theta[0] = 0.45
+    th = controller_theta(model, theta)
+    assert th[0] == 0.45
+    np.testing.assert_allclose(th[1:], np.array([vp.C_Sf, vp.C_Sr]) * vp.mu / 0.45, rtol=1e-3)
+    # k_s = 1: stiffness proportional to the peak, the ST model's own parametrisation
+    model, _, theta = build_model(vp, ["peak_tyre:k_s=1"])
+    theta[0] = 0.45
+    np.testing.assert_allclose(controller_theta(model, theta)[1:], [vp.C_Sf, vp.C_Sr], rtol=1e-3)
+
+
 def test_friction_used_is_the_acceleration_quantile():
     t = np.arange(0.0, 10.0, 0.01)
     x = np.zeros((t.size, 7))

@@ -387,35 +387,13 @@ def fit_log(
     ``mu_is_peak``, and per context the controller's theta, mu's std, its lower bound from the
     friction used, ``near_limit`` and ``identifiable``.
     """
-    from pcvfe_drake.workbench.estimate import fit
-    from pcvfe_drake.workbench.ranking import Workbench, _steps
+    from pcvfe_drake.workbench.ranking import Workbench
 
     wb = Workbench(data, vehicle)
-    model, fixed, theta_init = build_model(wb.base_model.vehicle, effects, data.context_names)
-    base = wb.baseline
-    theta0 = model.transfer(base.theta, base.model)
-    theta0[fixed] = theta_init[fixed]
-    candidates = []
-    for e in model.effects:
-        idx = [i for i in model.effect_param_indices(e.name) if not fixed[i]]
-        if e.starts and idx:
-            for start in e.starts:
-                c = theta0.copy()
-                c[model.effect_param_indices(e.name)] = start
-                c[fixed] = theta_init[fixed]
-                candidates.append(c)
-    cfg = wb.config
-    res = fit(
-        model,
-        data,
-        wb.train_starts,
-        wb.h_fit,
-        theta0=theta0,
-        candidates=candidates,
-        max_iter=cfg.max_iter,
-        burn_in=min(_steps(cfg.fit_burn_in_s, data), wb.h_fit - 1),
-        fixed=fixed,
-    )
+    specs = parse_effects(effects)
+    model = wb.base_model.with_effects(*[sp.name for sp in specs])
+    fixed = {f"{sp.name}.{k}": v for sp in specs for k, v in sp.fixed.items()}
+    res = wb.fit_model(model, warm=wb.baseline, fixed=fixed)
     contexts = {}
     for c, label in enumerate(data.context_names):
         theta = controller_theta(model, res.theta, c)

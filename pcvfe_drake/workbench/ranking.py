@@ -99,10 +99,19 @@ class Workbench:
         self._base_eval: dict | None = None
 
     # ------------------------------------------------------------------ fitting
-    def fit_model(self, model: WorkbenchModel, warm: FitResult | None = None) -> FitResult:
-        """Fit ``model`` on the training windows, warm-started from a nested fit."""
+    def fit_model(
+        self,
+        model: WorkbenchModel,
+        warm: FitResult | None = None,
+        fixed: dict[str, float] | None = None,
+    ) -> FitResult:
+        """Fit ``model`` on the training windows, warm-started from a nested fit; ``fixed``
+        holds parameters (model-wide names) at given values (``pcvfe fit --effects``)."""
         self.n_fits += 1
         theta0 = model.initial_theta() if warm is None else model.transfer(warm.theta, warm.model)
+        mask = np.array([p in (fixed or {}) for p in model.param_names])
+        values = np.array([(fixed or {}).get(p, 0.0) for p in model.param_names])
+        theta0[mask] = values[mask]
         candidates = []
         mu_idx = [i for i, p in enumerate(model.params) if p.effect is None and p.name[:2] == "mu"]
         for e in model.effects:
@@ -116,6 +125,7 @@ class Workbench:
                         c = theta0.copy()
                         c[idx] = start
                         c[mu_idx] = c[mu_idx] * f
+                        c[mask] = values[mask]
                         candidates.append(c)
         return fit(
             model,
@@ -126,6 +136,7 @@ class Workbench:
             candidates=candidates,
             max_iter=self.config.max_iter,
             burn_in=min(_steps(self.config.fit_burn_in_s, self.data), self.h_fit - 1),
+            fixed=mask,
         )
 
     @property
