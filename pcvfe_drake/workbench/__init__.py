@@ -13,7 +13,11 @@ Python API::
 See ``docs/workbench.md``.
 """
 
-from pcvfe_drake.workbench import sensor_effects, tyre_effects  # noqa: F401  (registers them)
+from pcvfe_drake.workbench import (  # noqa: F401  (registers them)
+    chassis_effects,
+    sensor_effects,
+    tyre_effects,
+)
 from pcvfe_drake.workbench.data import DriveData, load, prepare
 from pcvfe_drake.workbench.effects import (
     Effect,

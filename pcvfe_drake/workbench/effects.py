@@ -11,6 +11,7 @@ hook                what it changes
 ``wheel_angle``     the road-wheel angle the tires see (lag, offset)
 ``friction``        a factor on the friction of one axle, seeing the state and the axle load
                     (speed- and load-dependent friction)
+``cornering_stiffness`` the axle's normalised cornering stiffness (not its peak)
 ``tire``            the lateral tire force law (saturation); sees the state too
 ``longitudinal``    extra longitudinal acceleration [m/s^2] (drag, rolling, grade)
 ``state_rates``     time derivatives of the effect's own states (lag)
@@ -155,6 +156,12 @@ class Effect:
         it); ``ctx.x`` is the state. Return None for no change."""
         return None
 
+    def cornering_stiffness(self, c_s, ctx: StepContext, p: dict):
+        """The normalised cornering stiffness [1/rad] (N,) of the axle ``ctx.axle`` (default
+        ``C_Sf`` or ``C_Sr``); unlike a ``friction`` factor it leaves a tyre law's peak alone.
+        Return None for no change."""
+        return None
+
     def tire(self, alpha, fz, c_alpha, p: dict, ctx: StepContext | None = None):
         """Lateral tire force [N] for slip ``alpha`` [rad], load ``fz`` [N], stiffness
         ``c_alpha`` [N/rad] (friction factors included) on axle ``ctx.axle`` in state
@@ -191,6 +198,11 @@ class Effect:
         """For a tyre law whose small-slip stiffness is not ``mu C_S Fz``: the friction level
         (N,) that would give the linear tyre its stiffness (the model's integration step is
         chosen from it); None when the stiffness is the baseline's."""
+        return None
+
+    def stiffness_factor(self, p: dict) -> np.ndarray | None:
+        """For a ``cornering_stiffness`` hook: the largest factor (N,) it puts on C_S (the
+        model's integration step is chosen from it); None for none."""
         return None
 
     def max_step(self, p: dict) -> float | None:

@@ -11,7 +11,8 @@ followed by the effects' own states)::
                               (the longitudinal resistances transfer load too)
     6. slip angles            alpha_f = delta_w - beta - lf r / v,  alpha_r = -beta + lr r / v
     7. friction hooks         mu_axle = mu x the factors (friction_speed, friction_load)
-    8. tire forces            F_y = mu_axle C_S Fz alpha (linear), or a tire hook
+    8. tire forces            F_y = mu_axle C_S Fz alpha (linear; cornering_stiffness hooks
+                              change C_S), or a tire hook
                               (tire_saturation, peak_tyre; it sees the state, the friction
                               factor and the base mu)
     9. yaw and slip           r' = (lf F_yf - lr F_yr) / I_z,  beta' = (F_yf + F_yr) / (m v) - r
@@ -239,6 +240,10 @@ class WorkbenchModel:
                 if factor is not None:
                     scale = scale * factor
             ctx.mu_scale = scale
+            for e in self.effects:
+                stiff = e.cornering_stiffness(c_s, ctx, eff[e.name])
+                if stiff is not None:
+                    c_s = stiff
             c_alpha = base["mu"] * scale * c_s * fz
             fy = c_alpha * alpha
             for e in self.effects:
@@ -271,16 +276,21 @@ class WorkbenchModel:
 
         The yaw/slip eigenvalues are about ``-mu C_S g max(1, m lf lr / I_z) / v`` (they grow
         like 1/v); the step keeps ``h |lambda| <= RK4_STABLE_HLAMBDA``. A tyre effect whose
-        small-slip stiffness is not ``mu C_S`` says so with ``stiffness_mu`` (``eff``: the
-        effects' parameter dicts).
+        small-slip stiffness is not ``mu C_S`` says so with ``stiffness_mu``, a
+        ``cornering_stiffness`` hook with ``stiffness_factor`` (``eff``: the effects' parameter
+        dicts).
         """
         vp = self.vehicle
         v_min = max(float(np.min(speeds)) if np.size(speeds) else 1.0, V_FLOOR_MPS)
         mu = base["mu"]
-        for e in self.effects:
-            alt = e.stiffness_mu(base["mu"], vp, eff[e.name]) if eff is not None else None
+        for e in self.effects if eff is not None else ():
+            alt = e.stiffness_mu(base["mu"], vp, eff[e.name])
             if alt is not None:
                 mu = np.maximum(mu, alt)
+        for e in self.effects if eff is not None else ():
+            factor = e.stiffness_factor(eff[e.name])
+            if factor is not None:
+                mu = mu * factor
         stiff = float(np.max(mu * np.maximum(base["C_Sf"], base["C_Sr"])))
         lam = stiff * vp.g * max(1.0, vp.m * vp.lf * vp.lr / vp.I_z) / v_min
         return RK4_STABLE_HLAMBDA / max(lam, 1e-9)

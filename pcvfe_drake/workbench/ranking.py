@@ -120,12 +120,18 @@ class Workbench:
                 # a tyre whose peak is mu: the linear fit's mu is no peak (it sets the
                 # stiffness), so lower peaks are tried from the start as well
                 factors = PEAK_MU_START_FACTORS if e.friction_is_peak else (1.0,)
+                used = self.used_friction(model) if e.friction_is_peak else None
                 for start in e.starts:
                     for f in factors:
                         c = theta0.copy()
                         c[idx] = start
                         c[mu_idx] = c[mu_idx] * f
                         c[mask] = values[mask]
+                        candidates.append(c)
+                    if used is not None:  # the peak at the largest friction the data used
+                        c = theta0.copy()
+                        c[idx] = start
+                        c[mu_idx] = used
                         candidates.append(c)
         return fit(
             model,
@@ -138,6 +144,20 @@ class Workbench:
             burn_in=min(_steps(self.config.fit_burn_in_s, self.data), self.h_fit - 1),
             fixed=mask,
         )
+
+    def used_friction(self, model: WorkbenchModel) -> np.ndarray:
+        """Per base ``mu`` entry of ``model`` (one per context): 1.05 x the largest friction
+        the log used in that context, the 99th percentile of ``|v psi_dot| / g`` (a start for
+        a tyre whose peak is mu; within the bounds)."""
+        d = self.data
+        ay = np.abs(d.x[:, 3] * d.x[:, 5]) / model.vehicle.g
+        out = []
+        for p in model.params:
+            if p.effect is None and p.name[:2] == "mu":
+                rows = d.context == p.context
+                level = float(np.percentile(ay[rows], 99.0)) if rows.any() else p.initial
+                out.append(float(np.clip(1.05 * level, p.lower, p.upper)))
+        return np.array(out)
 
     @property
     def baseline(self) -> FitResult:

@@ -63,6 +63,9 @@ class Truth:
             speed and load scale both).
         mf_shape: its shape factor C [-].
         mf_stiffness_exponent: how its stiffness follows the peak (0: not at all) [-].
+        axle_stiffness: factors on the front and rear cornering stiffness [-].
+        rotating_mass_kg: rotating mass equivalent of the wheels [kg]: the car accelerates
+            by ``a m / (m + m_rot)`` for a command ``a``.
     """
 
     mu: float | None = None
@@ -81,6 +84,8 @@ class Truth:
     mf_peak: float = math.inf
     mf_shape: float = 1.35
     mf_stiffness_exponent: float = 0.0
+    axle_stiffness: tuple[float, float] = (1.0, 1.0)
+    rotating_mass_kg: float = 0.0
 
 
 PLANTED: dict[str, tuple[Truth, str, float]] = {
@@ -97,6 +102,8 @@ PLANTED: dict[str, tuple[Truth, str, float]] = {
     "friction_speed": (Truth(mu_speed_slope=0.03), "k_v", 0.03),
     "friction_load": (Truth(mu_load_sens=0.5), "k_z", 0.5),
     "peak_tyre": (Truth(mf_peak=0.7), "k_s", 0.0),
+    "axle_stiffness": (Truth(axle_stiffness=(0.93, 1.12)), "k_r", 1.12),
+    "rotating_inertia": (Truth(rotating_mass_kg=60.0), "m_rot", 60.0),
 }
 """Realistic planted magnitudes per effect: (truth, the parameter's name, its planted value).
 Ford Escort class car: CdA 0.75 m^2 (Cd 0.36 x 2.1 m^2), c_rr 0.015, steering lag 0.15 s,
@@ -105,7 +112,9 @@ powertrain dead time 0.17 s, peak friction 0.8 (damp asphalt), 3 % / -2 % grade,
 bias, a 3 % speed-sensor scale error, friction falling 3 % per m/s of speed (wet asphalt), a load
 sensitivity of 0.5, a magic-formula tyre (shape 1.35) whose friction peak is 0.7 (wet asphalt)
 with the nominal small-slip stiffness (stiffness exponent 0: the public PC-VFE simulator's
-friction mapping; its planted value is 0, so it is checked with an absolute tolerance)."""
+friction mapping; its planted value is 0, so it is checked with an absolute tolerance), axle
+cornering stiffnesses 0.93 / 1.12 x nominal and a 60 kg rotating mass (the values the
+workbench reads on CommonRoad's multi-body model)."""
 
 
 LATERAL_PATTERN_MPS2 = np.array([1.0, 5.5, 2.5, 6.0, 3.5, 5.0])
@@ -172,7 +181,8 @@ def driver_commands(
 ):
     """Commands (steer_rate (B,), accel (B,)) of the driving program at sample k for true
     single-track states x (B, 7): a steering sweep tracked by a P loop and a P speed loop.
-    ``grip_scale`` scales the lateral-acceleration targets and the braking circle (a driver
+    ``grip_scale`` scales the lateral-acceleration targets, the braking circle and (below 1) the
+    largest braking and driving accelerations (a driver
     who knows the surface drives each one as close to its limit)."""
     v = x[:, 3]
     wheelbase = vp.lf + vp.lr
@@ -198,7 +208,9 @@ def driver_commands(
     lat = np.abs(v * x[:, 5])
     circle = grip_scale * BRAKE_CIRCLE_MPS2
     brake_max = np.clip(np.sqrt(np.maximum(circle**2 - lat**2, 0.0)), 1.0, 3.5 * min(grip_scale, 1))
-    acc = np.where(ex.coast[k], 0.0, np.clip(0.8 * (ex.v_ref[k] - v), -brake_max, 2.5))
+    acc = np.where(
+        ex.coast[k], 0.0, np.clip(0.8 * (ex.v_ref[k] - v), -brake_max, 2.5 * min(grip_scale, 1.0))
+    )
     return steer, acc
 
 
@@ -251,6 +263,7 @@ def _truth_rates(vp, tr, s, steer_cmd, acc_cmd):
     vs = np.maximum(v, 0.1)
     power_cap = 1000.0 * tr["p_max_kw"] / (vp.m * np.maximum(v, 0.5))
     acc = np.where(acc > 0, np.minimum(acc, power_cap), acc)
+    acc = acc * vp.m / (vp.m + tr["m_rot"])
     wheel = np.where(tr["steer_tau"] > 0, delta_w, delta)
     wheelbase = vp.lf + vp.lr
     drag_force = 0.5 * RHO_AIR_KGPM3 * tr["CdA"] * v * np.abs(v)
@@ -269,8 +282,10 @@ def _truth_rates(vp, tr, s, steer_cmd, acc_cmd):
     mu_r = mu_v * (1.0 - tr["mu_load_sens"] * (fzr / fzr0 - 1.0))
     peak_f = tr["mu_peak"] * mu_f / tr["mu"]
     peak_r = tr["mu_peak"] * mu_r / tr["mu"]
-    fyf = _brush(alpha_f, fzf, mu_f * vp.C_Sf * fzf, peak_f)
-    fyr = _brush(alpha_r, fzr, mu_r * vp.C_Sr * fzr, peak_r)
+    csf = vp.C_Sf * tr["k_f"]
+    csr = vp.C_Sr * tr["k_r"]
+    fyf = _brush(alpha_f, fzf, mu_f * csf * fzf, peak_f)
+    fyr = _brush(alpha_r, fzr, mu_r * csr * fzr, peak_r)
     if np.any(np.isfinite(tr["mf_peak"])):
         with np.errstate(invalid="ignore", divide="ignore"):
             follow = (tr["mf_peak"] / tr["mu"]) ** tr["mf_exp"]
@@ -278,14 +293,14 @@ def _truth_rates(vp, tr, s, steer_cmd, acc_cmd):
         mf_f = _magic(
             alpha_f,
             fzf,
-            follow * mu_f * vp.C_Sf * fzf,
+            follow * mu_f * csf * fzf,
             tr["mf_peak"] * mu_f / tr["mu"],
             tr["mf_shape"],
         )
         mf_r = _magic(
             alpha_r,
             fzr,
-            follow * mu_r * vp.C_Sr * fzr,
+            follow * mu_r * csr * fzr,
             tr["mf_peak"] * mu_r / tr["mu"],
             tr["mf_shape"],
         )
@@ -344,6 +359,9 @@ def simulate_truths(
         "mf_peak": col(lambda t: t.mf_peak),
         "mf_shape": col(lambda t: t.mf_shape),
         "mf_exp": col(lambda t: t.mf_stiffness_exponent),
+        "k_f": col(lambda t: t.axle_stiffness[0]),
+        "k_r": col(lambda t: t.axle_stiffness[1]),
+        "m_rot": col(lambda t: t.rotating_mass_kg),
     }
     delay = col(lambda t: t.accel_delay)
     s = np.zeros((b, 8))

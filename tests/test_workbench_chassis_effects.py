@@ -1,0 +1,115 @@
+"""axle_stiffness and rotating_inertia: equations, null values, and the loop on planted data."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from pcvfe_drake.vehicle.params import ford_escort
+from pcvfe_drake.workbench import synth
+from pcvfe_drake.workbench.data import prepare
+from pcvfe_drake.workbench.model import WorkbenchModel
+from pcvfe_drake.workbench.report import diagnose
+
+
+def _states(n=9, seed=0):
+    rng = np.random.default_rng(seed)
+    s = np.zeros((n, 8))
+    s[:, 3] = rng.uniform(8.0, 20.0, n)
+    s[:, 5] = rng.normal(0.0, 0.3, n)
+    s[:, 6] = rng.normal(0.0, 0.05, n)
+    s[:, 2] = s[:, 7] = rng.normal(0.0, 0.05, n)
+    u = np.stack([rng.normal(0, 0.1, n), rng.uniform(-3.0, 2.0, n)], axis=1)
+    return s, u
+
+
+def _truth(n, **kw):
+    vp = ford_escort()
+    keys = dict(
+        mu=vp.mu, CdA=0.0, c_rr=0.0, steer_tau=0.0, mu_peak=math.inf, gx=0.0, gy=0.0,
+        p_max_kw=math.inf, mu_speed_slope=0.0, mu_load_sens=0.0, mf_peak=math.inf,
+        mf_shape=1.35, mf_exp=0.0, k_f=1.0, k_r=1.0, m_rot=0.0,
+    )  # fmt: skip
+    keys.update(kw)
+    return {k: np.full(n, v) for k, v in keys.items()}
+
+
+@pytest.mark.parametrize(
+    "effects, theta_effects, truth",
+    [
+        (("axle_stiffness",), [0.9, 1.2], {"k_f": 0.9, "k_r": 1.2}),
+        (("rotating_inertia",), [60.0], {"m_rot": 60.0}),
+        (
+            ("peak_tyre", "axle_stiffness"),
+            [0.3, 0.9, 1.2],
+            {"mf_peak": 0.6, "mf_exp": 0.3, "k_f": 0.9, "k_r": 1.2},
+        ),
+    ],
+)
+def test_effects_match_the_separately_written_truth(effects, theta_effects, truth):
+    vp = ford_escort()
+    s, u = _states()
+    n = s.shape[0]
+    mu = truth.get("mf_peak", vp.mu)
+    expected = synth._truth_rates(vp, _truth(n, **truth), s, u[:, 0], u[:, 1])[:, :7]
+    model = WorkbenchModel(vp).with_effects(*effects)
+    base, eff = model._unpack(np.tile([mu, *theta_effects], (n, 1)), np.zeros(n, int))
+    assert np.allclose(model.rhs(s[:, :7], u, base, eff), expected, atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    "name, null", [("axle_stiffness", [1.0, 1.0]), ("rotating_inertia", [0.0])]
+)
+def test_null_values_give_the_baseline(name, null):
+    vp = ford_escort()
+    s, u = _states()
+    n = s.shape[0]
+    base_model = WorkbenchModel(vp)
+    b0, e0 = base_model._unpack(np.full((n, 1), vp.mu), np.zeros(n, int))
+    model = base_model.with_effects(name)
+    b1, e1 = model._unpack(np.tile([vp.mu, *null], (n, 1)), np.zeros(n, int))
+    diff = model.rhs(s[:, :7], u, b1, e1) - base_model.rhs(s[:, :7], u, b0, e0)
+    assert np.max(np.abs(diff)) < 1e-12
+
+
+def test_axle_stiffness_leaves_the_peak_of_the_peak_tyre():
+    vp = ford_escort()
+    model = WorkbenchModel(vp).with_effects("peak_tyre", "axle_stiffness")
+    n = 2001
+    x = np.zeros((n, 7))
+    x[:, 3] = 15.0
+    x[:, 6] = np.linspace(-0.4, 0.4, n)  # slip angles on both axles
+    base, eff = model._unpack(np.tile([0.5, 0.0, 1.8, 1.8], (n, 1)), np.zeros(n, int))
+    z = model.rhs(x, np.zeros((n, 2)), base, eff)
+    # total lateral force / (m g) = v (beta' + r) / g with r = 0 never exceeds the peak 0.5
+    lateral = 15.0 * z[:, 6] / vp.g
+    assert np.max(np.abs(lateral)) == pytest.approx(0.5, rel=2e-3)
+
+
+@pytest.fixture(scope="module")
+def planted():
+    names = ["axle_stiffness", "rotating_inertia"]
+    truths = [synth.PLANTED[n][0] for n in names]
+    logs = synth.simulate_truths(truths, duration_s=90.0, rate_hz=20.0, seed=0, substeps=2)
+    return {n: diagnose(prepare(df, n))[0] for n, df in zip(names, logs, strict=True)}
+
+
+@pytest.mark.parametrize("name", ["axle_stiffness", "rotating_inertia"])
+def test_loop_finds_the_planted_chassis_effect(planted, name):
+    report = planted[name]
+    assert [s["name"] for s in report["selected"]] == [name]
+    truth, _, _ = synth.PLANTED[name]
+    params = report["final"]["params"]
+    if name == "axle_stiffness":
+        expected = dict(zip(("k_f", "k_r"), truth.axle_stiffness, strict=True))
+    else:
+        expected = {"m_rot": truth.rotating_mass_kg}
+    for key, value in expected.items():
+        fitted = params[f"{name}.{key}"]["value"]
+        assert abs(fitted - value) <= 0.05 * value, (key, fitted, value)
+    assert abs(params["mu"]["value"] - ford_escort().mu) <= 0.05
+    final = report["final"]
+    assert final["heldout_multistep_error"] <= 1.2 * final["noise_floor"], final
+    assert report["verdict"]["kind"] == "explained", report["verdict"]["text"]
