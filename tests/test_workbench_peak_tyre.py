@@ -72,6 +72,7 @@ def test_planted_magic_formula_truth_matches_the_effect():
         mu=vp.mu, CdA=0.0, c_rr=0.0, steer_tau=0.0, mu_peak=math.inf, gx=0.0, gy=0.0,
         p_max_kw=math.inf, mu_speed_slope=0.0, mu_load_sens=0.0, mf_peak=0.6,
         mf_shape=MF_SHAPE, mf_exp=0.4, k_f=1.0, k_r=1.0, m_rot=0.0,
+        ff_drive=0.0, ff_brake=0.0, ff_drag=0.0,
     )  # fmt: skip
     tr = {k: np.full(n, v) for k, v in keys.items()}
     u = np.zeros((n, 2))

@@ -8,6 +8,8 @@ multi-body model (``pcvfe_drake.vehicle.mb_truth``) with the workbench (docs/wor
   change the force per radian of the single-track slip angle, differently front and rear.
   ``C_Sf' = k_f C_Sf``, ``C_Sr' = k_r C_Sr``; it changes the stiffness only, never the peak of
   a ``friction_is_peak`` tyre.
+* ``wheel_force_steer``: the front wheels' drive/brake force turns with the steering and
+  the front lateral force brakes the car (cornering drag).
 * ``rotating_inertia``: the command is a wheel torque ``m R_w a`` (CommonRoad's multi-body
   model: engine torque ``T_E = m R_w a`` when driving, brake torque ``T_B = m R_w a`` when
   braking), part of which spins the wheels up: the car accelerates by
@@ -76,5 +78,40 @@ class RotatingInertia(Effect):
         return data.u[:, 1:2]
 
 
-for _cls in (AxleStiffness, RotatingInertia):
+class WheelForceSteer(Effect):
+    """The front wheels' forces turn with the steering (the single-track model drops it).
+
+    A front-wheel-driven car with front-biased brakes (CommonRoad's Ford Escort: all drive
+    torque and 76 % of the brake torque on the front axle) pushes its front wheels along their
+    own heading: the front longitudinal force ``F_xf = m a s`` (``s = s_drive`` for a > 0,
+    ``s_brake`` below) adds ``F_xf sin(delta)`` to the front lateral force (so to the yaw
+    moment and the slip), and the front lateral force takes ``k_drag F_yf sin(delta) / m`` off
+    the longitudinal acceleration (cornering drag; 1 = the rotated force). Null: all three 0.
+    The shares are bounded by 1.5, not 1: an *effective* share (a front-driven car's is 1,
+    a bound a fit must be free to reach).
+    Residual signature: the yaw-rate residual follows the acceleration command times the
+    steering angle.
+    """
+
+    name = "wheel_force_steer"
+    description = "front wheel forces turn with the steering: F_y,f += F_xf sin(delta)"
+    params = (
+        EffectParam("s_drive", "-", 0.0, 1.5, 0.5, 0.1, 0.0, "front share of drive force"),
+        EffectParam("s_brake", "-", 0.0, 1.5, 0.5, 0.1, 0.0, "front share of brake force"),
+        EffectParam("k_drag", "-", 0.0, 2.0, 1.0, 0.1, 0.0, "cornering drag factor"),
+    )
+    signature_state = "psi_dot"
+    signature_label = "acceleration command x steering angle"
+
+    def body_forces(self, fyf, fyr, ctx, p):
+        share = np.where(ctx.accel > 0, p["s_drive"], p["s_brake"])
+        fxf = ctx.vehicle.m * ctx.accel * share
+        sin_d = np.sin(ctx.delta_wheel)
+        return fxf * sin_d, 0.0, -p["k_drag"] * fyf * sin_d / ctx.vehicle.m
+
+    def signature_regressors(self, data):
+        return (data.u[:, 1] * data.x[:, 2])[:, None]
+
+
+for _cls in (AxleStiffness, RotatingInertia, WheelForceSteer):
     register_effect(_cls)

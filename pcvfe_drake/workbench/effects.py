@@ -12,6 +12,7 @@ hook                what it changes
 ``friction``        a factor on the friction of one axle, seeing the state and the axle load
                     (speed- and load-dependent friction)
 ``cornering_stiffness`` the axle's normalised cornering stiffness (not its peak)
+``body_forces``     extra axle lateral forces and longitudinal acceleration after the tyres
 ``tire``            the lateral tire force law (saturation); sees the state too
 ``longitudinal``    extra longitudinal acceleration [m/s^2] (drag, rolling, grade)
 ``state_rates``     time derivatives of the effect's own states (lag)
@@ -94,6 +95,7 @@ class StepContext:
         mu_scale: the product of the ``friction`` factors of that axle (N,) (in ``tire``).
         mu: the row's base friction coefficient ``mu`` (N,) (of its context); with a
             ``friction_is_peak`` tyre it is the friction peak.
+        delta_wheel: the road-wheel angle [rad] (N,) (in ``body_forces``).
     """
 
     x: np.ndarray
@@ -106,6 +108,7 @@ class StepContext:
     fz_static: float = 0.0
     mu_scale: np.ndarray | float = 1.0
     mu: np.ndarray | float = 1.0
+    delta_wheel: np.ndarray | float = 0.0
 
 
 class Effect:
@@ -154,6 +157,13 @@ class Effect:
         """A factor (N,) on the friction coefficient of the axle ``ctx.axle`` whose load is
         ``fz`` [N] (the cornering stiffness ``mu C_S Fz`` and a tire law's peak scale with
         it); ``ctx.x`` is the state. Return None for no change."""
+        return None
+
+    def body_forces(self, fyf, fyr, ctx: StepContext, p: dict):
+        """Extra forces after the tyre law: ``(dF_yf [N], dF_yr [N], da_x [m/s^2])`` (each
+        (N,) or 0) added to the axles' lateral forces (yaw and slip) and to the longitudinal
+        acceleration (not to the load transfer); ``ctx.delta_wheel`` is the road-wheel angle.
+        None for none."""
         return None
 
     def cornering_stiffness(self, c_s, ctx: StepContext, p: dict):

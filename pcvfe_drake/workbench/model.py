@@ -15,7 +15,9 @@ followed by the effects' own states)::
                               change C_S), or a tire hook
                               (tire_saturation, peak_tyre; it sees the state, the friction
                               factor and the base mu)
-    9. yaw and slip           r' = (lf F_yf - lr F_yr) / I_z,  beta' = (F_yf + F_yr) / (m v) - r
+    9. body_forces hooks      extra lateral force per axle and longitudinal acceleration
+                              (wheel_force_steer: the wheels' forces turned by the steering)
+       yaw and slip           r' = (lf F_yf - lr F_yr) / I_z,  beta' = (F_yf + F_yr) / (m v) - r
                               (r = psi_dot);  v' = a_x
    10. state_rates hooks      the effects' own states (steering_lag)
 
@@ -255,6 +257,11 @@ class WorkbenchModel:
                     fy = out
             forces.append(fy)
         fyf, fyr = forces
+        ctx.delta_wheel = delta_w
+        for e in self.effects:
+            out = e.body_forces(fyf, fyr, ctx, eff[e.name])
+            if out is not None:
+                fyf, fyr, a_long = fyf + out[0], fyr + out[1], a_long + out[2]
         zdot = np.empty_like(z)
         zdot[:, 0] = v * np.cos(x[:, PSI] + beta)
         zdot[:, 1] = v * np.sin(x[:, PSI] + beta)

@@ -66,6 +66,9 @@ class Truth:
         axle_stiffness: factors on the front and rear cornering stiffness [-].
         rotating_mass_kg: rotating mass equivalent of the wheels [kg]: the car accelerates
             by ``a m / (m + m_rot)`` for a command ``a``.
+        front_forces: (drive share, brake share, drag factor): the front wheels push with
+            ``m a share`` along their heading (``sin(delta)`` of it sideways) and the front
+            lateral force brakes the car by ``factor F_yf sin(delta)``.
     """
 
     mu: float | None = None
@@ -86,6 +89,7 @@ class Truth:
     mf_stiffness_exponent: float = 0.0
     axle_stiffness: tuple[float, float] = (1.0, 1.0)
     rotating_mass_kg: float = 0.0
+    front_forces: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 PLANTED: dict[str, tuple[Truth, str, float]] = {
@@ -104,6 +108,7 @@ PLANTED: dict[str, tuple[Truth, str, float]] = {
     "peak_tyre": (Truth(mf_peak=0.7), "k_s", 0.0),
     "axle_stiffness": (Truth(axle_stiffness=(0.93, 1.12)), "k_r", 1.12),
     "rotating_inertia": (Truth(rotating_mass_kg=60.0), "m_rot", 60.0),
+    "wheel_force_steer": (Truth(front_forces=(1.0, 0.76, 1.0)), "k_drag", 1.0),
 }
 """Realistic planted magnitudes per effect: (truth, the parameter's name, its planted value).
 Ford Escort class car: CdA 0.75 m^2 (Cd 0.36 x 2.1 m^2), c_rr 0.015, steering lag 0.15 s,
@@ -113,8 +118,9 @@ bias, a 3 % speed-sensor scale error, friction falling 3 % per m/s of speed (wet
 sensitivity of 0.5, a magic-formula tyre (shape 1.35) whose friction peak is 0.7 (wet asphalt)
 with the nominal small-slip stiffness (stiffness exponent 0: the public PC-VFE simulator's
 friction mapping; its planted value is 0, so it is checked with an absolute tolerance), axle
-cornering stiffnesses 0.93 / 1.12 x nominal and a 60 kg rotating mass (the values the
-workbench reads on CommonRoad's multi-body model)."""
+cornering stiffnesses 0.93 / 1.12 x nominal, a 60 kg rotating mass and front wheels taking all
+the drive and 76 % of the brake force, turned with the steering (CommonRoad's Ford Escort;
+the values the workbench reads on its multi-body model)."""
 
 
 LATERAL_PATTERN_MPS2 = np.array([1.0, 5.5, 2.5, 6.0, 3.5, 5.0])
@@ -306,6 +312,10 @@ def _truth_rates(vp, tr, s, steer_cmd, acc_cmd):
         )
         fyf = np.where(np.isfinite(tr["mf_peak"]), mf_f, fyf)
         fyr = np.where(np.isfinite(tr["mf_peak"]), mf_r, fyr)
+    sin_w = np.sin(wheel)
+    fxf = vp.m * acc * np.where(acc > 0, tr["ff_drive"], tr["ff_brake"])
+    a_x = a_x - tr["ff_drag"] * fyf * sin_w / vp.m
+    fyf = fyf + fxf * sin_w
     out = np.empty_like(s)
     out[:, 0] = v * np.cos(psi + beta)
     out[:, 1] = v * np.sin(psi + beta)
@@ -362,6 +372,9 @@ def simulate_truths(
         "k_f": col(lambda t: t.axle_stiffness[0]),
         "k_r": col(lambda t: t.axle_stiffness[1]),
         "m_rot": col(lambda t: t.rotating_mass_kg),
+        "ff_drive": col(lambda t: t.front_forces[0]),
+        "ff_brake": col(lambda t: t.front_forces[1]),
+        "ff_drag": col(lambda t: t.front_forces[2]),
     }
     delay = col(lambda t: t.accel_delay)
     s = np.zeros((b, 8))
