@@ -2,7 +2,8 @@
 
 Logs: ``pcvfe_drake.workbench.synth`` (as ``workbench_proof_sweep.py``: 90 s at 20 Hz, GNSS/INS
 noise, substeps 2): a clean log, each named effect alone (drag, rolling_resistance,
-steering_lag, input_delay, tire_saturation) and two at once (drag + steering_lag). Every method
+steering_lag, input_delay, tire_saturation) and each of their 10 pairs (``--triples``: the 10
+triples too), the set the workbench's proof sweep uses. Every method
 sees the first 70 % of a log (training) and is scored on the last 30 % (held out).
 
 Methods, each as its users would run it on the discrepancy of the known ST model (nominal
@@ -42,7 +43,8 @@ the errors divided by the log's noise scales over (delta, v, psi, psi_dot, beta)
 workbench's headline; ``none`` is the ST model alone. Time: the fit (and for the workbench the
 whole ``diagnose``), wall clock on a shared machine, in this run.
 
-Usage: python benchmarks/peers_workbench.py [--quick] [--seed S]. Last stdout line: JSON.
+Usage: python benchmarks/peers_workbench.py [--quick] [--triples] [--seed S].
+Last stdout line: JSON.
 """
 
 from __future__ import annotations
@@ -50,6 +52,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.metadata
+import itertools
 import json
 import os
 import time
@@ -81,15 +84,14 @@ HORIZON_S, STRIDE_S, TRAIN_FRACTION = 2.0, 0.25, 0.7
 ACCEL_LAGS = 4
 DIVERGED = np.array([1.6, 100.0, 10.0, 1.6])
 """A rollout past these |delta| [rad], |v| [m/s], |psi_dot| [rad/s], |beta| [rad] has diverged."""
+ORIGINAL = ("drag", "rolling_resistance", "steering_lag", "input_delay", "tire_saturation")
 LOGS = {
     "clean": [],
-    "drag": ["drag"],
-    "rolling_resistance": ["rolling_resistance"],
-    "steering_lag": ["steering_lag"],
-    "input_delay": ["input_delay"],
-    "tire_saturation": ["tire_saturation"],
-    "drag+steering_lag": ["drag", "steering_lag"],
+    **{e: [e] for e in ORIGINAL},
+    **{f"{a}+{b}": [a, b] for a, b in itertools.combinations(ORIGINAL, 2)},
 }
+"""The clean log, each original effect alone and every pair of them (the loop's pair set in
+``workbench_proof_sweep.py``); ``--triples`` adds every triple."""
 
 
 def _truth(effects):
@@ -299,8 +301,12 @@ def _identified(effect, terms, tool):
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="clean, drag and input_delay only")
+    ap.add_argument("--triples", action="store_true", help="also every triple of effects")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
+    logs_all = dict(LOGS)
+    if args.triples:
+        logs_all.update({"+".join(c): list(c) for c in itertools.combinations(ORIGINAL, 3)})
     vp = load_vehicle(None)
     peers, missing = {}, {}
     for mod, dist in (("pysindy", "pysindy"), ("sysidentpy", "sysidentpy")):
@@ -309,8 +315,8 @@ def main() -> int:
         except Exception as exc:
             missing[mod] = f"{dist} not installed ({type(exc).__name__}); `make bench` installs it"
             print(f"PEER MISSING: {missing[mod]}", flush=True)
-    names = ["clean", "drag", "input_delay"] if args.quick else list(LOGS)
-    truths = [_truth(LOGS[n]) for n in names]
+    names = ["clean", "drag", "input_delay"] if args.quick else list(logs_all)
+    truths = [_truth(logs_all[n]) for n in names]
     logs = synth.simulate_truths(truths, duration_s=90.0, rate_hz=20.0, seed=args.seed, substeps=2)
     calib = prepare(
         synth.simulate_truths([synth.Truth()], duration_s=90.0, seed=args.seed + 100, substeps=2)[
@@ -344,7 +350,7 @@ def main() -> int:
 
     rows = []
     for name, df in zip(names, logs, strict=True):
-        planted = LOGS[name]
+        planted = logs_all[name]
         data = prepare(df, name)
         n_train = int(TRAIN_FRACTION * data.n)
         starts, h = _heldout_starts(data.n, data.dt)
@@ -417,6 +423,22 @@ def main() -> int:
             result[f"{tool}_identified"] = (
                 f"{sum(r[key] for r in planted_rows)}/{len(planted_rows)}"
             )
+            for k, label in ((1, "alone"), (2, "pairs"), (3, "triples")):
+                sub = [r for r in planted_rows if len(r["planted"]) == k]
+                if sub:
+                    result[f"{tool}_identified_{label}"] = f"{sum(r[key] for r in sub)}/{len(sub)}"
+            if tool == "workbench":
+                result["workbench_false_discoveries"] = sum(r["workbench_false"] for r in rows)
+            else:
+                clean = [r for r in rows if not r["planted"] and f"{tool}_nterms" in r]
+                result[f"{tool}_terms_on_clean"] = sum(r[f"{tool}_nterms"] for r in clean)
+        scored = [r for r in rows if r["planted"] and f"{tool}_heldout" in r]
+        if scored:
+            result[f"{tool}_heldout_median"] = float(
+                np.median([r[f"{tool}_heldout"] for r in scored])
+            )
+            better = sum(r[f"{tool}_heldout"] < r["none_heldout"] for r in scored)
+            result[f"{tool}_better_than_st"] = f"{better}/{len(scored)}"
         if f"{tool}_s" in rows[0]:
             result[f"{tool}_s_median"] = float(np.median([r[f"{tool}_s"] for r in rows]))
     if "pysindy_s_median" in result:
