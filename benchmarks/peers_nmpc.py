@@ -30,7 +30,15 @@ time median / p95 / max, updates over the 50 ms period of 20 Hz (a missed deadli
 lateral RMS / max, mean speed, fallbacks; and the ratio of median update times in this run.
 Wall-clock times on a shared machine; CPU times (``time.process_time``) beside them.
 
-Usage: python benchmarks/peers_nmpc.py [--quick]. Last stdout line: one JSON object.
+``--friction-limited``: ``paper_eval``'s friction-limited driving instead, where the plan runs
+at the friction polygon on every curve and IPOPT's convergence could matter: the same course
+and terrains, the reference speed capped at 12 m/s (so the curves' speeds are set by mu on every
+terrain, brick included), CommonRoad's multi-body model as the truth with ``paper_eval``'s
+friction mapping (``lateral_peak``: only the lateral tyre peak is the terrain's mu; RK4 with
+1 ms substeps), the true mu given to both controllers (``paper_eval``'s oracle).
+
+Usage: python benchmarks/peers_nmpc.py [--quick] [--friction-limited].
+Last stdout line: one JSON object.
 """
 
 from __future__ import annotations
@@ -276,7 +284,30 @@ class IpoptNmpc(NmpcController):
         return out
 
 
-def _run(label, ctrl, course, mu_at, duration_s, laps):
+FRICTION_LIMITED_MAX_SPEED_MPS = 12.0
+"""``paper_eval``'s speed cap: above every curve's friction-limited speed on the slalom."""
+
+
+class MbTruthPlant:
+    """CommonRoad's multi-body model as the closed-loop truth (RK4 substeps of 1 ms)."""
+
+    def __init__(self, vehicle: str = "ford_escort", friction_scaling: str = "lateral_peak"):
+        from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
+
+        self.mb = MbTruth(vehicle, friction_scaling=friction_scaling)
+        self._st_state = st_state
+        self.x = None
+
+    def reset(self, x0):
+        self.x = self.mb.initial_state(x0)
+        return self._st_state(self.x)
+
+    def step(self, u, mu, dt):
+        self.x = self.mb.integrate(self.x, u, mu, dt, method="rk4", rk4_step_s=1e-3)
+        return self._st_state(self.x)
+
+
+def _run(label, ctrl, course, mu_at, duration_s, laps, truth=None):
     prof = ctrl.profile(float(mu_at(np.array(course.sample(0.0)[:2]))))
     x0 = initial_state(course, ctrl.params, float(prof.speed_at(0.0)))
     cpu_times: list[float] = []
@@ -290,7 +321,9 @@ def _run(label, ctrl, course, mu_at, duration_s, laps):
 
     ctrl.step = timed_step
     w, c = time.perf_counter(), time.process_time()
-    res = simulate_closed_loop(ctrl, x0, duration_s=duration_s, mu_at=mu_at, stop_after_laps=laps)
+    res = simulate_closed_loop(
+        ctrl, x0, duration_s=duration_s, mu_at=mu_at, stop_after_laps=laps, truth=truth
+    )
     wall, cpu = time.perf_counter() - w, time.process_time() - c
     m = res.metrics(course)
     times = np.array([d.update_time_s for d in res.diagnostics])
@@ -336,10 +369,16 @@ def _run(label, ctrl, course, mu_at, duration_s, laps):
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="8 s of the course instead of a lap")
+    ap.add_argument(
+        "--friction-limited",
+        action="store_true",
+        help="paper_eval's friction-limited driving (12 m/s cap, multi-body truth)",
+    )
     args = ap.parse_args(argv)
     result = {
         "benchmark": "peers_nmpc",
         "quick": args.quick,
+        "friction_limited": args.friction_limited,
         "cpu_count": os.cpu_count(),
         "load_avg_1min": os.getloadavg()[0],
         "python": platform.python_version(),
@@ -364,19 +403,31 @@ def main(argv=None) -> int:
     course = load_course("slalom")
     ford = ford_escort()
     cfg = NmpcConfig()
+    if args.friction_limited:
+        cfg = dataclasses.replace(cfg, max_speed_mps=FRICTION_LIMITED_MAX_SPEED_MPS)
     laps = None if args.quick else 1.0
     duration = (
         8.0 if args.quick else 1.6 * NmpcController(course, ford, cfg).profile(0.3).lap_time + 5.0
     )
+
+    def truth():
+        return MbTruthPlant() if args.friction_limited else None
+
     ours = _run(
-        "RTI + OSQP (ours)", NmpcController(course, ford, cfg), course, mu_at, duration, laps
+        "RTI + OSQP (ours)",
+        NmpcController(course, ford, cfg),
+        course,
+        mu_at,
+        duration,
+        laps,
+        truth(),
     )
     result["ours"] = ours
     if "peers_missing" not in result:
         t0 = time.perf_counter()
         peer = IpoptNmpc(course, ford, cfg)
         result["ipopt_build_s"] = time.perf_counter() - t0
-        result["ipopt"] = _run("CasADi + IPOPT", peer, course, mu_at, duration, laps)
+        result["ipopt"] = _run("CasADi + IPOPT", peer, course, mu_at, duration, laps, truth())
         result["ratio_ipopt_over_ours_median"] = (
             result["ipopt"]["update_ms_median"] / ours["update_ms_median"]
         )
