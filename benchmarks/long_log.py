@@ -125,13 +125,14 @@ def main() -> int:
             r["mu"] = {k: c["theta"]["mu"] for k, c in report["contexts"].items()}
             r["windows"] = {k: c["n_windows"] for k, c in report["contexts"].items()}
         else:
-            r["verdict"] = report["verdict"]
+            r["verdict"] = {k: report["verdict"][k] for k in ("kind", "text")}
+            r["selected"] = [e["name"] for e in report.get("selected", [])]
         result[label] = r
     result["fit_mu_error_max"] = max(
         abs(fit["contexts"]["sand"]["theta"]["mu"] - 0.45),
         abs(fit["contexts"]["brick"]["theta"]["mu"] - 0.8),
     )
-    result["diagnose_verdict"] = diag["verdict"]
+    result["diagnose_verdict"] = diag["verdict"]["kind"]
     for cmd in ("fit", "diagnose"):
         big, base = result[cmd], result[f"{cmd}_base"]
         result[f"{cmd}_rows_ratio"] = round(big["rows"] / base["rows"], 2)
