@@ -188,3 +188,27 @@ def test_fit_effects_equals_diagnose_add(tmp_path, capsys, saturating_log):
     assert main(["fit", str(path), "--effects", "tire_saturation:mu_peak=0.7"]) == 0
     out = capsys.readouterr().out
     assert "tire_saturation (mu_peak=0.7)" in out and "all" in out
+
+
+def test_mu_figure_draws_the_lower_bounds(tmp_path):
+    import pandas as pd
+
+    from pcvfe_drake.runs.figures import figure_mu_over_time
+
+    t = np.arange(0.0, 20.0, 0.1)
+    log = pd.DataFrame(
+        {
+            "t": t,
+            "context": (t > 10).astype(int),
+            "mu_true": np.where(t > 10, 0.45, 0.6),
+            "mu_hat": np.where(t > 10, 0.5, 0.62),
+        }
+    )
+    summary = {
+        "mu_estimates": [
+            {"id": 0, "majority_terrain": "concrete", "mu_lower_bound": 0.41, "near_limit": True},
+            {"id": 1, "majority_terrain": "sand", "mu_lower_bound": 0.2, "near_limit": False},
+        ]
+    }
+    path = figure_mu_over_time(log, tmp_path / "fig5.png", summary=summary)
+    assert path.stat().st_size > 1000

@@ -197,6 +197,32 @@ def _plot_mu(ax, log: pd.DataFrame) -> None:
     ax.set_ylim(0.0, max(1.0, 1.1 * top))
 
 
+def _plot_lower_bounds(ax, log: pd.DataFrame, summary: Mapping[str, Any] | None) -> None:
+    """Each context's used-friction lower bound (final table) as a dotted line over the time it
+    was reported, marked where the data never came near the limit (mu not identifiable)."""
+    t = log["t"].to_numpy(float)
+    ctx = log["context"].to_numpy(int)
+    labelled = False
+    for e in (summary or {}).get("mu_estimates", []):
+        bound = e.get("mu_lower_bound")
+        rows = ctx == int(e["id"])
+        if bound is None or not np.isfinite(bound) or not rows.any():
+            continue
+        t0, t1 = float(t[rows].min()), float(t[rows].max())
+        ax.hlines(
+            bound,
+            t0,
+            t1,
+            colors=ESTIMATE_COLOR,
+            linestyles=":",
+            lw=1.4,
+            label=None if labelled else "friction used (lower bound on mu)",
+        )
+        labelled = True
+        if e.get("near_limit") is False:
+            ax.text(t0, bound, " never near the limit", fontsize=7, va="bottom")
+
+
 def figure_mu_over_time(
     log: pd.DataFrame, path: str | Path, *, summary: Mapping[str, Any] | None = None
 ) -> Path:
@@ -204,6 +230,7 @@ def figure_mu_over_time(
     path = Path(path)
     fig, ax = plt.subplots(figsize=(11, 4), constrained_layout=True)
     _plot_mu(ax, log)
+    _plot_lower_bounds(ax, log, summary)
     ax.set_xlabel("time [s]")
     ids = sorted(set(log["context"].astype(int).tolist()))
     handles = ax.get_legend_handles_labels()[0] + _context_legend(ids, _majority_names(summary))
