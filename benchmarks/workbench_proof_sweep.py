@@ -14,7 +14,8 @@ ranks the whole library with the forward selection and backward check of ``pcvfe
   over ``--planted-seeds``. A case passes when the selected effects are exactly the planted
   ones, every planted parameter is within 15 %, the final held-out multi-step error is
   within 1.2 x the noise floor and the verdict is "explained".
-* ``outside``: each original effect planted alone and taken out of the library; passes when
+* ``outside``: each original effect planted alone and taken out of the library (with its
+  aliases: ``tire_saturation`` with ``peak_tyre``); passes when
   the verdict is "outside the library" and names no library effect as the cause.
 
 Usage: python benchmarks/workbench_proof_sweep.py [--quick] [--clean-seeds N]
@@ -49,6 +50,9 @@ QUICK_COMBOS = [
     ("drag", "steering_lag", "input_delay"),
 ]
 ALPHA = 0.01
+ALIASES = {"tire_saturation": ("peak_tyre",)}
+"""Library effects that describe the same phenomenon (a saturating lateral tyre, brush or
+magic formula): taken out together in the ``outside`` cases."""
 
 
 def combined_truth(names) -> synth.Truth:
@@ -165,7 +169,8 @@ def main() -> int:
             [synth.PLANTED[n][0] for n in ORIGINAL], duration_s=90.0, seed=0, substeps=2
         )
         for name, df in tqdm(list(zip(ORIGINAL, logs, strict=True)), desc="outside"):
-            library = [e for e in known_effects() if e != name]
+            gone = {name, *ALIASES.get(name, ())}
+            library = [e for e in known_effects() if e not in gone]
             report, _ = diagnose(prepare(df, f"{name} outside"), candidates=library)
             v = report["verdict"]
             outside.append(
