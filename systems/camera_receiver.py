@@ -13,7 +13,7 @@ from pydrake.systems.framework import Context, EventStatus, LeafSystem, State
 from pydrake.systems.sensors import ImageRgba8U
 
 from pcvfe_drake.hardware.image_messages import ImageMessageError, decode_image_array, image_utime
-from pcvfe_drake.hardware.playout import MessageQueue, Playout, PlayoutLimits, check_queue
+from pcvfe_drake.hardware.playout import MessageQueue, Playout, PlayoutLimits, drain_and_check
 from pcvfe_drake.hardware.watchdog import StreamStatus, require_positive
 from pcvfe_drake.systems.texture_camera import to_drake_image
 
@@ -123,13 +123,9 @@ class CameraReceiver(LeafSystem):
     def _check(self, context: Context, state: State) -> EventStatus:
         if self._pump is not None:
             self._pump(0)
-        arrivals = []
-        for item in self._queue.drain():
-            utime, rgb, problem = decode_frame(item.data)
-            arrivals.append((utime, item.wall_s, rgb, problem))
         wall = self._clock() if self.limits.wall_clock else None
-        playout, out = check_queue(
-            self._playout(context), context.get_time(), wall, arrivals, self.limits
+        playout, out = drain_and_check(
+            self._queue, decode_frame, self._playout(context), context.get_time(), wall, self.limits
         )
         if out is not None:
             state.get_mutable_abstract_state(self._frame_index).set_value(

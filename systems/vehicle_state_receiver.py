@@ -11,7 +11,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, Context, EventStatus, LeafSystem, State
 
-from pcvfe_drake.hardware.playout import MessageQueue, Playout, PlayoutLimits, check_queue
+from pcvfe_drake.hardware.playout import MessageQueue, Playout, PlayoutLimits, drain_and_check
 from pcvfe_drake.hardware.watchdog import StreamStatus, require_positive
 from pcvfe_drake.lcmtypes import lcmt_vehicle_state
 from pcvfe_drake.vehicle.single_track import NX
@@ -152,13 +152,9 @@ class VehicleStateReceiver(LeafSystem):
     def _check(self, context: Context, state: State) -> EventStatus:
         if self._pump is not None:
             self._pump(0)  # what has arrived since the last step, not only up to it
-        arrivals = []
-        for item in self._queue.drain():
-            utime, x, problem = decode_state(item.data)
-            arrivals.append((utime, item.wall_s, x, problem))
         wall = self._clock() if self.limits.wall_clock else None
-        playout, out = check_queue(
-            self._playout(context), context.get_time(), wall, arrivals, self.limits
+        playout, out = drain_and_check(
+            self._queue, decode_state, self._playout(context), context.get_time(), wall, self.limits
         )
         if out is not None:
             state.get_mutable_discrete_state(self._state_index).set_value(

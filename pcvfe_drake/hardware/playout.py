@@ -310,3 +310,20 @@ def check_queue(
             limits=limits,
         )
     return release(playout, t_s, limits)
+
+
+def drain_and_check(
+    queue: MessageQueue,
+    decode,
+    playout: Playout,
+    t_s: float,
+    wall_s: float | None,
+    limits: PlayoutLimits,
+) -> tuple[Playout, Pending | None]:
+    """A receiver's whole check: every message waiting in ``queue``, decoded by ``decode(data)
+    -> (utime, payload, problem)``, through :func:`check_queue`."""
+    arrivals = []
+    for item in queue.drain():
+        utime, payload, problem = decode(item.data)
+        arrivals.append((utime, item.wall_s, payload, problem))
+    return check_queue(playout, t_s, wall_s, arrivals, limits)
