@@ -213,6 +213,19 @@ class _ContextSlot:
     changes_at_fit: int = 0
 
 
+def _discarded(old: ContextEstimate, samples: int, t_now: float, what: str) -> ContextEstimate:
+    """The table entry after a refit that was thrown away (``what`` happened at ``t_now``):
+    the last good estimate (or the prior) stays, counted as diverged."""
+    return replace(
+        old,
+        samples=samples,
+        status="diverged",
+        diverged=old.diverged + 1,
+        message=f"refit at t={t_now:.3g} s {what}; keeping the last good "
+        f"{'estimate' if old.fitted else 'prior'}",
+    )
+
+
 @dataclass
 class ContextEstimator:
     """Per-context buffers and estimates (see the module docstring)."""
@@ -486,14 +499,7 @@ class ContextEstimator:
         if not ok:
             if result is not None:
                 reason = "; ".join(result.warnings) or result.status
-            slot.estimate = replace(
-                old,
-                samples=samples,
-                status="diverged",
-                diverged=old.diverged + 1,
-                message=f"refit at t={t_now:.3g} s diverged ({reason}); keeping the last good "
-                f"{'estimate' if old.fitted else 'prior'}",
-            )
+            slot.estimate = _discarded(old, samples, t_now, f"diverged ({reason})")
             return
         std = np.where(np.isfinite(result.std), result.std, np.nan)
         slot.estimate = ContextEstimate(
@@ -530,14 +536,7 @@ class ContextEstimator:
         try:
             result = self._effect_fitter(t, states, inputs, previous, self._prior[0])
         except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
-            slot.estimate = replace(
-                old,
-                samples=samples,
-                status="diverged",
-                diverged=old.diverged + 1,
-                message=f"refit at t={t_now:.3g} s failed ({type(exc).__name__}: {exc}); "
-                f"keeping the last good {'estimate' if old.fitted else 'prior'}",
-            )
+            slot.estimate = _discarded(old, samples, t_now, f"failed ({type(exc).__name__}: {exc})")
             return
         if result is None:
             slot.estimate = replace(
@@ -550,14 +549,7 @@ class ContextEstimator:
             )
             return
         if not (np.all(np.isfinite(result.theta)) and math.isfinite(result.loss)):
-            slot.estimate = replace(
-                old,
-                samples=samples,
-                status="diverged",
-                diverged=old.diverged + 1,
-                message=f"refit at t={t_now:.3g} s diverged; keeping the last good "
-                f"{'estimate' if old.fitted else 'prior'}",
-            )
+            slot.estimate = _discarded(old, samples, t_now, "diverged")
             return
         slot.estimate = ContextEstimate(
             context_id=old.context_id,
