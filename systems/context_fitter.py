@@ -45,8 +45,10 @@ class ContextFitter(LeafSystem):
     - ``theta_hat``: 3-vector [mu, C_Sf, C_Sr] of the current context, from state (zero-order
       hold at the sample rate, no direct feedthrough). Contexts with too little data, and
       noise/unknown contexts lasting longer than ``noise_hold_s`` (default 1 s; shorter noise
-      keeps the last known context's theta), get the prior theta (default: the vehicle's nominal
-      values, for the Ford Escort [1.0489, 20.898, 20.898]). Always finite.
+      keeps the last known context's theta), get the unknown-context policy's theta
+      (``LiveFitConfig.unknown_context``: by default ``conservative``, mu at most 0.3 with the
+      prior's small-slip stiffness mu * C_S kept; ``prior``: the vehicle's nominal values, for the
+      Ford Escort [1.0489, 20.898, 20.898]). Always finite.
     - ``estimate_table``: abstract :class:`pcvfe_drake.estimation.context_estimator.EstimateTable`:
     per
       context theta, standard deviations, samples, windows, last update time, status and the
