@@ -12,7 +12,7 @@ from pcvfe_drake.control.nmpc import NmpcConfig, NmpcController
 from pcvfe_drake.control.prediction_model import discretize, expm_batched, ks_jacobians
 from pcvfe_drake.control.reference_qp import dense_qp
 from pcvfe_drake.vehicle.params import ford_escort
-from pcvfe_drake.vehicle.single_track import DELTA, PSI, SX, SY, V, st_jacobians
+from pcvfe_drake.vehicle.single_track import DELTA, PSI, PSI_DOT, SX, SY, V, st_jacobians
 
 
 @pytest.fixture(scope="module")
@@ -255,8 +255,9 @@ def test_config_validation(params):
 
 
 def test_starts_from_standstill_within_the_friction_limit(course, params):
-    # Linearisation at v = 0 is clamped; the friction polygon caps the launch acceleration.
-    ctrl = NmpcController(course, params, CFG)
+    # Linearisation at v = 0 is clamped; without the reference's rise limit the friction
+    # polygon, not the cost, caps the launch acceleration.
+    ctrl = NmpcController(course, params, dataclasses.replace(CFG, ref_rise_limit=False))
     x0 = initial_state(course, params, 0.0, 100.0)
     res = simulate_closed_loop(ctrl, x0, 2.0, mu_at=lambda xy: 0.45)
     assert res.failure == "" and res.metrics(course)["fallbacks"] == 0
@@ -265,3 +266,28 @@ def test_starts_from_standstill_within_the_friction_limit(course, params):
     limit = CFG.friction_margin * 0.45 * params.g
     assert np.max(res.u[:, 1]) <= limit * 1.02
     assert np.max(res.u[:, 1]) > 0.8 * limit  # the constraint, not the cost, limits the launch
+
+
+@pytest.mark.parametrize("limited", [True, False])
+def test_catching_up_before_a_bend_follows_the_profile(course, params, limited):
+    # paper_eval's start: 3 m/s, 30 m before the first bend, a 12 m/s cap, mu 0.45. The
+    # reference rising from the measured speed at the profile's acceleration keeps the car on
+    # the profile's acceleration; with the bare profile it catches up at the friction polygon's
+    # limit and enters the bend using ~90 % of the friction (on a tyre whose longitudinal grip
+    # also scales with mu, the multi-body car then locks its wheels braking).
+    cfg = dataclasses.replace(CFG, max_speed_mps=12.0, ref_rise_limit=limited)
+    ctrl = NmpcController(course, params, cfg)
+    length = course.s[-1] + course.ds
+    res = simulate_closed_loop(
+        ctrl, initial_state(course, params, 3.0, length - 30.0), 6.0, mu_at=lambda xy: 0.45
+    )
+    assert res.failure == "" and res.metrics(course)["fallbacks"] == 0
+    n = len(res.u)
+    used_g = np.hypot(res.u[:, 1], res.x[:n, V] * res.x[:n, PSI_DOT]) / params.g
+    a_profile = cfg.long_fraction * 0.45 * params.g
+    if limited:
+        assert np.max(res.u[:, 1]) <= 1.05 * a_profile
+        assert np.max(used_g) < 0.75 * 0.45
+    else:
+        assert np.max(res.u[:, 1]) > 1.5 * a_profile
+        assert np.max(used_g) > 0.85 * 0.45

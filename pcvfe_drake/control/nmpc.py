@@ -368,6 +368,14 @@ class NmpcController:
         normal = np.column_stack([-np.sin(proj.heading), np.cos(proj.heading)])
         e_course = proj.heading_error
         v_ref = prof.speed_at(proj.s)
+        if cfg.ref_rise_limit:
+            # The profile assumes the car is on it; below it (a start, after a slow-down) the
+            # reference rises from the measured speed at the profile's own acceleration, so the
+            # car reaches the profile where the profile can still brake for the next bend.
+            mu_ref = float(theta[0])
+            a_rise = min(cfg.long_fraction * mu_ref * p.g, p.a_max)
+            t_k = np.arange(1, n + 1) * cfg.dt_s
+            v_ref = np.minimum(v_ref, max(float(x[V]), 0.0) + a_rise * t_k)
         x_lin = x_bar[:n].copy()
         x_lin[:, V] = np.maximum(x_lin[:, V], cfg.v_lin_min_mps)
         f, A, B = self._model_jacobians(x_lin, u_bar, theta)

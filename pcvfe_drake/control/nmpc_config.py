@@ -34,6 +34,11 @@ class NmpcConfig:
         terminal_factor: weight multiplier of the last stage's state terms.
         speed_margin: reference speed <= speed_margin * sqrt(mu_hat g / |kappa|).
         long_fraction: acceleration/braking limit of the speed profile, fraction of mu_hat g.
+        ref_rise_limit: below the profile, the reference speed rises from the measured speed at
+            most at the profile's acceleration (``long_fraction * mu_hat g``, at most the
+            vehicle's ``a_max``) over the horizon; False: the profile alone (the car then
+            catches up at the friction polygon's limit and can overshoot the profile before a
+            bend).
         max_speed_mps: cap on the reference speed (None or 0: the course's planned speed).
         friction_margin: radius of the QP's friction polygon, fraction of mu_hat g.
         corridor_fraction: soft corridor half-width, fraction of the course half-width.
@@ -65,6 +70,7 @@ class NmpcConfig:
     terminal_factor: float = 5.0
     speed_margin: float = 0.8
     long_fraction: float = 0.5
+    ref_rise_limit: bool = True
     max_speed_mps: float | None = None
     friction_margin: float = 0.9
     corridor_fraction: float = 0.5
