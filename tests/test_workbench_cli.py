@@ -68,20 +68,13 @@ def test_json_with_add(drag_log, tmp_path, capsys):
     saved = json.loads((out / "report.json").read_text())
     assert saved["verdict"]["kind"] == "explained"
     html = (out / "report.html").read_text()
-    pngs = [
-        "selection_path.png",
-        "error_over_log.png",
-        "error_map.png",
-        "regimes.png",
-        "bias.png",
-        "cross_correlation.png",
-        "overlay.png",
-        "residual_autocorr.png",
-        "ranking.png",
-    ]
+    # the figure list itself is checked in test_workbench_report; here: the command wrote the
+    # report, and its page embeds every PNG it wrote
+    pngs = sorted(out.glob("*.png"))
+    assert len(pngs) >= 9
     assert html.count("data:image/png;base64,") == len(pngs)
     for png in pngs:
-        assert (out / png).stat().st_size > 1000
+        assert png.stat().st_size > 1000
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temp left
 
 
