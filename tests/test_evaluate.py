@@ -231,3 +231,17 @@ def test_binary_experiment_file_is_named(tmp_path):
     path.write_bytes(b"\xff\xfe\x00binary")
     with pytest.raises(ValueError, match=r"grid\.yaml: not an experiment file \(not UTF-8"):
         load_experiment(path)
+
+
+def test_shutdown_drops_only_the_nannys_kill_message():
+    import logging
+
+    from pcvfe_drake.evaluation.runner import _DropMessage
+
+    quiet = _DropMessage("still alive after")
+
+    def record(msg):
+        return logging.LogRecord("distributed.nanny", logging.WARNING, __file__, 1, msg, (), None)
+
+    assert not quiet.filter(record("Worker process still alive after 4.0 seconds, killing"))
+    assert quiet.filter(record("Restarting worker"))
