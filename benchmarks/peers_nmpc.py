@@ -205,7 +205,7 @@ class IpoptNmpc(NmpcController):
         normal = np.column_stack([-np.sin(heading), np.cos(heading)])
         # course-angle error = (psi + beta) + offset, offset from the projection of the bars
         offset = pr.heading_error[1:] - (x_bar[1:, PSI] + x_bar[1:, BETA])
-        v_ref = prof.speed_at(pr.s[1:])
+        v_ref = self.reference_speed(prof, pr.s[1:], float(x[V]), float(th[0]))
         stage = np.column_stack(
             [normal, pr.x[1:], pr.y[1:], offset, v_ref, v_ref * pr.curvature[1:]]
         )

@@ -320,6 +320,23 @@ class NmpcController:
             self._profiles[key] = prof
         return prof
 
+    def reference_speed(self, prof: SpeedProfile, s_m, v_mps: float, mu: float) -> np.ndarray:
+        """Reference speeds [m/s] of the horizon's stages k = 1..N at arc lengths ``s_m``.
+
+        The profile's speed there; with ``ref_rise_limit`` at most the measured speed ``v_mps``
+        plus the profile's acceleration (``long_fraction * mu g``, at most ``a_max``) times
+        the stage's time: the profile assumes the car is on it, and below it (a start, after
+        a slow-down) the car should reach it where the profile can still brake for the next
+        bend, not catch up at the friction polygon's limit.
+        """
+        cfg, p = self.config, self.params
+        v_ref = prof.speed_at(s_m)
+        if cfg.ref_rise_limit:
+            a_rise = min(cfg.long_fraction * mu * p.g, p.a_max)
+            t_k = np.arange(1, len(v_ref) + 1) * cfg.dt_s
+            v_ref = np.minimum(v_ref, max(v_mps, 0.0) + a_rise * t_k)
+        return v_ref
+
     # ----------------------------------------------------------------- linearisation
     def _model_jacobians(self, x, u, theta):
         if self.config.model == "ks":
@@ -367,15 +384,7 @@ class NmpcController:
         proj = dataclasses.replace(everything, **{f: getattr(everything, f)[1:] for f in _PROJ})
         normal = np.column_stack([-np.sin(proj.heading), np.cos(proj.heading)])
         e_course = proj.heading_error
-        v_ref = prof.speed_at(proj.s)
-        if cfg.ref_rise_limit:
-            # The profile assumes the car is on it; below it (a start, after a slow-down) the
-            # reference rises from the measured speed at the profile's own acceleration, so the
-            # car reaches the profile where the profile can still brake for the next bend.
-            mu_ref = float(theta[0])
-            a_rise = min(cfg.long_fraction * mu_ref * p.g, p.a_max)
-            t_k = np.arange(1, n + 1) * cfg.dt_s
-            v_ref = np.minimum(v_ref, max(float(x[V]), 0.0) + a_rise * t_k)
+        v_ref = self.reference_speed(prof, proj.s, float(x[V]), float(theta[0]))
         x_lin = x_bar[:n].copy()
         x_lin[:, V] = np.maximum(x_lin[:, V], cfg.v_lin_min_mps)
         f, A, B = self._model_jacobians(x_lin, u_bar, theta)
