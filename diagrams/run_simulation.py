@@ -271,6 +271,8 @@ def _estimate_table(diagram, context) -> list[dict]:
             "mu_lower_bound": float(e.mu_lower_bound),
             "near_limit": bool(e.near_limit),
             "identifiable": bool(e.identifiable),
+            "below_used": bool(e.below_used),
+            "probe": None if e.probe is None else e.probe.to_dict(),
             "mu_is_peak": bool(e.mu_is_peak),
             "model_params": {n: float(v) for n, v, _ in e.model_params},
         }

@@ -62,6 +62,7 @@ from pcvfe_drake.estimation.fit_options import (
     joint_options,
 )
 from pcvfe_drake.estimation.fitting import fit_gauss_newton
+from pcvfe_drake.estimation.probe import ProbeState, probe_step, saturated
 from pcvfe_drake.estimation.sample_store import NOISE, SampleStore, labels_from_frames
 from pcvfe_drake.estimation.unknown_context import (
     DEFAULT_FLOOR_MU,
@@ -73,7 +74,9 @@ from pcvfe_drake.estimation.unknown_context import (
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import NU, NX
 
-UNIDENTIFIED_MU = ("estimate", "lower_bound")
+UNIDENTIFIED_MU = ("estimate", "lower_bound", "probe")
+DEFAULT_PROBE_USE_FRACTION = 0.64
+"""The planner's share of mu when the scenario does not say (the NMPC's default 0.8^2)."""
 
 
 @dataclass
@@ -120,7 +123,17 @@ class LiveFitConfig:
         unidentified_mu: what the controller gets for a fitted context whose mu is not
             identifiable: ``"estimate"`` (the fit, default) or ``"lower_bound"``
             (``max(mu_lower_bound, unknown_floor_mu)``, capped at the estimate, with the
-            stiffnesses scaled so that mu * C_S, the small-slip stiffness, stays the fit's).
+            stiffnesses scaled so that mu * C_S, the small-slip stiffness, stays the fit's) or
+            ``"probe"`` (exploration: ``pcvfe_drake.estimation.probe``; starts at the lower
+            bound's value and raises it step by step while the tyres show no saturation).
+        probe_step_rel, probe_hold_s, probe_max_excess, probe_use_fraction,
+            probe_max_slip_rad, probe_window_s: the probe's numbers (``probe``'s module
+            docstring gives the reason for each): raise by this fraction after this many
+            seconds on the context; ask the planner for at most this much friction above the
+            demonstrated lower bound; the planner's share of mu (``speed_margin^2``; None: 0.64,
+            the scenario fills it from ``nmpc.speed_margin``); back off when an axle's slip
+            angle (90th percentile over the newest ``probe_window_s`` of the context) exceeds
+            this.
     """
 
     horizon_steps: int = DEFAULT_HORIZON
@@ -150,6 +163,12 @@ class LiveFitConfig:
     identifiable_std: float = 0.05
     near_limit_fraction: float = 0.6
     unidentified_mu: str = "estimate"
+    probe_step_rel: float = 0.1
+    probe_hold_s: float = 3.0
+    probe_max_excess: float = 0.08
+    probe_use_fraction: float | None = None
+    probe_max_slip_rad: float = 0.035
+    probe_window_s: float = 1.0
 
     def __post_init__(self) -> None:
         if self.unidentified_mu not in UNIDENTIFIED_MU:
@@ -158,7 +177,19 @@ class LiveFitConfig:
                 f"{self.unidentified_mu!r}"
             )
         self.effects = parse_effects(self.effects)
-        for name in ("effect_horizon_s", "effect_stride_s", "identifiable_std"):
+        if self.probe_use_fraction is not None and not (0 < self.probe_use_fraction <= 1):
+            raise ValueError(
+                f"LiveFitConfig.probe_use_fraction must be in (0, 1], got "
+                f"{self.probe_use_fraction!r} (the planner's share of mu, speed_margin^2)"
+            )
+        probe_positive = (
+            "probe_step_rel",
+            "probe_hold_s",
+            "probe_max_excess",
+            "probe_max_slip_rad",
+            "probe_window_s",
+        )
+        for name in ("effect_horizon_s", "effect_stride_s", "identifiable_std", *probe_positive):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"LiveFitConfig.{name} must be > 0, got {value!r}")
@@ -211,6 +242,8 @@ class _ContextSlot:
     changes: int = 0
     """Changes to its data (samples received or relabelled in or out), ever increasing."""
     changes_at_fit: int = 0
+    probe: ProbeState = field(default_factory=ProbeState)
+    """The exploration state (``unidentified_mu: probe``)."""
 
 
 def _discarded(old: ContextEstimate, samples: int, t_now: float, what: str) -> ContextEstimate:
@@ -397,18 +430,68 @@ class ContextEstimator:
             return self.unknown_theta()
         theta = np.array(self._prior if slot is None else slot.estimate.theta)
         if slot is not None and slot.estimate.fitted:
-            theta = self._unidentified(slot.estimate, theta)
+            theta = self._unidentified(slot, theta)
         return theta if np.all(np.isfinite(theta)) else np.array(self._prior)
 
-    def _unidentified(self, est: ContextEstimate, theta: np.ndarray) -> np.ndarray:
-        """``unidentified_mu: lower_bound``: a context whose mu is not identifiable gets
-        ``max(mu_lower_bound, unknown_floor_mu)`` (at most its estimate), the stiffnesses
-        scaled to keep ``mu * C_S``."""
-        if self.config.unidentified_mu != "lower_bound" or est.identifiable:
-            return theta
+    def _unidentified(self, slot: _ContextSlot, theta: np.ndarray) -> np.ndarray:
+        """A fitted context's theta for the controller (stiffnesses always scaled to keep the
+        fit's ``mu * C_S``):
+
+        * a friction peak fitted below the friction the data used (``below_used``) is
+          impossible: mu is raised to the used friction (the smallest peak the data allow);
+        * ``unidentified_mu: lower_bound``: a context whose mu is not identifiable gets
+          ``max(mu_lower_bound, unknown_floor_mu)`` (at most its estimate);
+        * ``unidentified_mu: probe``: such a context gets the probe's mu (at most the estimate
+          unless the estimate is below the used friction).
+        """
+        est = slot.estimate
+        mu = theta[0]
         bound = est.mu_lower_bound if math.isfinite(est.mu_lower_bound) else 0.0
-        mu = min(max(bound, self.config.unknown_floor_mu), theta[0])
+        if est.below_used:
+            mu = max(mu, bound)
+        if not est.identifiable:
+            cap = mu if not est.below_used else math.inf
+            if self.config.unidentified_mu == "lower_bound":
+                mu = min(max(bound, self.config.unknown_floor_mu), cap)
+            elif self.config.unidentified_mu == "probe":
+                start = max(bound, self.config.unknown_floor_mu)
+                mu = min(slot.probe.mu if slot.probe.started else start, cap)
+        if mu == theta[0]:
+            return theta
         return np.array([mu, theta[1] * theta[0] / mu, theta[2] * theta[0] / mu])
+
+    def update_probe(self, t_now: float) -> None:
+        """``unidentified_mu: probe``: one step of the current context's probe (called by
+        :meth:`refit`): a fitted, not identifiable context raises, holds or backs off its
+        handed mu (``pcvfe_drake.estimation.probe.probe_step``) after checking its newest
+        ``probe_window_s`` of samples for saturation."""
+        cfg = self.config
+        slot = self._slots.get(self.current_context)
+        if cfg.unidentified_mu != "probe" or slot is None or not slot.estimate.fitted:
+            return
+        est = slot.estimate
+        if est.identifiable:
+            return
+        rows = np.flatnonzero(
+            (self._store.labels() == self.current_context)
+            & (self._store.times() >= t_now - cfg.probe_window_s)
+        )
+        _, states, _ = self._store.rows(rows)
+        use = (
+            DEFAULT_PROBE_USE_FRACTION if cfg.probe_use_fraction is None else cfg.probe_use_fraction
+        )
+        slot.probe = probe_step(
+            slot.probe,
+            t_now,
+            lower_bound=est.mu_lower_bound,
+            floor_mu=cfg.unknown_floor_mu,
+            prior_mu=self._prior[0],
+            is_saturated=saturated(states, self.params.lf, self.params.lr, cfg.probe_max_slip_rad),
+            step_rel=cfg.probe_step_rel,
+            hold_s=cfg.probe_hold_s,
+            max_excess=cfg.probe_max_excess,
+            use_fraction=use,
+        )
 
     def unknown_theta(self) -> np.ndarray:
         """theta the controller gets while the context is unknown (the configured policy)."""
@@ -439,6 +522,7 @@ class ContextEstimator:
 
         ``fit`` is the solver (``fit_gauss_newton`` signature); replaceable for testing.
         """
+        self.update_probe(t_now)
         done = []
         for ident in self.pending()[: self.config.max_contexts_per_update]:
             self._refit_one(ident, t_now, fit)
@@ -515,17 +599,32 @@ class ContextEstimator:
             diverged=old.diverged,
             loss=float(result.loss),
             message="; ".join(result.warnings),
-            **self._identifiability(old, t, states, result.theta[0], std[0]),
+            **self._identifiability(old, t, states, result.theta[0], std[0], peak=False),
         )
 
-    def _identifiability(self, old: ContextEstimate, t, states, mu: float, std: float) -> dict:
-        """The table's identifiability fields after a fit with ``mu +- std`` on the buffer."""
-        used = friction_used(t, states)
+    def _identifiability(
+        self, old: ContextEstimate, t, states, mu: float, std: float, peak: bool
+    ) -> dict:
+        """The table's identifiability fields after a fit with ``mu +- std`` on the buffer.
+
+        ``peak``: mu is the tyre's lateral friction peak (an effect model with a peak tyre):
+        the lower bound is then the lateral friction used (``friction_used(lateral_only=True)``;
+        braking and driving say nothing about a lateral peak), and a fitted peak below it is
+        impossible (``below_used``: not identifiable, whatever its std)."""
+        used = friction_used(t, states, lateral_only=peak)
         if math.isfinite(old.mu_lower_bound):
             used = old.mu_lower_bound if not math.isfinite(used) else max(used, old.mu_lower_bound)
         near = bool(math.isfinite(used) and used >= self.config.near_limit_fraction * mu)
-        ident = bool(near and math.isfinite(std) and std <= self.config.identifiable_std)
-        return {"mu_lower_bound": float(used), "near_limit": near, "identifiable": ident}
+        below = bool(peak and math.isfinite(used) and mu < used)
+        ident = bool(
+            near and not below and math.isfinite(std) and std <= self.config.identifiable_std
+        )
+        return {
+            "mu_lower_bound": float(used),
+            "near_limit": near,
+            "identifiable": ident,
+            "below_used": below,
+        }
 
     def _refit_effects(self, slot: _ContextSlot, t, states, inputs, t_now: float) -> None:
         """``fitter.effects``: refit the context with the workbench's effect model."""
@@ -571,13 +670,17 @@ class ContextEstimator:
                     result.param_names, result.model_theta, result.model_std, strict=True
                 )
             ),
-            **self._identifiability(old, t, states, result.theta[0], result.std[0]),
+            **self._identifiability(
+                old, t, states, result.theta[0], result.std[0], peak=result.mu_is_peak
+            ),
         )
 
     def table(self, time_s: float = float("nan")) -> EstimateTable:
         """The estimate table (sample counts as of now)."""
+        probing = self.config.unidentified_mu == "probe"
         entries = tuple(
-            replace(slot.estimate, samples=slot.samples) for _, slot in sorted(self._slots.items())
+            replace(slot.estimate, samples=slot.samples, probe=slot.probe if probing else None)
+            for _, slot in sorted(self._slots.items())
         )
         return EstimateTable(
             entries=entries,

@@ -163,9 +163,15 @@ def controller_theta(model, theta: np.ndarray, context: int = 0) -> np.ndarray:
     return np.array([mu, k[0] / mu, k[1] / mu])
 
 
-def friction_used(t: np.ndarray, states: np.ndarray, quantile: float = FRICTION_USED_QUANTILE):
+def friction_used(
+    t: np.ndarray,
+    states: np.ndarray,
+    quantile: float = FRICTION_USED_QUANTILE,
+    lateral_only: bool = False,
+):
     """Lower bound on mu from the measured states: the ``quantile`` of ``sqrt(a_x^2 + a_y^2) / g``
-    over samples whose neighbours +-0.1 s are evenly spaced (NaN with fewer than 20 such)."""
+    (``lateral_only``: of ``|a_y| / g``, the bound on a lateral friction peak) over samples
+    whose neighbours +-0.1 s are evenly spaced (NaN with fewer than 20 such)."""
     t = np.asarray(t, dtype=float)
     x = np.asarray(states, dtype=float)
     if t.size < 3:
@@ -183,7 +189,8 @@ def friction_used(t: np.ndarray, states: np.ndarray, quantile: float = FRICTION_
     use = ok & (mid[:, V] >= 1.0)
     if use.sum() < 20:
         return float("nan")
-    return float(np.quantile(np.hypot(ax, ay)[use] / G_MPS2, quantile))
+    used = np.abs(ay) if lateral_only else np.hypot(ax, ay)
+    return float(np.quantile(used[use] / G_MPS2, quantile))
 
 
 def drive_data_from_arrays(t: np.ndarray, states: np.ndarray, inputs: np.ndarray, source: str):
@@ -399,15 +406,19 @@ def fit_log(
         theta = controller_theta(model, res.theta, c)
         mu_idx = next(i for i, p in enumerate(model.params) if p.effect is None and p.context == c)
         rows = data.context == c
-        used = friction_used(data.t[rows], data.x[rows])
+        used = friction_used(data.t[rows], data.x[rows], lateral_only=friction_is_peak(model))
         std = float(res.std[mu_idx])
         near = bool(math.isfinite(used) and used >= near_limit_fraction * theta[0])
+        below = bool(friction_is_peak(model) and math.isfinite(used) and theta[0] < used)
         contexts[label] = {
             "theta": dict(zip(("mu", "C_Sf", "C_Sr"), map(float, theta), strict=True)),
             "mu_std": std,
             "mu_lower_bound": used,
             "near_limit": near,
-            "identifiable": bool(near and math.isfinite(std) and std <= identifiable_std),
+            "below_used": below,
+            "identifiable": bool(
+                near and not below and math.isfinite(std) and std <= identifiable_std
+            ),
         }
     return {
         "effects": [{"name": s.name, "fixed": s.fixed} for s in parse_effects(effects)],

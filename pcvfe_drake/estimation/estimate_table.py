@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from pcvfe_drake.estimation.probe import ProbeState
 from pcvfe_drake.vehicle.params import THETA_NAMES
 
 
@@ -39,10 +40,15 @@ class ContextEstimate:
             before the first refit).
         near_limit: the data came near the friction limit (``mu_lower_bound >=
             near_limit_fraction * mu``); False: a friction peak is barely observable here.
-        identifiable: near_limit and mu's standard deviation at most ``identifiable_std``.
+        identifiable: near_limit and mu's standard deviation at most ``identifiable_std``, and
+            not ``below_used``.
+        below_used: the fitted friction peak is below the friction the data used (impossible:
+            the model's tyre law does not fit this context's data; the controller gets at
+            least the used friction).
         mu_is_peak: mu is the friction peak (a fitted effect model with a peak tyre).
         model_params: the fitted effect model's parameters, ``((name, value, std), ...)``
             (empty for the ST fit).
+        probe: the context's exploration state (``unidentified_mu: probe``; None otherwise).
     """
 
     context_id: int
@@ -60,8 +66,10 @@ class ContextEstimate:
     mu_lower_bound: float = float("nan")
     near_limit: bool = False
     identifiable: bool = False
+    below_used: bool = False
     mu_is_peak: bool = False
     model_params: tuple = ()
+    probe: ProbeState | None = None
 
     @property
     def mu(self) -> float:
@@ -96,7 +104,9 @@ class ContextEstimate:
             "mu_lower_bound": num(self.mu_lower_bound),
             "near_limit": self.near_limit,
             "identifiable": self.identifiable,
+            "below_used": self.below_used,
             "mu_is_peak": self.mu_is_peak,
+            "probe": None if self.probe is None else self.probe.to_dict(),
             "model_params": {
                 n: {"value": num(v), "std": num(sd)} for n, v, sd in self.model_params
             },

@@ -253,7 +253,10 @@ class Scenario:
 
     def fit_config(self) -> LiveFitConfig:
         """``fitter`` with its data rate (``rates.fitter_sample_period_s``) filled in."""
-        return dataclasses.replace(self.fitter, sample_period_s=self.rates.fitter_sample_period_s)
+        fitter = dataclasses.replace(self.fitter, sample_period_s=self.rates.fitter_sample_period_s)
+        if fitter.probe_use_fraction is None:  # the planner uses speed_margin^2 of mu
+            fitter = dataclasses.replace(fitter, probe_use_fraction=self.nmpc.speed_margin**2)
+        return fitter
 
     def ukf_config(self) -> UkfConfig:
         """``ukf`` with its filter step (``rates.fitter_sample_period_s``) filled in."""

@@ -183,6 +183,8 @@ def mu_estimates(
                 "mu_lower_bound": _finite_or_none(entry.get("mu_lower_bound", math.nan)),
                 "near_limit": entry.get("near_limit"),
                 "identifiable": entry.get("identifiable"),
+                "below_used": entry.get("below_used"),
+                "probe": entry.get("probe"),
                 "model_params": entry.get("model_params") or None,
             }
         else:
@@ -386,6 +388,8 @@ def _limit_flag(entry: Mapping[str, Any]) -> str:
     """The identifiability column: whether the data came near the friction limit."""
     if entry.get("near_limit") is None:
         return "-"
+    if entry.get("below_used"):
+        return "peak fitted below the used friction (not identifiable)"
     if not entry["near_limit"]:
         return "never near (mu not identifiable)"
     return "near" if entry.get("identifiable") else "near, std large"

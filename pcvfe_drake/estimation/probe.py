@@ -1,0 +1,146 @@
+"""Exploration for a context whose friction peak is not identifiable (``unidentified_mu: probe``).
+
+With a saturating tyre the friction peak is observable only where the tyres work near it
+(``docs/fitting.md``, "Identifiability"). The NMPC's speed profile uses about
+``speed_margin^2`` (0.64) of the mu it is handed, so a car handed the used-friction lower bound
+uses 0.64 of it, the bound ratchets down and the peak never becomes observable. The probe breaks
+that loop for one context at a time, as a test driver would: it hands the NMPC a mu above the
+demonstrated bound, raises it step by step while the tyres show no saturation, and backs off at
+the first sign of it. The estimate takes over as soon as the fit is identifiable (the
+``ContextEstimator`` then hands the estimate, not the probe).
+
+The rules (:func:`probe_step`), each number a field of ``LiveFitConfig``:
+
+* **start** at what ``lower_bound`` hands: ``max(mu_lower_bound, unknown_floor_mu)``;
+* **raise** by the factor ``1 + probe_step_rel`` (0.1) after every ``probe_hold_s`` (3 s) spent on
+  the context without a sign of saturation: 3 s is ~1.5 bends of the paper's slalom at its
+  speeds, so each level is driven through at least one bend before the next;
+* **bounded** by ``(mu_lower_bound + probe_max_excess) / probe_use_fraction``: the planner is
+  never asked to use more than ``probe_max_excess`` (0.08, about one step on sand's 0.45) more
+  friction than the car has demonstrated; the bound moves up only as the car actually uses
+  more. ``probe_use_fraction`` is the planner's share of mu (``speed_margin^2``; the scenario
+  fills it from ``nmpc.speed_margin``);
+* **never above** the prior mu (the most the operator believes any terrain has), nor above a
+  ceiling set by an earlier back-off;
+* **back off** on a sign of saturation (:func:`saturated`: a large slip angle on either axle,
+  i.e. side slip at the rear or yaw response short of the steering at the front): two steps
+  down, and the level one step below the one that saturated becomes the context's ceiling.
+
+No pydrake.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from pcvfe_drake.vehicle.single_track import BETA, DELTA, PSI_DOT, V
+
+MIN_PROBE_MU = 0.05
+"""Smallest mu a back-off hands (keeps the speed profile defined)."""
+MIN_SPEED_MPS = 2.0
+"""Samples slower than this are not used for the slip angles (kinematic slip dominates)."""
+
+
+@dataclass(frozen=True)
+class ProbeState:
+    """One context's probe.
+
+    Attributes:
+        mu: the mu handed while probing (NaN: not started).
+        ceiling: the largest mu it may hand again (inf until a back-off).
+        last_step_s: time of the last raise or back-off [s].
+        steps: raises so far.
+        backoffs: back-offs so far.
+    """
+
+    mu: float = float("nan")
+    ceiling: float = float("inf")
+    last_step_s: float = float("nan")
+    steps: int = 0
+    backoffs: int = 0
+
+    @property
+    def started(self) -> bool:
+        return math.isfinite(self.mu)
+
+    def to_dict(self) -> dict:
+        def num(x):
+            return float(x) if math.isfinite(x) else None
+
+        return {
+            "mu": num(self.mu),
+            "ceiling": num(self.ceiling),
+            "steps": self.steps,
+            "backoffs": self.backoffs,
+        }
+
+
+def axle_slip_angles(states: np.ndarray, lf: float, lr: float) -> tuple[np.ndarray, np.ndarray]:
+    """Front and rear slip angles [rad] of the single-track model from states (N, 7):
+    ``alpha_f = delta - atan((v sin beta + lf psi_dot) / (v cos beta))``, ``alpha_r =
+    -atan((v sin beta - lr psi_dot) / (v cos beta))``."""
+    x = np.asarray(states, dtype=float)
+    v, beta, r = x[:, V], x[:, BETA], x[:, PSI_DOT]
+    vx = np.maximum(v * np.cos(beta), 1e-3)
+    alpha_f = x[:, DELTA] - np.arctan((v * np.sin(beta) + lf * r) / vx)
+    alpha_r = -np.arctan((v * np.sin(beta) - lr * r) / vx)
+    return alpha_f, alpha_r
+
+
+def saturated(
+    states: np.ndarray, lf: float, lr: float, max_slip_rad: float, quantile: float = 0.9
+) -> bool:
+    """A sign of saturation in the measured states: the ``quantile`` of ``|alpha_f|`` or
+    ``|alpha_r|`` over the samples at >= 2 m/s exceeds ``max_slip_rad``. A large rear slip is
+    side slip (the rear lets go); a large front slip is a yaw rate short of what the steering
+    asks (the front lets go). The quantile (not the largest value) keeps one noisy sample from
+    triggering it. Fewer than 10 usable samples: False."""
+    x = np.asarray(states, dtype=float)
+    if x.ndim != 2 or x.shape[0] == 0:
+        return False
+    use = x[:, V] >= MIN_SPEED_MPS
+    if use.sum() < 10:
+        return False
+    af, ar = axle_slip_angles(x[use], lf, lr)
+    worst = max(float(np.quantile(np.abs(af), quantile)), float(np.quantile(np.abs(ar), quantile)))
+    return worst > max_slip_rad
+
+
+def probe_step(
+    state: ProbeState,
+    t_now: float,
+    *,
+    lower_bound: float,
+    floor_mu: float,
+    prior_mu: float,
+    is_saturated: bool,
+    step_rel: float,
+    hold_s: float,
+    max_excess: float,
+    use_fraction: float,
+) -> ProbeState:
+    """The probe after one update at ``t_now`` (see the module docstring)."""
+    lb = lower_bound if math.isfinite(lower_bound) else 0.0
+    base = min(max(lb, floor_mu), prior_mu)
+    if not state.started:
+        return ProbeState(mu=base, last_step_s=t_now)
+    if is_saturated:
+        down = max(state.mu / (1.0 + step_rel) ** 2, MIN_PROBE_MU)
+        ceiling = max(state.mu / (1.0 + step_rel), MIN_PROBE_MU)
+        return ProbeState(
+            mu=down,
+            ceiling=min(state.ceiling, ceiling),
+            last_step_s=t_now,
+            steps=state.steps,
+            backoffs=state.backoffs + 1,
+        )
+    if t_now - state.last_step_s < hold_s:
+        return state
+    cap = min(prior_mu, state.ceiling, (lb + max_excess) / use_fraction)
+    raised = min(state.mu * (1.0 + step_rel), cap)
+    if raised <= state.mu:
+        return ProbeState(state.mu, state.ceiling, t_now, state.steps, state.backoffs)
+    return ProbeState(raised, state.ceiling, t_now, state.steps + 1, state.backoffs)
