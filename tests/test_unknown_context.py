@@ -61,3 +61,14 @@ def test_conservative_is_the_default_and_invalid_settings_are_named():
         LiveFitConfig(unknown_context="hope")
     with pytest.raises(ValueError, match="unknown_floor_mu"):
         LiveFitConfig(unknown_floor_mu=0.0)
+
+
+def test_conservative_never_goes_below_the_friction_a_peak_context_used():
+    # a friction peak the data never approached: std 0.5, mu - 2 std < 0; the car drove there
+    # using 0.28, so its lower confidence bound is at least that
+    fitted = [(0.9, 0.5, 0.28), (0.9, 0.01, float("nan"))]
+    th = unknown_context_theta("conservative", PRIOR, fitted, None, floor_mu=0.3, sigmas=2.0)
+    assert th[0] == pytest.approx(0.28)
+    # without the used friction the old rule: the floor of 0.05
+    th = unknown_context_theta("conservative", PRIOR, [(0.9, 0.5)], None, floor_mu=0.3)
+    assert th[0] == pytest.approx(0.05)

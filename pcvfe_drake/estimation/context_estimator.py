@@ -62,7 +62,7 @@ from pcvfe_drake.estimation.fit_options import (
     joint_options,
 )
 from pcvfe_drake.estimation.fitting import fit_gauss_newton
-from pcvfe_drake.estimation.probe import ProbeState, probe_step, saturated
+from pcvfe_drake.estimation.probe import ProbeState, controller_theta, probe_step, saturated
 from pcvfe_drake.estimation.sample_store import NOISE, SampleStore, labels_from_frames
 from pcvfe_drake.estimation.unknown_context import (
     DEFAULT_FLOOR_MU,
@@ -434,31 +434,12 @@ class ContextEstimator:
         return theta if np.all(np.isfinite(theta)) else np.array(self._prior)
 
     def _unidentified(self, slot: _ContextSlot, theta: np.ndarray) -> np.ndarray:
-        """A fitted context's theta for the controller (stiffnesses always scaled to keep the
-        fit's ``mu * C_S``):
-
-        * a friction peak fitted below the friction the data used (``below_used``) is
-          impossible: mu is raised to the used friction (the smallest peak the data allow);
-        * ``unidentified_mu: lower_bound``: a context whose mu is not identifiable gets
-          ``max(mu_lower_bound, unknown_floor_mu)`` (at most its estimate);
-        * ``unidentified_mu: probe``: such a context gets the probe's mu (at most the estimate
-          unless the estimate is below the used friction).
-        """
-        est = slot.estimate
-        mu = theta[0]
-        bound = est.mu_lower_bound if math.isfinite(est.mu_lower_bound) else 0.0
-        if est.below_used:
-            mu = max(mu, bound)
-        if not est.identifiable:
-            cap = mu if not est.below_used else math.inf
-            if self.config.unidentified_mu == "lower_bound":
-                mu = min(max(bound, self.config.unknown_floor_mu), cap)
-            elif self.config.unidentified_mu == "probe":
-                start = max(bound, self.config.unknown_floor_mu)
-                mu = min(slot.probe.mu if slot.probe.started else start, cap)
-        if mu == theta[0]:
-            return theta
-        return np.array([mu, theta[1] * theta[0] / mu, theta[2] * theta[0] / mu])
+        """A fitted context's theta for the controller
+        (``pcvfe_drake.estimation.probe.controller_theta``)."""
+        cfg = self.config
+        return controller_theta(
+            slot.estimate, slot.probe, theta, cfg.unidentified_mu, cfg.unknown_floor_mu
+        )
 
     def update_probe(self, t_now: float) -> None:
         """``unidentified_mu: probe``: one step of the current context's probe (called by
@@ -497,7 +478,13 @@ class ContextEstimator:
         """theta the controller gets while the context is unknown (the configured policy)."""
         cfg = self.config
         fitted = [
-            (s.estimate.mu, s.estimate.mu_std) for s in self._slots.values() if s.estimate.fitted
+            (
+                s.estimate.mu,
+                s.estimate.mu_std,
+                s.estimate.mu_lower_bound if s.estimate.mu_is_peak else math.nan,
+            )
+            for s in self._slots.values()
+            if s.estimate.fitted
         ]
         last = self._slots.get(self.last_fitted_context)
         theta = unknown_context_theta(

@@ -12,9 +12,11 @@ the first sign of it. The estimate takes over as soon as the fit is identifiable
 The rules (:func:`probe_step`), each number a field of ``LiveFitConfig``:
 
 * **start** at what ``lower_bound`` hands: ``max(mu_lower_bound, unknown_floor_mu)``;
-* **raise** by the factor ``1 + probe_step_rel`` (0.1) after every ``probe_hold_s`` (3 s) spent on
-  the context without a sign of saturation: 3 s is ~1.5 bends of the paper's slalom at its
-  speeds, so each level is driven through at least one bend before the next;
+* **raise** by the factor ``1 + probe_step_rel`` (0.1: the step is a tenth of the friction
+  asked for, so an overshoot past the limit is at most that) after every ``probe_hold_s`` (3 s)
+  spent on the context without a sign of saturation: the paper's slalom has a bend every
+  18.7 m, about 3 s at the 5-6 m/s driven there, so each level is tried in a bend before the
+  next;
 * **bounded** by ``(mu_lower_bound + probe_max_excess) / probe_use_fraction``: the planner is
   never asked to use more than ``probe_max_excess`` (0.08, about one step on sand's 0.45) more
   friction than the car has demonstrated; the bound moves up only as the car actually uses
@@ -144,3 +146,31 @@ def probe_step(
     if raised <= state.mu:
         return ProbeState(state.mu, state.ceiling, t_now, state.steps, state.backoffs)
     return ProbeState(raised, state.ceiling, t_now, state.steps + 1, state.backoffs)
+
+
+def controller_theta(
+    estimate, probe: ProbeState, theta: np.ndarray, unidentified_mu: str, floor_mu: float
+) -> np.ndarray:
+    """The theta the controller gets for a fitted context (``ContextEstimate`` ``estimate``,
+    its fit's ``theta``); the stiffnesses are always scaled to keep the fit's ``mu * C_S``:
+
+    * a friction peak fitted below the friction the data used (``below_used``) is impossible:
+      mu is raised to the used friction (the smallest peak the data allow);
+    * ``unidentified_mu: lower_bound``: a context whose mu is not identifiable gets
+      ``max(mu_lower_bound, floor_mu)`` (at most its estimate);
+    * ``unidentified_mu: probe``: such a context gets the probe's mu (before its first step
+      the lower bound's value; at most the estimate unless that is below the used friction).
+    """
+    mu = float(theta[0])
+    bound = estimate.mu_lower_bound if math.isfinite(estimate.mu_lower_bound) else 0.0
+    if estimate.below_used:
+        mu = max(mu, bound)
+    if not estimate.identifiable and unidentified_mu in ("lower_bound", "probe"):
+        cap = math.inf if estimate.below_used else mu
+        start = max(bound, floor_mu)
+        if unidentified_mu == "probe" and probe.started:
+            start = probe.mu
+        mu = min(start, cap)
+    if mu == theta[0]:
+        return theta
+    return np.array([mu, theta[1] * theta[0] / mu, theta[2] * theta[0] / mu])

@@ -9,8 +9,11 @@ context has no fit yet (too little data). The policy decides the friction used m
 * ``last_known``: the estimate of the last context that had one (the prior if none yet): right
   while the car is still on the terrain it came from, wrong by the full step after a transition.
 * ``conservative`` (default): the lowest lower confidence bound ``mu - sigmas * std`` over the
-  contexts fitted so far, and never above ``floor_mu`` (the lowest friction the operator expects
-  on the course; 0.3 by default, the paper map's patchy grass). Safe by construction: slower on
+  contexts fitted so far (for a friction peak, never below the friction that context's data
+  used: a peak the data never approached has a huge std, and ``mu - sigmas * std`` would say
+  "no grip" about a terrain the car has just driven on), and never above ``floor_mu`` (the
+  lowest friction the operator expects on the course; 0.3 by default, the paper map's patchy
+  grass). Safe by construction: slower on
   a new terrain until it has its own fit.
 
 ``prior`` and ``last_known`` hand over a whole theta. ``conservative`` lowers the friction limit
@@ -59,7 +62,9 @@ def unknown_context_theta(
     Args:
         policy: one of ``UNKNOWN_CONTEXT_POLICIES``.
         prior_theta: the prior (3,).
-        fitted: ``(mu, mu_std)`` of every context fitted so far (std NaN: treated as 0).
+        fitted: ``(mu, mu_std)`` or ``(mu, mu_std, used)`` of every context fitted so far (std
+            NaN: treated as 0; ``used``: the friction its data used, a floor on its lower
+            confidence bound; NaN or absent: none).
         last_known_theta: theta of the last context with an estimate (None: none yet).
         floor_mu: ``conservative``'s upper limit on mu.
         sigmas: ``conservative``'s confidence multiplier.
@@ -77,9 +82,13 @@ def unknown_context_theta(
     if policy != "conservative":
         raise ValueError(f"unknown_context={policy!r}; choose {UNKNOWN_CONTEXT_POLICIES}")
     mu = float(floor_mu)
-    for m, std in fitted:
+    for entry in fitted:
+        m, std = entry[0], entry[1]
+        used = entry[2] if len(entry) > 2 else math.nan
         if math.isfinite(m):
             lcb = m - sigmas * (std if math.isfinite(std) else 0.0)
+            if math.isfinite(used):
+                lcb = max(lcb, used)
             mu = min(mu, lcb)
     mu = max(mu, 0.05)
     # The single-track tyre's small-slip stiffness is mu * C_S: keep the prior's, so that only
