@@ -205,3 +205,23 @@ def test_identifiability_flags_a_peak_below_the_lateral_friction_used():
     st = est._identifiability(empty, t, x, 0.25, 0.01, peak=False)
     assert st["mu_lower_bound"] == pytest.approx(np.hypot(3.0, 2.0) / 9.81, rel=1e-6)
     assert not st["below_used"]  # the ST fit's mu is not a peak
+
+
+def test_peak_slip_is_the_peak_tyres_and_limits_are_per_axle():
+    from pcvfe_drake.estimation.probe import MF_SHAPE, peak_slip_rad
+    from pcvfe_drake.workbench.tyre_effects import MF_SHAPE as PEAK_TYRE_SHAPE
+
+    assert MF_SHAPE == PEAK_TYRE_SHAPE
+    k = 21.92
+    a = float(peak_slip_rad(0.3, k))
+    assert a == pytest.approx(0.043, abs=5e-4)
+    # the magic formula with that stiffness and peak is at its largest there
+    alphas = np.linspace(0.0, 3 * a, 3001)
+    force = 0.3 * np.sin(MF_SHAPE * np.arctan(k * alphas / (MF_SHAPE * 0.3)))
+    assert alphas[np.argmax(force)] == pytest.approx(a, rel=2e-3)
+    vp = ford_escort()
+    x = np.zeros((30, 7))
+    x[:, 3] = 8.0
+    x[:, 6] = -0.03  # rear slip 0.03 rad, front 0.03 rad
+    assert saturated(x, vp.lf, vp.lr, (0.05, 0.02))
+    assert not saturated(x, vp.lf, vp.lr, (0.05, 0.04))

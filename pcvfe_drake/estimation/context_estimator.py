@@ -62,7 +62,13 @@ from pcvfe_drake.estimation.fit_options import (
     joint_options,
 )
 from pcvfe_drake.estimation.fitting import fit_gauss_newton
-from pcvfe_drake.estimation.probe import ProbeState, controller_theta, probe_step, saturated
+from pcvfe_drake.estimation.probe import (
+    ProbeState,
+    controller_theta,
+    peak_slip_rad,
+    probe_step,
+    saturated,
+)
 from pcvfe_drake.estimation.sample_store import NOISE, SampleStore, labels_from_frames
 from pcvfe_drake.estimation.unknown_context import (
     DEFAULT_FLOOR_MU,
@@ -127,13 +133,13 @@ class LiveFitConfig:
             ``"probe"`` (exploration: ``pcvfe_drake.estimation.probe``; starts at the lower
             bound's value and raises it step by step while the tyres show no saturation).
         probe_step_rel, probe_hold_s, probe_max_excess, probe_use_fraction,
-            probe_max_slip_rad, probe_window_s: the probe's numbers (``probe``'s module
+            probe_slip_fraction, probe_window_s: the probe's numbers (``probe``'s module
             docstring gives the reason for each): raise by this fraction after this many
             seconds on the context; ask the planner for at most this much friction above the
             demonstrated lower bound; the planner's share of mu (``speed_margin^2``; None: 0.64,
             the scenario fills it from ``nmpc.speed_margin``); back off when an axle's slip
             angle (90th percentile over the newest ``probe_window_s`` of the context) exceeds
-            this.
+            this fraction of the slip at which the fitted tyre would peak at the handed mu.
     """
 
     horizon_steps: int = DEFAULT_HORIZON
@@ -167,7 +173,7 @@ class LiveFitConfig:
     probe_hold_s: float = 3.0
     probe_max_excess: float = 0.08
     probe_use_fraction: float | None = None
-    probe_max_slip_rad: float = 0.035
+    probe_slip_fraction: float = 0.5
     probe_window_s: float = 1.0
 
     def __post_init__(self) -> None:
@@ -186,7 +192,7 @@ class LiveFitConfig:
             "probe_step_rel",
             "probe_hold_s",
             "probe_max_excess",
-            "probe_max_slip_rad",
+            "probe_slip_fraction",
             "probe_window_s",
         )
         for name in ("effect_horizon_s", "effect_stride_s", "identifiable_std", *probe_positive):
@@ -461,13 +467,16 @@ class ContextEstimator:
         use = (
             DEFAULT_PROBE_USE_FRACTION if cfg.probe_use_fraction is None else cfg.probe_use_fraction
         )
+        handed = self._unidentified(slot, np.array(est.theta))  # what the car drove with
+        stiffness = handed[0] * handed[1:]  # mu * C_S per axle: the fit's small-slip stiffness
+        limit = cfg.probe_slip_fraction * peak_slip_rad(handed[0], stiffness)
         slot.probe = probe_step(
             slot.probe,
             t_now,
             lower_bound=est.mu_lower_bound,
             floor_mu=cfg.unknown_floor_mu,
             prior_mu=self._prior[0],
-            is_saturated=saturated(states, self.params.lf, self.params.lr, cfg.probe_max_slip_rad),
+            is_saturated=saturated(states, self.params.lf, self.params.lr, limit),
             step_rel=cfg.probe_step_rel,
             hold_s=cfg.probe_hold_s,
             max_excess=cfg.probe_max_excess,

@@ -27,6 +27,13 @@ The rules (:func:`probe_step`), each number a field of ``LiveFitConfig``:
 * **back off** on a sign of saturation (:func:`saturated`: a large slip angle on either axle,
   i.e. side slip at the rear or yaw response short of the steering at the front): two steps
   down, and the level one step below the one that saturated becomes the context's ceiling.
+  "Large" is ``probe_slip_fraction`` (0.5) of the slip at which a magic-formula tyre (shape
+  ``MF_SHAPE`` = 1.35, as ``peak_tyre``) with the fitted small-slip stiffness ``K`` would peak
+  at the mu being handed (:func:`peak_slip_rad`: ``tan(pi / (2 C)) C mu / K``, 0.043 rad for
+  mu 0.3 at the Ford Escort's K = 21.9 /rad). At half that slip such a tyre already delivers
+  92 % of its peak, about twice the slip a linear tyre needs for the force; the planner asks
+  for 0.64 of the handed mu, which needs only a quarter of the peak slip (0.24) if the peak is
+  where the probe assumes. A larger slip says the peak is lower than the handed mu.
 
 No pydrake.
 """
@@ -42,6 +49,8 @@ from pcvfe_drake.vehicle.single_track import BETA, DELTA, PSI_DOT, V
 
 MIN_PROBE_MU = 0.05
 """Smallest mu a back-off hands (keeps the speed profile defined)."""
+MF_SHAPE = 1.35
+"""Magic-formula shape factor of the tyre the saturation test assumes (``peak_tyre``'s C)."""
 MIN_SPEED_MPS = 2.0
 """Samples slower than this are not used for the slip angles (kinematic slip dominates)."""
 
@@ -92,11 +101,18 @@ def axle_slip_angles(states: np.ndarray, lf: float, lr: float) -> tuple[np.ndarr
     return alpha_f, alpha_r
 
 
+def peak_slip_rad(mu: float, stiffness_per_rad, shape: float = MF_SHAPE):
+    """Slip angle [rad] at which a magic-formula tyre ``F/Fz = mu sin(C atan(K alpha / (C
+    mu)))`` peaks: ``tan(pi / (2 C)) C mu / K`` (``K``: small-slip stiffness per unit load)."""
+    return math.tan(math.pi / (2.0 * shape)) * shape * mu / np.asarray(stiffness_per_rad)
+
+
 def saturated(
-    states: np.ndarray, lf: float, lr: float, max_slip_rad: float, quantile: float = 0.9
+    states: np.ndarray, lf: float, lr: float, max_slip_rad, quantile: float = 0.9
 ) -> bool:
     """A sign of saturation in the measured states: the ``quantile`` of ``|alpha_f|`` or
-    ``|alpha_r|`` over the samples at >= 2 m/s exceeds ``max_slip_rad``. A large rear slip is
+    ``|alpha_r|`` over the samples at >= 2 m/s exceeds ``max_slip_rad`` (one number, or one
+    per axle: front, rear). A large rear slip is
     side slip (the rear lets go); a large front slip is a yaw rate short of what the steering
     asks (the front lets go). The quantile (not the largest value) keeps one noisy sample from
     triggering it. Fewer than 10 usable samples: False."""
@@ -107,8 +123,10 @@ def saturated(
     if use.sum() < 10:
         return False
     af, ar = axle_slip_angles(x[use], lf, lr)
-    worst = max(float(np.quantile(np.abs(af), quantile)), float(np.quantile(np.abs(ar), quantile)))
-    return worst > max_slip_rad
+    limit_f, limit_r = np.broadcast_to(np.asarray(max_slip_rad, dtype=float), (2,))
+    return bool(
+        np.quantile(np.abs(af), quantile) > limit_f or np.quantile(np.abs(ar), quantile) > limit_r
+    )
 
 
 def probe_step(
