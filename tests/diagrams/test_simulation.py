@@ -196,6 +196,10 @@ def test_the_scenario_configs_reach_the_systems():
     s.rates.nmpc_period_s = 0.04
     parts = MakeSimulation(s)
     fitter = parts.diagram.GetSubsystemByName("fitter")
-    assert fitter._config == dataclasses.replace(s.fitter, sample_period_s=0.01)
+    # the data rate from rates, the probe's planner share from nmpc.speed_margin
+    want = dataclasses.replace(
+        s.fitter, sample_period_s=0.01, probe_use_fraction=s.nmpc.speed_margin**2
+    )
+    assert fitter._config == want
     nmpc = parts.diagram.GetSubsystemByName("nmpc")
     assert (nmpc.controller.config.horizon, nmpc.controller.config.dt_s) == (30, 0.04)
