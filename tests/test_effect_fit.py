@@ -174,7 +174,8 @@ def test_fit_effects_equals_diagnose_add(tmp_path, capsys, saturating_log):
     write_drive_log(saturating_log, path)
     main(["diagnose", str(path), "--add", "tire_saturation", "--candidates", "drag", "--json"])
     diag = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["added"]["params"]
-    assert main(["fit", str(path), "--effects", "tire_saturation", "--json"]) == 0
+    args = ["fit", str(path), "--effects", "tire_saturation", "--json"]
+    assert main([*args, "--covariance", "iid"]) == 0
     fit = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert set(fit["params"]) == set(diag)
     for name, p in diag.items():
@@ -184,6 +185,18 @@ def test_fit_effects_equals_diagnose_add(tmp_path, capsys, saturating_log):
     ctx = fit["contexts"]["all"]
     assert ctx["theta"]["mu"] == pytest.approx(fit["params"]["mu"]["value"])
     assert ctx["mu_lower_bound"] > 0.3
+    # default: the same parameters, the std from the Newey-West sandwich (docs/fitting.md)
+    assert main(args) == 0
+    hac = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert hac["covariance"] == "hac" and fit["covariance"] == "iid"
+    for name, p in diag.items():
+        assert hac["params"][name]["value"] == pytest.approx(p["value"], rel=1e-9), name
+    std = hac["contexts"]["all"]["mu_std"]
+    assert 0 < std < 0.1 and std != pytest.approx(ctx["mu_std"], rel=1e-3)
+    lo, hi = hac["contexts"]["all"]["mu_interval_95"]
+    assert hac["contexts"]["all"]["near_limit"]
+    assert lo == pytest.approx(ctx["theta"]["mu"] - 1.959964 * std)
+    assert hi == pytest.approx(ctx["theta"]["mu"] + 1.959964 * std)
     # the table form runs and names the effect
     assert main(["fit", str(path), "--effects", "tire_saturation:mu_peak=0.7"]) == 0
     out = capsys.readouterr().out

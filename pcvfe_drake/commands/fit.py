@@ -15,7 +15,12 @@ from pcvfe_drake.estimation.fit_dataset import (
     DEFAULT_X0_SMOOTHING_S,
     windows_from_log,
 )
-from pcvfe_drake.estimation.fit_options import JOINT_PRIOR_REL_SIGMA, FitOptions, joint_options
+from pcvfe_drake.estimation.fit_options import (
+    COVARIANCES,
+    JOINT_PRIOR_REL_SIGMA,
+    FitOptions,
+    joint_options,
+)
 from pcvfe_drake.estimation.fitting import fit_contexts
 from pcvfe_drake.runs.drivelog import read_drive_log
 from pcvfe_drake.runs.resample import resample_log
@@ -107,6 +112,14 @@ def register(subparsers) -> None:
         "fits it (one model, mu per context, effect parameters shared, the diagnosis's "
         "training windows), so both give the same parameters (docs/fitting.md)",
     )
+    parser.add_argument(
+        "--covariance",
+        choices=COVARIANCES,
+        default="hac",
+        help="standard deviations: hac (default: the sandwich with a Newey-West estimate over "
+        "the time-ordered windows, honest under model error and correlated residuals) or iid "
+        "(independent residuals; optimistic under model error) (docs/fitting.md)",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.set_defaults(func=run)
 
@@ -118,7 +131,7 @@ def run_effects(args: argparse.Namespace) -> int:
 
     specs = parse_effects(args.effects)  # unknown effects fail before reading the log
     data = load(args.log, context_column=args.context_column, resample_hz=args.resample)
-    out = fit_log(data, load_vehicle(args.vehicle), specs)
+    out = fit_log(data, load_vehicle(args.vehicle), specs, covariance=args.covariance)
     out = {"log": str(args.log), "contexts_column": args.context_column, **out}
     if args.json:
         print(json.dumps(out, default=lambda v: None))
@@ -133,11 +146,16 @@ def run_effects(args: argparse.Namespace) -> int:
         + ("friction peak" if out["mu_is_peak"] else "single-track model's mu (a stiffness scale)")
         + f"; {out['training_windows']} training windows (as pcvfe diagnose)"
     )
-    print(f"{'context':>12} {'mu':>8} {'+-std':>8} {'C_Sf':>8} {'C_Sr':>8} {'mu >=':>7}  limit")
+    print(
+        f"{'context':>12} {'mu':>8} {'+-std':>8} {'95 % interval':>16} {'C_Sf':>8} {'C_Sr':>8} "
+        f"{'mu >=':>7}  limit"
+    )
     for label, c in out["contexts"].items():
         th = c["theta"]
+        lo, hi = (math.inf if v is None else v for v in c["mu_interval_95"])
         print(
             f"{label:>12} {_fmt(th['mu'], 4):>8} {_fmt(c['mu_std'], 2):>8} "
+            f"{'[' + _fmt(lo, 3) + ', ' + (_fmt(hi, 3) if math.isfinite(hi) else 'inf') + ']':>16} "
             f"{_fmt(th['C_Sf'], 4):>8} {_fmt(th['C_Sr'], 4):>8} {_fmt(c['mu_lower_bound'], 3):>7}  "
             + ("near" if c["near_limit"] else "never near: mu barely observable")
         )
@@ -174,9 +192,11 @@ def run(args: argparse.Namespace) -> int:
     n_rows = len(log)
     del log  # the windows hold what the fit needs; a long log's table is large
     if args.joint:
-        options = joint_options(params, rel_sigma=args.prior_rel or None)
+        options = joint_options(
+            params, rel_sigma=args.prior_rel or None, covariance=args.covariance
+        )
     else:
-        options = FitOptions()
+        options = FitOptions(covariance=args.covariance)
     results = fit_contexts(split, params, options, solver=args.solver)
 
     if args.json:
@@ -201,6 +221,7 @@ def run(args: argparse.Namespace) -> int:
                     "min_speed_mps": args.min_speed,
                     "max_windows": args.max_windows or None,
                     "solver": args.solver,
+                    "covariance": options.covariance,
                     "free": list(options.free),
                     "prior_sigma": dict(options.prior_sigma or {}),
                     "candidate_windows": split.n_candidates,

@@ -37,6 +37,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pcvfe_drake.estimation.estimate_table import Z95
+from pcvfe_drake.estimation.fit_options import COVARIANCES, HAC_LAG_S
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import BETA, NX, PSI_DOT, V
 
@@ -269,7 +271,10 @@ class EffectFitter:
     Windows of ``horizon_s`` (default 1 s, as ``pcvfe diagnose``) every ``stride_s``, the first
     ``burn_in_s`` of each left out of the cost, at v >= 1 m/s, not spanning a time gap; the
     newest ``max_windows`` are used, at most ``max_iterations`` Levenberg-Marquardt iterations
-    per refit (warm-started). A weak Gaussian prior on mu (mean: ``mu_start``, the estimator's
+    per refit (warm-started). Standard deviations: ``covariance`` ``hac`` (default: the sandwich
+    with a Newey-West estimate over the time-ordered windows, lag ``horizon_s + hac_lag_s``;
+    ``least_squares.hac_covariance``) or ``iid`` (the workbench's Gauss-Newton std inflated for
+    the windows' overlap). A weak Gaussian prior on mu (mean: ``mu_start``, the estimator's
     prior mu; sd ``mu_prior_sd``, inf: none) keeps a peak the data never approached near the
     prior instead of on a bound; on data that determine mu (std ~0.02) it moves mu by ~0.1 %
     of its distance to the prior.
@@ -284,10 +289,23 @@ class EffectFitter:
     max_iterations: int = 5
     min_windows: int = 10
     mu_prior_sd: float = 0.5
+    covariance: str = "hac"
+    hac_lag_s: float = HAC_LAG_S
 
     def __post_init__(self) -> None:
+        if self.covariance not in COVARIANCES:
+            raise ValueError(
+                f"EffectFitter.covariance must be one of {COVARIANCES}, got {self.covariance!r}"
+            )
         self.model, self.fixed, self.theta_init = build_model(self.vehicle, self.effects)
         self.mu_is_peak = friction_is_peak(self.model)
+
+    def hac_lag(self) -> int | None:
+        """Lag in windows of the ``hac`` covariance (windows starting within a window's span
+        plus ``hac_lag_s``), None for ``iid`` (the workbench's overlap-inflated std)."""
+        if self.covariance != "hac":
+            return None
+        return max(1, math.ceil((self.horizon_s + self.hac_lag_s) / self.stride_s - 1e-9))
 
     def start_vector(self, previous=None, mu_start: float | None = None) -> np.ndarray:
         """The warm start: the previous full vector if it fits this model, else the initial
@@ -348,6 +366,7 @@ class EffectFitter:
             overlap=self.horizon_s / self.stride_s,
             burn_in=burn_in,
             fixed=self.fixed,
+            hac_lag=self.hac_lag(),
         )
         return to_result(self.model, res, starts.size)
 
@@ -385,14 +404,18 @@ def fit_log(
     effects,
     identifiable_std: float = 0.05,
     near_limit_fraction: float = 0.6,
+    covariance: str = "hac",
+    hac_lag_s: float = HAC_LAG_S,
 ) -> dict:
     """``pcvfe fit --effects``: the effect model fitted on a whole log as ``pcvfe diagnose
     --add`` fits it (one model, mu per context, the effect parameters shared; the diagnosis's
     training windows, start and solver), so both give the same parameters on the same data.
 
     Returns a JSON-ready dict: ``effects``, ``params`` (every parameter: value, std, unit, ...),
-    ``mu_is_peak``, and per context the controller's theta, mu's std, its lower bound from the
-    friction used, ``near_limit`` and ``identifiable``.
+    ``mu_is_peak``, and per context the controller's theta, mu's std (``covariance``: ``hac``,
+    the Newey-West sandwich over the time-ordered training windows, or ``iid``, the workbench's),
+    its lower bound from the friction used, ``near_limit``, ``identifiable`` and the 95 %
+    interval ``mu_interval_95`` (as ``ContextEstimate.mu_interval_95``; None: no upper bound).
     """
     from pcvfe_drake.workbench.ranking import Workbench
 
@@ -400,7 +423,13 @@ def fit_log(
     specs = parse_effects(effects)
     model = wb.base_model.with_effects(*[sp.name for sp in specs])
     fixed = {f"{sp.name}.{k}": v for sp in specs for k, v in sp.fixed.items()}
-    res = wb.fit_model(model, warm=wb.baseline, fixed=fixed)
+    lag = None
+    if covariance == "hac":  # training windows: h_fit steps, one every h_fit steps
+        span = wb.h_fit * data.dt
+        lag = max(1, math.ceil((span + hac_lag_s) / span - 1e-9))
+    elif covariance != "iid":
+        raise ValueError(f"covariance must be one of {COVARIANCES}, got {covariance!r}")
+    res = wb.fit_model(model, warm=wb.baseline, fixed=fixed, hac_lag=lag)
     contexts = {}
     for c, label in enumerate(data.context_names):
         theta = controller_theta(model, res.theta, c)
@@ -410,6 +439,10 @@ def fit_log(
         std = float(res.std[mu_idx])
         near = bool(math.isfinite(used) and used >= near_limit_fraction * theta[0])
         below = bool(friction_is_peak(model) and math.isfinite(used) and theta[0] < used)
+        if near or not math.isfinite(used):  # the data came near the limit: two-sided
+            interval = [theta[0] - Z95 * std, theta[0] + Z95 * std]
+        else:  # never near: the friction used bounds mu from below, nothing from above
+            interval = [used, None]
         contexts[label] = {
             "theta": dict(zip(("mu", "C_Sf", "C_Sr"), map(float, theta), strict=True)),
             "mu_std": std,
@@ -419,6 +452,7 @@ def fit_log(
             "identifiable": bool(
                 near and not below and math.isfinite(std) and std <= identifiable_std
             ),
+            "mu_interval_95": interval,
         }
     return {
         "effects": [{"name": s.name, "fixed": s.fixed} for s in parse_effects(effects)],
@@ -428,5 +462,6 @@ def fit_log(
         "iterations": int(res.n_iter),
         "converged": bool(res.converged),
         "training_windows": int(wb.train_starts.size),
+        "covariance": covariance,
         "contexts": contexts,
     }

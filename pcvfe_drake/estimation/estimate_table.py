@@ -13,6 +13,9 @@ from dataclasses import dataclass
 from pcvfe_drake.estimation.probe import ProbeState
 from pcvfe_drake.vehicle.params import THETA_NAMES
 
+Z95 = 1.959964
+"""Two-sided 95 % quantile of the standard normal distribution."""
+
 
 @dataclass(frozen=True)
 class ContextEstimate:
@@ -49,6 +52,8 @@ class ContextEstimate:
         model_params: the fitted effect model's parameters, ``((name, value, std), ...)``
             (empty for the ST fit).
         probe: the context's exploration state (``unidentified_mu: probe``; None otherwise).
+
+    The reported 95 % interval of mu is :attr:`mu_interval_95`.
     """
 
     context_id: int
@@ -80,6 +85,22 @@ class ContextEstimate:
         return self.theta_std[0]
 
     @property
+    def mu_interval_95(self) -> tuple[float, float]:
+        """The 95 % interval of mu the table reports: ``mu +- 1.96 std`` where the data came
+        near the friction limit; where they never did, the one-sided ``[mu_lower_bound, inf)``
+        (the car used that much friction, and nothing in the data bounds the peak from above:
+        a two-sided interval around such a fit would be a confident wrong number). (NaN, NaN)
+        before a fit or without a std."""
+        if not self.fitted:
+            return (math.nan, math.nan)
+        if not self.near_limit and math.isfinite(self.mu_lower_bound):
+            return (self.mu_lower_bound, math.inf)
+        std = self.mu_std
+        if math.isnan(std):
+            return (math.nan, math.nan)
+        return (self.mu - Z95 * std, self.mu + Z95 * std)
+
+    @property
     def fitted(self) -> bool:
         """A fit has succeeded at least once (theta is an estimate, not the prior)."""
         return self.fits > 0
@@ -105,6 +126,7 @@ class ContextEstimate:
             "near_limit": self.near_limit,
             "identifiable": self.identifiable,
             "below_used": self.below_used,
+            "mu_interval_95": [num(v) for v in self.mu_interval_95],  # None: no bound / unknown
             "mu_is_peak": self.mu_is_peak,
             "probe": None if self.probe is None else self.probe.to_dict(),
             "model_params": {

@@ -32,6 +32,15 @@ ADAM_LEARNING_RATE = 0.01
 ADAM_BATCH_SIZE = 1024
 """The paper's batch size [windows]."""
 
+COVARIANCES = ("hac", "iid")
+"""Ways to compute the standard deviations (``FitOptions.covariance``): ``hac`` (default) the
+sandwich with a Newey-West estimate over time-ordered windows (honest under model error and
+correlated residuals); ``iid`` the Gauss-Newton ``(J^T J / s2)^-1`` of independent residuals."""
+HAC_LAG_S = 2.0
+"""Time over which the scores of windows are taken as correlated in the ``hac`` covariance [s]
+(beyond a window's own span: a model error persists over a manoeuvre, ~2 s of the NMPC's
+horizon)."""
+
 STATUS_CONVERGED = "converged"
 STATUS_MAX_ITERATIONS = "max_iterations"
 STATUS_DIVERGED = "diverged"
@@ -66,6 +75,9 @@ class FitOptions:
             raised.
         rel_std_warn: relative standard deviation above which a parameter is reported as poorly
             determined.
+        covariance: ``hac`` (default) or ``iid``: how the standard deviations are computed (see
+            ``COVARIANCES``).
+        hac_lag_s: the ``hac`` covariance's correlation time beyond a window's span [s].
     """
 
     free: tuple[str, ...] = ("mu",)
@@ -82,6 +94,8 @@ class FitOptions:
     min_windows: int = 20
     cond_warn: float = 1e8
     rel_std_warn: float = 0.5
+    covariance: str = "hac"
+    hac_lag_s: float = HAC_LAG_S
 
     def __post_init__(self) -> None:
         free = tuple(self.free)
@@ -111,6 +125,10 @@ class FitOptions:
             raise ValueError(f"max_step_s must be > 0 s, got {self.max_step_s!r}")
         if self.min_windows < 1:
             raise ValueError(f"min_windows must be >= 1, got {self.min_windows!r}")
+        if self.covariance not in COVARIANCES:
+            raise ValueError(f"covariance must be one of {COVARIANCES}, got {self.covariance!r}")
+        if not (math.isfinite(self.hac_lag_s) and self.hac_lag_s >= 0):
+            raise ValueError(f"hac_lag_s must be >= 0 s, got {self.hac_lag_s!r}")
 
     @property
     def free_index(self) -> np.ndarray:

@@ -7,9 +7,16 @@ and the stiffnesses stay at the vehicle's nominal values. Joint fits take Gaussi
 (``FitOptions.prior_sigma``, mean = the vehicle's nominal values). Every result reports standard
 deviations from the Gauss-Newton information matrix ``J^T J / s2 + Lambda_prior`` (``s2`` the
 residual variance estimate ``SSR / (n - p)``; ``Lambda_prior`` the prior precision) and a warning
-when the (parameter-scaled) information matrix is ill-conditioned. These standard deviations treat
-the residuals as independent; overlapping windows and correlated model errors make them
-optimistic.
+when the (parameter-scaled) information matrix is ill-conditioned.
+
+Standard deviations (``FitOptions.covariance``): by default (``hac``) the sandwich ``A^-1 B A^-1``
+with ``B`` a Newey-West estimate of the variance of the gradient over the time-ordered windows
+(``least_squares.hac_covariance``), combined with the prior as ``(A B^-1 A + Lambda_prior)^-1``.
+It counts the residuals as they are (model error included) and their correlation within a
+window, between overlapping windows and over ``hac_lag_s`` of driving. ``iid``: the Gauss-Newton
+``(J^T J / s2 + Lambda_prior)^-1`` (``s2`` the residual variance estimate ``SSR / (n - p)``), which
+treats the residuals as independent; overlapping windows and correlated model errors make it
+optimistic (docs/fitting.md, "Uncertainty").
 """
 
 from __future__ import annotations
@@ -19,6 +26,7 @@ import time
 
 import numpy as np
 
+from pcvfe_drake.estimation import least_squares as lsq
 from pcvfe_drake.estimation.fit_dataset import SKIP_REASONS, WindowDataset
 from pcvfe_drake.estimation.fit_options import (
     STATUS_DIVERGED,
@@ -37,8 +45,13 @@ def uncertainty(
     J: np.ndarray,
     options: FitOptions,
     params: VehicleParams,
+    t0: np.ndarray | None = None,
+    dt: float = 0.0,
 ) -> tuple[np.ndarray, float, bool, list[str]]:
-    """Standard deviations, condition number, ill-conditioned flag and warnings at ``theta``."""
+    """Standard deviations, condition number, ill-conditioned flag and warnings at ``theta``.
+
+    ``R`` (windows, H, 7) and ``J`` (windows, H, 7, 3) at ``theta``, windows in time order;
+    ``t0`` their start times [s] and ``dt`` the step [s] (the ``hac`` covariance's lag)."""
     free = options.free_index
     p = free.size
     r = R.reshape(-1)
@@ -81,9 +94,18 @@ def uncertainty(
                 else "Use stronger priors or more varied excitation."
             )
         )
-    posterior = info / max(s2, 1e-300) + np.diag(prior_prec)
     try:
-        cov = np.linalg.inv(posterior)
+        if options.covariance == "hac":
+            n_win = R.shape[0]
+            cov = lsq.hac_covariance(
+                Jf,
+                r,
+                n_win,
+                hac_lag(t0, R.shape[1] * dt, options.hac_lag_s),
+                prior_precision=prior_prec,
+            )
+        else:
+            cov = np.linalg.inv(info / max(s2, 1e-300) + np.diag(prior_prec))
         diag = np.diag(cov)
         std[free] = np.sqrt(np.where(diag >= 0, diag, np.inf))
     except np.linalg.LinAlgError:
@@ -102,6 +124,19 @@ def uncertainty(
                 "split between mu and the stiffnesses"
             )
     return std, cond, ill, warnings
+
+
+def hac_lag(t0: np.ndarray | None, span_s: float, lag_s: float) -> int:
+    """The ``hac`` covariance's lag in windows: windows that start within a window's span
+    ``span_s`` plus ``lag_s`` of each other (the spacing: the median positive step of the start
+    times ``t0``; without two distinct starts: 1)."""
+    if t0 is None or len(t0) < 2:
+        return 1
+    d = np.diff(np.asarray(t0, dtype=float))
+    d = d[d > 0]
+    if d.size == 0:
+        return 1
+    return max(1, int(math.ceil((span_s + lag_s) / float(np.median(d)) - 1e-9)))
 
 
 def gram(Jf: np.ndarray) -> np.ndarray:
@@ -155,7 +190,7 @@ def final_result(
     note: str | None,
 ) -> FitResult:
     """The FitResult at the final theta (residuals R and Jacobian J evaluated there)."""
-    std, cond, ill, warnings = uncertainty(theta, R, J, options, params)
+    std, cond, ill, warnings = uncertainty(theta, R, J, options, params, data.t0, data.dt)
     loss = float(np.sum(R * R)) / (data.n_windows * data.horizon)
     quality: dict = {}
     if not (math.isfinite(loss) and np.all(np.isfinite(theta))):

@@ -303,3 +303,63 @@ def covariance(
     cov = np.zeros((p_all, p_all))
     cov[np.ix_(free_idx, free_idx)] = cov_f
     return cov
+
+
+def window_scores(J: np.ndarray, r: np.ndarray, n_windows: int) -> np.ndarray:
+    """Per-window scores ``J_w^T r_w`` (n_windows, p) of residuals stored window by window
+    (``r`` (n_windows * k,), ``J`` (n_windows * k, p), the rows of window w contiguous)."""
+    p = J.shape[1]
+    return np.einsum("wkp,wk->wp", J.reshape(n_windows, -1, p), r.reshape(n_windows, -1))
+
+
+def hac_covariance(
+    J: np.ndarray,
+    r: np.ndarray,
+    n_windows: int,
+    lag: int,
+    *,
+    free: np.ndarray | None = None,
+    prior_precision: np.ndarray | None = None,
+) -> np.ndarray:
+    """Parameter covariance that holds under model error and correlated residuals.
+
+    The residuals come in ``n_windows`` windows in time order (the rows of window ``w`` are
+    contiguous in ``J`` and ``r``). The data part is the sandwich ``A^-1 B A^-1`` with
+    ``A = J_f^T J_f`` (the Gauss-Newton Hessian of ``||r||^2 / 2``) and ``B`` the Newey-West
+    (Bartlett kernel) estimate of the variance of the gradient ``sum_w s_w``, ``s_w = J_w^T
+    r_w`` the window's score (centred)::
+
+        G_l = sum_w s_w s_{w-l}^T
+        B = G_0 + sum_{l=1..lag} (1 - l / (lag + 1)) (G_l + G_l^T)
+
+    ``B`` takes the residuals as they are: their actual size (model error included, not the
+    noise model's), their correlation within a window, between overlapping windows and over
+    ``lag`` windows of time (a model error that persists over seconds of driving). With
+    independent residuals of unit variance and a correct model ``B ~ A`` and this is the
+    Gauss-Newton covariance ``A^-1``. A Gaussian prior adds its precision to the robust
+    information: ``cov = (A B^-1 A + Lambda_prior)^-1`` (a parameter the data do not inform
+    keeps the prior's variance). Rows and columns of parameters not free are zero.
+    Raises ``numpy.linalg.LinAlgError`` when the information matrix is singular.
+    """
+    m, p_all = J.shape
+    free_idx = np.arange(p_all) if free is None else np.asarray(free)
+    if free_idx.dtype == bool:
+        free_idx = np.flatnonzero(free_idx)
+    if n_windows < 1 or m % n_windows:
+        raise ValueError(f"hac_covariance: {m} residual rows do not split into {n_windows} windows")
+    prec = np.zeros(p_all) if prior_precision is None else np.asarray(prior_precision, float)
+    Jf = J[:, free_idx]
+    A = _gram(Jf)
+    s = window_scores(Jf, r, n_windows)
+    s = s - s.mean(axis=0)
+    B = s.T @ s
+    if not np.trace(B) > 0.0:  # residuals exactly zero (noise-free data, a perfect model)
+        return np.zeros((p_all, p_all))
+    for lag_i in range(1, min(int(lag), n_windows - 1) + 1):
+        g = s[lag_i:].T @ s[:-lag_i]
+        B += (1.0 - lag_i / (lag + 1.0)) * (g + g.T)
+    info = A @ np.linalg.pinv(B, hermitian=True) @ A + np.diag(prec[free_idx])
+    cov_f = np.linalg.inv(info)
+    cov = np.zeros((p_all, p_all))
+    cov[np.ix_(free_idx, free_idx)] = cov_f
+    return cov

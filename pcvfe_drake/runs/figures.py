@@ -223,6 +223,33 @@ def _plot_lower_bounds(ax, log: pd.DataFrame, summary: Mapping[str, Any] | None)
             ax.text(t0, bound, " never near the limit", fontsize=7, va="bottom")
 
 
+def _plot_intervals(ax, log: pd.DataFrame, summary: Mapping[str, Any] | None) -> None:
+    """Each context's final 95 % interval of mu (the summary's ``interval_95``) as a band over
+    the time the context was reported; a one-sided interval (data never near the limit) is
+    drawn from its lower bound to the top of the axes."""
+    t = log["t"].to_numpy(float)
+    ctx = log["context"].to_numpy(int)
+    labelled = False
+    top = ax.get_ylim()[1]
+    for e in (summary or {}).get("mu_estimates", []):
+        interval = e.get("interval_95")
+        rows = ctx == int(e["id"])
+        if not interval or interval[0] is None or not rows.any():
+            continue
+        lo, hi = float(interval[0]), top if interval[1] is None else float(interval[1])
+        t0, t1 = float(t[rows].min()), float(t[rows].max())
+        ax.fill_between(
+            [t0, t1],
+            [lo, lo],
+            [hi, hi],
+            color=ESTIMATE_COLOR,
+            alpha=0.12,
+            lw=0,
+            label=None if labelled else "final estimate's 95 % interval",
+        )
+        labelled = True
+
+
 def figure_mu_over_time(
     log: pd.DataFrame, path: str | Path, *, summary: Mapping[str, Any] | None = None
 ) -> Path:
@@ -230,6 +257,7 @@ def figure_mu_over_time(
     path = Path(path)
     fig, ax = plt.subplots(figsize=(11, 4), constrained_layout=True)
     _plot_mu(ax, log)
+    _plot_intervals(ax, log, summary)
     _plot_lower_bounds(ax, log, summary)
     ax.set_xlabel("time [s]")
     ids = sorted(set(log["context"].astype(int).tolist()))

@@ -48,6 +48,7 @@ import numpy as np
 import pandas as pd
 
 from pcvfe_drake.contexts import metrics
+from pcvfe_drake.estimation.estimate_table import Z95
 from pcvfe_drake.control import failure
 from pcvfe_drake.runs import drive_metrics
 
@@ -155,7 +156,10 @@ def mu_estimates(
     ``mu_hat`` is the estimate the controller was given at each sample (the fitter's output then),
     so the score covers the whole rest of the run, not just the final estimate; ``scored_time_s``
     is how much driving was scored. None when the context never reached ``settle_time_s``.
-    ``covered_95``: whether the final estimate's 95 % interval (+-1.96 std) holds the truth.
+    ``covered_95``: whether the final estimate's 95 % interval holds the truth; the interval
+    (``interval_95``, [low, high], None: unbounded) is the table's ``mu_interval_95`` (``mu +-
+    1.96 std`` where the data came near the limit, ``[mu_lower_bound, inf)`` where they never
+    did; ``ContextEstimate.mu_interval_95``), else ``mu_hat +- 1.96 std``.
     Identifiability (from the table, ``ContextEstimate``): ``mu_lower_bound`` (the friction the
     data used), ``near_limit``, ``identifiable``, and ``model_params`` of an effect model.
     """
@@ -173,9 +177,11 @@ def mu_estimates(
         majority = max(set(names), key=names.count) if names else None
         true_mu = float(terrain_mu[majority]) if majority in terrain_mu else None
         entry = table.get(k)
+        interval = None
         if entry is not None:
             est = float(entry["mu"])
             std = _finite_or_none(entry.get("mu_std", math.nan))
+            interval = entry.get("mu_interval_95")
             samples = int(entry.get("samples", 0))
             status = entry.get("status")
             first_fit = _finite_or_none(entry.get("first_fit_s", math.nan))
@@ -199,6 +205,8 @@ def mu_estimates(
         # as it, its first visit's and later ones alike).
         in_context_before = np.cumsum(w[rows]) - w[rows]
         settled = rows[(in_context_before >= settle_time_s) & (terrain[rows] == majority)]
+        if interval is None or any(v is None or math.isnan(v) for v in interval):
+            interval = (est - Z95 * std, est + Z95 * std) if std is not None else None
         err_after = err_after_max = None
         if true_mu is not None and settled.size:
             err = np.abs(mu_hat[settled] - true_mu)
@@ -225,9 +233,12 @@ def mu_estimates(
                 "abs_error_after_settle_mean": err_after,
                 "abs_error_after_settle_max": err_after_max,
                 "scored_time_s": float(np.sum(w[settled])) if err_after is not None else 0.0,
+                "interval_95": (
+                    None if interval is None else [_finite_or_none(v) for v in interval]
+                ),
                 "covered_95": (
-                    abs(est - true_mu) <= 1.96 * std
-                    if true_mu is not None and std is not None
+                    bool(interval[0] <= true_mu <= interval[1])
+                    if true_mu is not None and interval is not None
                     else None
                 ),
                 **ident,

@@ -147,6 +147,7 @@ def fit(
     fixed: np.ndarray | None = None,
     prior_mean: np.ndarray | None = None,
     prior_sd: np.ndarray | None = None,
+    hac_lag: int | None = None,
 ) -> FitResult:
     """Levenberg-Marquardt fit of all model parameters within their bounds (projected steps).
 
@@ -168,11 +169,14 @@ def fit(
             NaN), e.g. effect parameters found by ``pcvfe diagnose`` (default: none).
         prior_mean, prior_sd: an optional Gaussian prior per parameter (sd inf: none), in the
             cost as ``((theta - mean) / sd)^2`` and in the covariance.
+        hac_lag: None (default): ``std`` as below; an integer: ``std`` from the sandwich with a
+            Newey-West estimate over the windows in the order of ``starts`` (time order), with
+            this many lags (``least_squares.hac_covariance``; the context fitter's choice).
     Returns:
         FitResult. ``std`` = sqrt(diag(s^2 (J^T J)^-1)) with s^2 = cost / (n_residuals - P),
         multiplied by sqrt(n_residuals / n_eff): errors inside a window are strongly
         correlated, so each window and state counts as one observation (``n_eff`` = windows /
-        overlap x states).
+        overlap x states); with ``hac_lag`` the sandwich's.
     """
     starts = np.asarray(starts, dtype=int)
     if starts.size == 0:
@@ -233,15 +237,20 @@ def fit(
     std = np.full(model.n_params, np.nan)
     if free.any():
         try:
-            inflate = n_res / n_eff
-            cov = lsq.covariance(
-                jac,
-                float(r @ r),
-                free=free,
-                prior_precision=precision * inflate,  # (J^T J / (s2 inflate) + prior)^-1
-                inflate=inflate,
-                dof=n_res - model.n_params,
-            )
+            if hac_lag is not None:
+                cov = lsq.hac_covariance(
+                    jac, r, starts.size, hac_lag, free=free, prior_precision=precision
+                )
+            else:
+                inflate = n_res / n_eff
+                cov = lsq.covariance(
+                    jac,
+                    float(r @ r),
+                    free=free,
+                    prior_precision=precision * inflate,  # (J^T J / (s2 inflate) + prior)^-1
+                    inflate=inflate,
+                    dof=n_res - model.n_params,
+                )
             std[free] = np.sqrt(np.maximum(np.diag(cov)[free], 0.0))
         except np.linalg.LinAlgError:
             pass

@@ -104,9 +104,11 @@ class Workbench:
         model: WorkbenchModel,
         warm: FitResult | None = None,
         fixed: dict[str, float] | None = None,
+        hac_lag: int | None = None,
     ) -> FitResult:
         """Fit ``model`` on the training windows, warm-started from a nested fit; ``fixed``
-        holds parameters (model-wide names) at given values (``pcvfe fit --effects``)."""
+        holds parameters (model-wide names) at given values (``pcvfe fit --effects``);
+        ``hac_lag``: the std from the Newey-West sandwich with this many lags (``fit``)."""
         self.n_fits += 1
         theta0 = model.initial_theta() if warm is None else model.transfer(warm.theta, warm.model)
         mask = np.array([p in (fixed or {}) for p in model.param_names])
@@ -143,6 +145,7 @@ class Workbench:
             max_iter=self.config.max_iter,
             burn_in=min(_steps(self.config.fit_burn_in_s, self.data), self.h_fit - 1),
             fixed=mask,
+            hac_lag=hac_lag,
         )
 
     def used_friction(self, model: WorkbenchModel) -> np.ndarray:
