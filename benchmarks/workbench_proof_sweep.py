@@ -17,9 +17,15 @@ ranks the whole library with the forward selection and backward check of ``pcvfe
 * ``outside``: each original effect planted alone and taken out of the library (with its
   aliases: ``tire_saturation`` with ``peak_tyre``); passes when
   the verdict is "outside the library" and names no library effect as the cause.
+* The stand-in rule's false rate: the verdict runs the parameter-stability test
+  (``pcvfe_drake.workbench.stability``) only when a test fails; here it is run on the final
+  model of every planted and clean log whatever the verdict (its size at alpha when the
+  model is right): ``false_stand_in_rate`` is the share of logs with a selected effect on
+  which it flags any effect (a planted log counts only when the loop selected exactly the
+  planted effects), ``verdict_stand_in_rate`` the share of logs whose verdict lists any.
 
 Usage: python benchmarks/workbench_proof_sweep.py [--quick] [--clean-seeds N]
-       [--planted-seeds 0 1 ...] [--only clean|planted|outside]
+       [--planted-seeds 0 1 ...] [--outside-seeds 0 1 ...] [--only clean|planted|outside]
 (--quick: 4 clean seeds, planted seed 0, singles and the issue's three combinations only).
 Last stdout line: one JSON object.
 """
@@ -38,6 +44,7 @@ from pcvfe_drake.workbench import synth
 from pcvfe_drake.workbench.data import prepare
 from pcvfe_drake.workbench.effects import known_effects
 from pcvfe_drake.workbench.report import diagnose
+from pcvfe_drake.workbench.stability import stand_ins
 
 ORIGINAL = ["drag", "rolling_resistance", "steering_lag", "input_delay", "tire_saturation"]
 NEW = ["gyro_bias", "speed_scale", "steering_offset", "friction_speed", "friction_load"]
@@ -63,6 +70,35 @@ def combined_truth(names) -> synth.Truth:
             if value != getattr(default, key):
                 fields[key] = value
     return synth.Truth(**fields)
+
+
+def stability_check(wb) -> dict:
+    """The stand-in rule run on the final model whatever the verdict (see module docstring)."""
+    effects = list(wb.final_fit.model.effect_names)
+    if not effects:
+        return {"tested": [], "flagged": []}
+    st = stand_ins(wb, wb.final_fit, effects, ALPHA)
+    tests = [t for r in st["rounds"] for t in r["tests"] if t["p_value"] is not None]
+    return {
+        "tested": effects,
+        "flagged": st["stand_ins"],
+        "evidence": st["evidence"],
+        "tests": len(tests),
+        "min_p_over_threshold": min((t["p_value"] / t["threshold"] for t in tests), default=None),
+    }
+
+
+def stand_in_rates(rows: list[dict]) -> dict:
+    tested = [r for r in rows if r["stability"]["tested"]]
+    ratios = [r["stability"]["min_p_over_threshold"] for r in tested]
+    return {
+        "stand_in_logs_tested": len(tested),
+        "stand_in_min_p_over_threshold": min((x for x in ratios if x is not None), default=None),
+        "false_stand_in_rate": sum(bool(r["stability"]["flagged"]) for r in tested)
+        / max(len(tested), 1),
+        "verdict_stand_in_rate": sum(bool(r["verdict_stand_ins"]) for r in rows)
+        / max(len(rows), 1),
+    }
 
 
 def planted_case(report: dict, names) -> dict:
@@ -99,6 +135,7 @@ def main() -> int:
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--clean-seeds", type=int, default=None)
     parser.add_argument("--planted-seeds", type=int, nargs="*", default=None)
+    parser.add_argument("--outside-seeds", type=int, nargs="*", default=None)
     parser.add_argument("--only", choices=("clean", "planted", "outside"), default=None)
     args = parser.parse_args()
     n_clean = args.clean_seeds or (4 if args.quick else 20)
@@ -120,11 +157,13 @@ def main() -> int:
             row = {"seed": seed}
             rate = 50.0 if seed % 2 == 0 else 13.0  # up- or downsampled, alternately
             for label, frame in (("20Hz", df), (f"{rate:g}Hz", resample_log(df, rate))):
-                report, _ = diagnose(prepare(frame, f"clean {seed} {label}"))
+                report, wb = diagnose(prepare(frame, f"clean {seed} {label}"))
                 white = report["baseline"]["residuals"]["whiteness"]["states"].values()
                 row[label] = {
                     "selected": [s["name"] for s in report["selected"]],
                     "verdict": report["verdict"]["kind"],
+                    "verdict_stand_ins": report["verdict"]["stand_ins"],
+                    "stability": stability_check(wb),
                     "one_step_flags": sum(
                         (not w["white"]) + len(w["correlated_with"]) for w in white
                     ),
@@ -143,6 +182,7 @@ def main() -> int:
             / len(resampled),
             "resampled_false_alarm_rate": sum(r["verdict"] != "explained" for r in resampled)
             / len(resampled),
+            **stand_in_rates(native + resampled),
             "cases": clean,
         }
 
@@ -154,35 +194,45 @@ def main() -> int:
             for names, df in tqdm(
                 list(zip(combos, logs, strict=True)), desc=f"planted, seed {seed}"
             ):
-                report, _ = diagnose(prepare(df, "+".join(names)))
-                planted.append({"seed": seed, **planted_case(report, names)})
+                report, wb = diagnose(prepare(df, "+".join(names)))
+                case = planted_case(report, names)
+                exact = sorted(case["selected"]) == sorted(names)
+                case["stability"] = stability_check(wb) if exact else {"tested": [], "flagged": []}
+                case["verdict_stand_ins"] = report["verdict"]["stand_ins"]
+                planted.append({"seed": seed, **case})
         out["planted"] = {
             "cases": planted,
             "passed": sum(c["pass"] for c in planted),
             "total": len(planted),
             "max_param_error": max(max(c["param_errors"].values(), default=1.0) for c in planted),
+            **stand_in_rates(planted),
         }
 
     if args.only in (None, "outside"):
         outside = []
-        logs = synth.simulate_truths(
-            [synth.PLANTED[n][0] for n in ORIGINAL], duration_s=90.0, seed=0, substeps=2
-        )
-        for name, df in tqdm(list(zip(ORIGINAL, logs, strict=True)), desc="outside"):
-            gone = {name, *ALIASES.get(name, ())}
-            library = [e for e in known_effects() if e not in gone]
-            report, _ = diagnose(prepare(df, f"{name} outside"), candidates=library)
-            v = report["verdict"]
-            outside.append(
-                {
-                    "planted": name,
-                    "verdict": v["kind"],
-                    "named": v["effects"],
-                    "stand_ins": v.get("stand_ins", []),
-                    "where": v["where"],
-                    "pass": v["kind"] == "outside_library" and not v["effects"],
-                }
+        for seed in args.outside_seeds if args.outside_seeds else [0]:
+            logs = synth.simulate_truths(
+                [synth.PLANTED[n][0] for n in ORIGINAL], duration_s=90.0, seed=seed, substeps=2
             )
+            cases = list(zip(ORIGINAL, logs, strict=True))
+            for name, df in tqdm(cases, desc=f"outside, seed {seed}"):
+                gone = {name, *ALIASES.get(name, ())}
+                library = [e for e in known_effects() if e not in gone]
+                report, _ = diagnose(prepare(df, f"{name} outside"), candidates=library)
+                v = report["verdict"]
+                outside.append(
+                    {
+                        "seed": seed,
+                        "planted": name,
+                        "verdict": v["kind"],
+                        "selected": [s["name"] for s in report["selected"]],
+                        "named": v["effects"],
+                        "stand_ins": v.get("stand_ins", []),
+                        "stand_in_evidence": v.get("stand_in_evidence", {}),
+                        "where": v["where"],
+                        "pass": v["kind"] == "outside_library" and not v["effects"],
+                    }
+                )
         out["outside"] = {
             "cases": outside,
             "passed": sum(c["pass"] for c in outside),

@@ -145,3 +145,24 @@ def test_effect_outside_the_library_is_called_so_and_located(logs):
     assert verdict["text"].startswith("something outside the library remains")
     assert verdict["where"] and "worst-predicted state" in verdict["where"]
     assert any(t["failed"] for t in verdict["tests"])
+
+
+def test_stand_in_for_an_effect_outside_the_library_is_not_named(logs):
+    """Rolling resistance planted and taken out of the library: the loop's drag lowers the
+    error, but its CdA drifts with speed (a quadratic law fitted to a constant force), so the
+    verdict lists it as a stand-in with that evidence and names no cause."""
+    from pcvfe_drake.workbench.effects import known_effects
+
+    library = [e for e in known_effects() if e != "rolling_resistance"]
+    report, _ = diagnose(
+        prepare(logs["rolling_resistance"], "rolling resistance, library without it"),
+        candidates=library,
+    )
+    verdict = report["verdict"]
+    assert verdict["kind"] == "outside_library", verdict["text"]
+    assert "drag" in [s["name"] for s in report["selected"]]
+    assert verdict["effects"] == [], verdict["text"]
+    assert "drag" in verdict["stand_ins"]
+    assert verdict["stand_in_evidence"]["drag"].startswith("drag's CdA")
+    assert "stand-in" in verdict["text"] and "m/s vs" in verdict["text"]
+    assert verdict["stability"]["rounds"][0]["tests"]

@@ -43,6 +43,8 @@ class FitResult:
         n_eff: effective number of independent observations (for tests and uncertainties).
         n_iter: Levenberg-Marquardt iterations.
         converged: whether the relative cost change fell below the tolerance.
+        cov: parameter covariance (P, P) behind ``std`` (rows and columns of parameters at a
+            bound, uninformed or held fixed are zero), None when it could not be formed.
     """
 
     model: WorkbenchModel
@@ -55,6 +57,7 @@ class FitResult:
     converged: bool
     history: list[float] = field(default_factory=list)
     informed: np.ndarray | None = None
+    cov: np.ndarray | None = None
 
     def at_bound(self) -> np.ndarray:
         """Per parameter: whether the fit ended on one of its bounds."""
@@ -235,6 +238,7 @@ def fit(
     informed = np.any(jac != 0.0, axis=0) | fixed
     free = ~((theta <= lo) | (theta >= hi)) & informed & ~fixed
     std = np.full(model.n_params, np.nan)
+    cov = None
     if free.any():
         try:
             if hac_lag is not None:
@@ -256,4 +260,4 @@ def fit(
             pass
     std[~free] = 0.0
     std[~informed | fixed] = np.nan
-    return FitResult(model, theta, std, cost, n_res, n_eff, it, converged, history, informed)
+    return FitResult(model, theta, std, cost, n_res, n_eff, it, converged, history, informed, cov)

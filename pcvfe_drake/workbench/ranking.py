@@ -105,10 +105,12 @@ class Workbench:
         warm: FitResult | None = None,
         fixed: dict[str, float] | None = None,
         hac_lag: int | None = None,
+        starts: np.ndarray | None = None,
     ) -> FitResult:
-        """Fit ``model`` on the training windows, warm-started from a nested fit; ``fixed``
-        holds parameters (model-wide names) at given values (``pcvfe fit --effects``);
-        ``hac_lag``: the std from the Newey-West sandwich with this many lags (``fit``)."""
+        """Fit ``model`` on the training windows (or on the windows starting at ``starts``,
+        a subset of them), warm-started from a nested fit; ``fixed`` holds parameters
+        (model-wide names) at given values (``pcvfe fit --effects``); ``hac_lag``: the std
+        from the Newey-West sandwich with this many lags (``fit``)."""
         self.n_fits += 1
         theta0 = model.initial_theta() if warm is None else model.transfer(warm.theta, warm.model)
         mask = np.array([p in (fixed or {}) for p in model.param_names])
@@ -138,7 +140,7 @@ class Workbench:
         return fit(
             model,
             self.data,
-            self.train_starts,
+            self.train_starts if starts is None else starts,
             self.h_fit,
             theta0=theta0,
             candidates=candidates,

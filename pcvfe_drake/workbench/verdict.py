@@ -161,10 +161,14 @@ def final_verdict(wb, fit, ev, selected: list[str], alpha: float) -> dict:
     """Test the final model and word the verdict (JSON-ready).
 
     Half of ``alpha`` goes to the excess-error test, the other half is shared (Bonferroni) by
-    the residual-structure tests. A selected effect whose own signature state still fails a
-    residual test is a *stand-in*: it lowers the error but does not explain its own state,
-    so the verdict does not name it as the cause."""
+    the residual-structure tests. When a test fails, a selected effect can be a *stand-in*
+    for the missing law: it lowers the error but is not its cause, and the verdict does not
+    name it. Two rules find stand-ins: the effect's own signature state still fails a
+    residual test (it does not explain its own state), or its parameters are not the same
+    over the operating range (:func:`pcvfe_drake.workbench.stability.stand_ins`, a Chow-type
+    test at ``alpha``; run only when a test fails and effects would otherwise be named)."""
     from pcvfe_drake.workbench.effects import get_effect
+    from pcvfe_drake.workbench.stability import stand_ins as unstable_effects
 
     data = wb.data
     resid = residual_structure(fit.model, fit.theta, data, wb.config.n_blocks)
@@ -196,6 +200,15 @@ def final_verdict(wb, fit, ev, selected: list[str], alpha: float) -> dict:
     failed_states = {st for *_, st in failed if st}
     stand_ins = [e for e in selected if get_effect(e).signature_state in failed_states]
     named = [e for e in selected if e not in stand_ins]
+    stand_in_evidence = {
+        e: f"{get_effect(e).signature_state} residual still fails a test" for e in stand_ins
+    }
+    stability = None
+    if (failed or base_bound) and named:
+        stability = unstable_effects(wb, fit, named, alpha)
+        stand_ins += stability["stand_ins"]
+        stand_in_evidence.update(stability["evidence"])
+        named = [e for e in named if e not in stand_ins]
     where = localise(ev, wb.eval_starts, data, wb.window_group)
     evidence = [f"{w} (p = {p:.2g})" for _, w, p, _, _ in failed]
     if base_bound:
@@ -208,9 +221,11 @@ def final_verdict(wb, fit, ev, selected: list[str], alpha: float) -> dict:
             head += f" after {' + '.join(named)}"
         text = f"{head}: {'; '.join(evidence)}; {where_sentence(where)}"
         if stand_ins:
+            many = len(stand_ins) > 1
             text += (
-                f" (the loop's {' + '.join(stand_ins)} lowers the error but leaves structure "
-                "in its own state: a stand-in, not the cause)"
+                f" (the loop's {' + '.join(stand_ins)} lower{'' if many else 's'} the error but "
+                f"{'are stand-ins' if many else 'is a stand-in'}, not the cause: "
+                f"{'; '.join(stand_in_evidence[e] for e in stand_ins)})"
             )
     else:
         kind = "explained"
@@ -227,6 +242,8 @@ def final_verdict(wb, fit, ev, selected: list[str], alpha: float) -> dict:
         "text": text,
         "effects": named,
         "stand_ins": stand_ins,
+        "stand_in_evidence": stand_in_evidence,
+        "stability": stability,
         "where": where_sentence(where) if kind == "outside_library" else "",
         "evidence": evidence,
         "tests": [
