@@ -9,6 +9,8 @@ false-discovery rate over 20+ seeds) are in ``benchmarks/workbench_proof_sweep.p
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 from pcvfe_drake.runs.resample import resample_log
@@ -166,3 +168,4 @@ def test_stand_in_for_an_effect_outside_the_library_is_not_named(logs):
     assert verdict["stand_in_evidence"]["drag"].startswith("drag's CdA")
     assert "stand-in" in verdict["text"] and "m/s vs" in verdict["text"]
     assert verdict["stability"]["rounds"][0]["tests"]
+    json.dumps(verdict, allow_nan=False)  # --json carries it
