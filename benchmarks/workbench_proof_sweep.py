@@ -48,7 +48,13 @@ from pcvfe_drake.workbench.stability import stand_ins
 
 ORIGINAL = ["drag", "rolling_resistance", "steering_lag", "input_delay", "tire_saturation"]
 NEW = ["gyro_bias", "speed_scale", "steering_offset", "friction_speed", "friction_load"]
-LATER = ["peak_tyre", "axle_stiffness", "rotating_inertia", "wheel_force_steer"]
+LATER = [
+    "peak_tyre",
+    "axle_stiffness",
+    "rotating_inertia",
+    "wheel_force_steer",
+    "suspension_lag",
+]
 """Effects added after the sweep's cases were fixed: appended at the end, so that the noise
 draws of the earlier cases (seed + 1 + their index) stay as they were."""
 QUICK_COMBOS = [

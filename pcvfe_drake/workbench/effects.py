@@ -9,6 +9,7 @@ hook                what it changes
 ``inputs``          the input sequence of a window before the rollout (dead time)
 ``accel``           the applied longitudinal acceleration command (power limit)
 ``wheel_angle``     the road-wheel angle the tires see (lag, offset)
+``load_transfer``   the longitudinal acceleration the axle loads follow (suspension pitch)
 ``friction``        a factor on the friction of one axle, seeing the state and the axle load
                     (speed- and load-dependent friction)
 ``cornering_stiffness`` the axle's normalised cornering stiffness (not its peak)
@@ -152,6 +153,12 @@ class Effect:
     def wheel_angle(self, delta: np.ndarray, ctx: StepContext, p: dict) -> np.ndarray:
         """Road-wheel angle [rad] (N,) seen by the front tire."""
         return delta
+
+    def load_transfer(self, a_x, ctx: StepContext, p: dict):
+        """The longitudinal acceleration [m/s^2] (N,) that moves load between the axles
+        (default: ``a_x``, the command plus the ``longitudinal`` resistances, instantaneous);
+        ``ctx.states`` are the effect's own states. Return None for no change."""
+        return None
 
     def friction(self, fz, ctx: StepContext, p: dict):
         """A factor (N,) on the friction coefficient of the axle ``ctx.axle`` whose load is

@@ -8,7 +8,9 @@ followed by the effects' own states)::
     3. wheel_angle hooks      (steering_lag)                      -> road-wheel angle delta_w
     4. longitudinal hooks     a_x = a + sum(extra accelerations)  (drag, rolling_resistance, grade)
     5. axle loads             Fz_f = m (g lr - a_x h) / L,  Fz_r = m (g lf + a_x h) / L
-                              (the longitudinal resistances transfer load too)
+                              (the longitudinal resistances transfer load too; load_transfer
+                              hooks replace a_x here, e.g. suspension_lag: the load follows
+                              the acceleration through the pitch mode)
     6. slip angles            alpha_f = delta_w - beta - lf r / v,  alpha_r = -beta + lr r / v
     7. friction hooks         mu_axle = mu x the factors (friction_speed, friction_load)
     8. tire forces            F_y = mu_axle C_S Fz alpha (linear; cornering_stiffness hooks
@@ -220,13 +222,19 @@ class WorkbenchModel:
             if extra is not None:
                 a_long = a_long + extra
         ctx.a_long = a_long
+        a_load = a_long
+        for e, sl in zip(self.effects, self._state_slices, strict=True):
+            ctx.states = z[:, sl]
+            out = e.load_transfer(a_load, ctx, eff[e.name])
+            if out is not None:
+                a_load = out
         v = x[:, V]
         vd = np.maximum(v, V_FLOOR_MPS)
         r = x[:, PSI_DOT]
         beta = x[:, BETA]
         wheelbase = vp.lf + vp.lr
-        fzf = vp.m * (vp.g * vp.lr - a_long * vp.h) / wheelbase
-        fzr = vp.m * (vp.g * vp.lf + a_long * vp.h) / wheelbase
+        fzf = vp.m * (vp.g * vp.lr - a_load * vp.h) / wheelbase
+        fzr = vp.m * (vp.g * vp.lf + a_load * vp.h) / wheelbase
         alpha_f = delta_w - beta - vp.lf * r / vd
         alpha_r = -beta + vp.lr * r / vd
         axles = (

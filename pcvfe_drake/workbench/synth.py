@@ -69,6 +69,9 @@ class Truth:
         front_forces: (drive share, brake share, drag factor): the front wheels push with
             ``m a share`` along their heading (``sin(delta)`` of it sideways) and the front
             lateral force brakes the car by ``factor F_yf sin(delta)``.
+        pitch_mode: (time constant tau [s], damping ratio [-]) of the body's pitch: the axle
+            loads follow the car's longitudinal acceleration through
+            ``tau^2 q'' + 2 zeta tau q' + q = a_x`` (tau 0: instantly).
     """
 
     mu: float | None = None
@@ -90,6 +93,7 @@ class Truth:
     axle_stiffness: tuple[float, float] = (1.0, 1.0)
     rotating_mass_kg: float = 0.0
     front_forces: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    pitch_mode: tuple[float, float] = (0.0, 0.3)
 
 
 PLANTED: dict[str, tuple[Truth, str, float]] = {
@@ -109,6 +113,7 @@ PLANTED: dict[str, tuple[Truth, str, float]] = {
     "axle_stiffness": (Truth(axle_stiffness=(0.93, 1.12)), "k_r", 1.12),
     "rotating_inertia": (Truth(rotating_mass_kg=60.0), "m_rot", 60.0),
     "wheel_force_steer": (Truth(front_forces=(1.0, 0.76, 1.0)), "k_drag", 1.0),
+    "suspension_lag": (Truth(pitch_mode=(0.125, 0.2)), "tau", 0.125),
 }
 """Realistic planted magnitudes per effect: (truth, the parameter's name, its planted value).
 Ford Escort class car: CdA 0.75 m^2 (Cd 0.36 x 2.1 m^2), c_rr 0.015, steering lag 0.15 s,
@@ -120,7 +125,9 @@ with the nominal small-slip stiffness (stiffness exponent 0: the public PC-VFE s
 friction mapping; its planted value is 0, so it is checked with an absolute tolerance), axle
 cornering stiffnesses 0.93 / 1.12 x nominal, a 60 kg rotating mass and front wheels taking all
 the drive and 76 % of the brake force, turned with the steering (CommonRoad's Ford Escort;
-the values the workbench reads on its multi-body model)."""
+the values the workbench reads on its multi-body model), and a pitch mode of 1.27 Hz with
+damping ratio 0.2 (tau 0.125 s; near the multi-body Ford Escort's 1.4 Hz and 0.22, fitted to a
+braking step by ``benchmarks/mb_suspension.py``)."""
 
 
 LATERAL_PATTERN_MPS2 = np.array([1.0, 5.5, 2.5, 6.0, 3.5, 5.0])
@@ -263,8 +270,12 @@ def _magic(alpha, fz, stiffness, peak_mu, shape):
 
 
 def _truth_rates(vp, tr, s, steer_cmd, acc_cmd):
-    """Truth plant derivative; s = (B, 8) [sx, sy, delta, v, psi, r, beta, delta_w]."""
+    """Truth plant derivative; s = (B, 10) [sx, sy, delta, v, psi, r, beta, delta_w, q, q']
+    (q: the acceleration the axle loads follow through the pitch mode; rows without a pitch
+    mode use a_x itself)."""
     delta, v, psi, r, beta, delta_w = s[:, 2], s[:, 3], s[:, 4], s[:, 5], s[:, 6], s[:, 7]
+    pitch_tau = tr.get("pitch_tau", np.zeros(s.shape[0]))
+    pitched = pitch_tau > 0
     steer, acc = _constrain(vp, delta, v, steer_cmd, acc_cmd)
     vs = np.maximum(v, 0.1)
     power_cap = 1000.0 * tr["p_max_kw"] / (vp.m * np.maximum(v, 0.5))
@@ -279,8 +290,10 @@ def _truth_rates(vp, tr, s, steer_cmd, acc_cmd):
     a_x = acc - (drag_force + resist + slope) / vp.m
     fzf0 = vp.m * vp.g * vp.lr / wheelbase
     fzr0 = vp.m * vp.g * vp.lf / wheelbase
-    fzf = fzf0 - vp.m * a_x * vp.h / wheelbase
-    fzr = fzr0 + vp.m * a_x * vp.h / wheelbase
+    a_pitch = a_x  # what drives the pitch mode (the instant transfer's acceleration)
+    a_load = np.where(pitched, s[:, 8], a_x) if s.shape[1] > 8 else a_x
+    fzf = fzf0 - vp.m * a_load * vp.h / wheelbase
+    fzr = fzr0 + vp.m * a_load * vp.h / wheelbase
     alpha_f = wheel - beta - vp.lf * r / vs
     alpha_r = -beta + vp.lr * r / vs
     mu_v = tr["mu"] * (1.0 - tr["mu_speed_slope"] * (v - 15.0))
@@ -327,6 +340,13 @@ def _truth_rates(vp, tr, s, steer_cmd, acc_cmd):
     out[:, 7] = np.where(
         tr["steer_tau"] > 0, (delta - delta_w) / np.maximum(tr["steer_tau"], 1e-6), 0
     )
+    if s.shape[1] > 8:
+        # the pitch mode, driven by the acceleration the loads follow without it
+        tau = np.maximum(pitch_tau, 1e-6)
+        zeta = tr.get("pitch_zeta", np.ones(s.shape[0]))
+        q, q_rate = s[:, 8], s[:, 9]
+        out[:, 8] = np.where(pitched, q_rate, 0.0)
+        out[:, 9] = np.where(pitched, (a_pitch - q) / tau**2 - 2.0 * zeta * q_rate / tau, 0.0)
     return out
 
 
@@ -375,9 +395,11 @@ def simulate_truths(
         "ff_drive": col(lambda t: t.front_forces[0]),
         "ff_brake": col(lambda t: t.front_forces[1]),
         "ff_drag": col(lambda t: t.front_forces[2]),
+        "pitch_tau": col(lambda t: t.pitch_mode[0]),
+        "pitch_zeta": col(lambda t: t.pitch_mode[1]),
     }
     delay = col(lambda t: t.accel_delay)
-    s = np.zeros((b, 8))
+    s = np.zeros((b, 10))
     s[:, 3] = v0_mps
     states = np.empty((n, b, 7))
     steer_log = np.empty((n, b))
