@@ -9,6 +9,7 @@ false-discovery rate over 20+ seeds) are in ``benchmarks/workbench_proof_sweep.p
 
 from __future__ import annotations
 
+import html
 import json
 
 import pytest
@@ -16,7 +17,7 @@ import pytest
 from pcvfe_drake.runs.resample import resample_log
 from pcvfe_drake.workbench import synth
 from pcvfe_drake.workbench.data import prepare
-from pcvfe_drake.workbench.report import diagnose
+from pcvfe_drake.workbench.report import _html, diagnose
 
 SINGLES = [
     "drag",
@@ -149,7 +150,7 @@ def test_effect_outside_the_library_is_called_so_and_located(logs):
     assert any(t["failed"] for t in verdict["tests"])
 
 
-def test_stand_in_for_an_effect_outside_the_library_is_not_named(logs):
+def test_stand_in_for_an_effect_outside_the_library_is_not_named(logs, tmp_path):
     """Rolling resistance planted and taken out of the library: the loop's drag lowers the
     error, but its CdA drifts with speed (a quadratic law fitted to a constant force), so the
     verdict lists it as a stand-in with that evidence and names no cause."""
@@ -169,3 +170,5 @@ def test_stand_in_for_an_effect_outside_the_library_is_not_named(logs):
     assert "stand-in" in verdict["text"] and "m/s vs" in verdict["text"]
     assert verdict["stability"]["rounds"][0]["tests"]
     json.dumps(verdict, allow_nan=False)  # --json carries it
+    page = _html(report, [], tmp_path)
+    assert 'id="stand-ins"' in page and html.escape(verdict["stand_in_evidence"]["drag"]) in page

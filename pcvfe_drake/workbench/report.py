@@ -131,6 +131,14 @@ def _html(report: dict, pngs: list[str], folder: Path) -> str:
     ]
     final = report["final"]
     where = verdict["where"] or "-"
+    evidence = verdict.get("stand_in_evidence", {})
+    stand_ins = ""
+    if verdict.get("stand_ins"):
+        rows = [{"effect": e, "evidence": evidence.get(e, "")} for e in verdict["stand_ins"]]
+        stand_ins = (
+            '<p id="stand-ins">Stand-ins: the loop added them and they lower the error, but '
+            "they are not the cause:</p>" + _table(rows, ["effect", "evidence"])
+        )
     return f"""<!DOCTYPE html><html><head><meta charset="utf-8"><title>pcvfe diagnose</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:3px 6px;font-size:13px}}img{{max-width:100%}}
@@ -144,6 +152,7 @@ td,th{{border:1px solid #ccc;padding:3px 6px;font-size:13px}}img{{max-width:100%
 <p>Tests of the final model (alpha {verdict["alpha"]:g}: half for the error test, half
 shared by the residual tests):</p>
 {_table(tests, ["test", "p", "threshold", "fails"])}
+{stand_ins}
 <h2>The loop</h2>
 {_table(path, ["step", "action", "effect", "p", "error before", "error after", "note", "params"])}
 <p>Final model: {html.escape(" + ".join(final["effects"]) or "baseline")}; held-out model error
