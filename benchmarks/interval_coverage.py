@@ -14,11 +14,17 @@ scores ``mu +- 1.96 std`` there too). Coverage is counted over (context, seed) p
 of seeds (``--calibration-seeds``: the seeds the settings were chosen on; the others are held
 out).
 
+``--model-error-rel R`` adds the model-error budget (``FitOptions.model_error_rel``: mu's std
+becomes ``sqrt(std^2 + (R mu)^2)``) to both stds. ``--calibrate`` chooses R on the calibration
+seeds' two-sided (near-limit) pairs of the first run kind given (``--calibrate-on``, default
+``effects``): per pair the smallest R whose ``hac`` interval holds the truth, and R = their
+``--target`` quantile (0.9), rounded up to 0.01; then scores every kind with it.
+
 The log is at its logging rate (20 Hz in the shipped scenarios), not the fitter's 100 Hz, so the
 refits are close to, not equal to, the live ones (``live`` columns: the run's own final estimate).
 
 Usage: python benchmarks/interval_coverage.py RUN_DIR [RUN_DIR ...] [--calibration-seeds 0-4]
-           [--two-sided] [--json-only]
+           [--two-sided] [--model-error-rel R | --calibrate [--target 0.9]] [--json-only]
 Prints a table per run kind and one JSON object as its last line.
 """
 
@@ -36,7 +42,7 @@ import yaml
 
 from pcvfe_drake.estimation.effect_fit import EffectFitter, friction_used
 from pcvfe_drake.estimation.fit_dataset import build_windows
-from pcvfe_drake.estimation.fit_options import MU_BOUNDS, FitOptions
+from pcvfe_drake.estimation.fit_options import MU_BOUNDS, FitOptions, with_model_error
 from pcvfe_drake.estimation.fitting import fit_gauss_newton
 from pcvfe_drake.vehicle.params import load_vehicle
 from pcvfe_drake.vehicle.single_track import STATE_NAMES
@@ -96,6 +102,12 @@ def interval(mu, std, lower_bound, near, upper, two_sided) -> tuple[float, float
     return lower_bound, upper
 
 
+def needed_rel(fit: dict, true_mu: float) -> float:
+    """The smallest model-error budget whose 95 % interval around ``fit`` holds ``true_mu``."""
+    gap = (abs(fit["mu"] - true_mu) / Z95) ** 2 - fit["std_data"] ** 2
+    return math.sqrt(max(gap, 0.0)) / abs(fit["mu"])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("runs", nargs="+", help="run folders")
@@ -103,6 +115,10 @@ def main() -> None:
     ap.add_argument("--two-sided", action="store_true")
     ap.add_argument("--json-only", action="store_true")
     ap.add_argument("--dump", help="write every (context, seed) row to this JSON file")
+    ap.add_argument("--model-error-rel", type=float, default=0.0)
+    ap.add_argument("--calibrate", action="store_true")
+    ap.add_argument("--calibrate-on", default="effects", choices=("effects", "st"))
+    ap.add_argument("--target", type=float, default=0.9)
     args = ap.parse_args()
     calib = seeds(args.calibration_seeds)
     rows = []
@@ -155,17 +171,44 @@ def main() -> None:
             for method in METHODS:
                 mu, std = fits[method]
                 near = bool(math.isfinite(used) and used >= fc["near_limit_fraction"] * mu)
-                lo, hi = interval(mu, std, used, near, fits["upper"], args.two_sided)
-                row[method] = {
-                    "mu": mu,
-                    "std": std,
-                    "near_limit": near,
-                    "interval": [lo, hi],
-                    "covered": bool(lo <= row["true_mu"] <= hi),
-                }
+                row[method] = {"mu": mu, "std_data": std, "near_limit": near}
+            row["upper"] = fits["upper"]
             rows.append(row)
     cpu = time.process_time() - t_start
+    rel = args.model_error_rel
     result = {"two_sided": args.two_sided, "calibration_seeds": sorted(calib), "cpu_s": cpu}
+    if args.calibrate:
+        need = sorted(
+            needed_rel(r["hac"], r["true_mu"])
+            for r in rows
+            if r["kind"] == args.calibrate_on and r["seed"] in calib and r["hac"]["near_limit"]
+        )
+        if not need:
+            raise SystemExit(f"--calibrate: no near-limit {args.calibrate_on} pairs to calibrate")
+        q = need[min(len(need) - 1, math.ceil(args.target * len(need)) - 1)]
+        rel = math.ceil(q * 100 - 1e-9) / 100
+        result["calibration"] = {
+            "on": args.calibrate_on,
+            "pairs": len(need),
+            "needed_rel": need,
+            "target": args.target,
+            "model_error_rel": rel,
+        }
+        if not args.json_only:
+            print(
+                f"calibrated on {len(need)} near-limit {args.calibrate_on} pairs of seeds "
+                f"{args.calibration_seeds}: needed {', '.join(f'{v:.3f}' for v in need)}; "
+                f"model_error_rel = {rel:.2f}"
+            )
+    result["model_error_rel"] = rel
+    for row in rows:
+        for method in METHODS:
+            c = row[method]
+            c["std"] = with_model_error(c["mu"], c["std_data"], rel)
+            bound, near = row["mu_lower_bound"], c["near_limit"]
+            lo, hi = interval(c["mu"], c["std"], bound, near, row["upper"], args.two_sided)
+            c["interval"] = [lo, hi]
+            c["covered"] = bool(lo <= row["true_mu"] <= hi)
     for kind in sorted({r["kind"] for r in rows}):
         sel = [r for r in rows if r["kind"] == kind]
         res_k = {}

@@ -120,6 +120,15 @@ def register(subparsers) -> None:
         "the time-ordered windows, honest under model error and correlated residuals) or iid "
         "(independent residuals; optimistic under model error) (docs/fitting.md)",
     )
+    parser.add_argument(
+        "--model-error-rel",
+        type=float,
+        default=0.0,
+        metavar="REL",
+        help="model-error budget: mu's std becomes sqrt(std^2 + (REL mu)^2) (default 0: none; "
+        "for a model error every window shares, calibrated against ground truth: "
+        "docs/fitting.md)",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.set_defaults(func=run)
 
@@ -131,7 +140,13 @@ def run_effects(args: argparse.Namespace) -> int:
 
     specs = parse_effects(args.effects)  # unknown effects fail before reading the log
     data = load(args.log, context_column=args.context_column, resample_hz=args.resample)
-    out = fit_log(data, load_vehicle(args.vehicle), specs, covariance=args.covariance)
+    out = fit_log(
+        data,
+        load_vehicle(args.vehicle),
+        specs,
+        covariance=args.covariance,
+        model_error_rel=args.model_error_rel,
+    )
     out = {"log": str(args.log), "contexts_column": args.context_column, **out}
     if args.json:
         print(json.dumps(out, default=lambda v: None))
@@ -193,10 +208,13 @@ def run(args: argparse.Namespace) -> int:
     del log  # the windows hold what the fit needs; a long log's table is large
     if args.joint:
         options = joint_options(
-            params, rel_sigma=args.prior_rel or None, covariance=args.covariance
+            params,
+            rel_sigma=args.prior_rel or None,
+            covariance=args.covariance,
+            model_error_rel=args.model_error_rel,
         )
     else:
-        options = FitOptions(covariance=args.covariance)
+        options = FitOptions(covariance=args.covariance, model_error_rel=args.model_error_rel)
     results = fit_contexts(split, params, options, solver=args.solver)
 
     if args.json:
@@ -222,6 +240,7 @@ def run(args: argparse.Namespace) -> int:
                     "max_windows": args.max_windows or None,
                     "solver": args.solver,
                     "covariance": options.covariance,
+                    "model_error_rel": options.model_error_rel,
                     "free": list(options.free),
                     "prior_sigma": dict(options.prior_sigma or {}),
                     "candidate_windows": split.n_candidates,

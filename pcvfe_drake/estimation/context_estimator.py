@@ -124,6 +124,8 @@ class LiveFitConfig:
             effect fit's windows (horizon, spacing, the newest this many per refit, fewer than
             this many: keep the prior).
         identifiable_std: mu's standard deviation above which a context is not identifiable.
+        model_error_rel: model-error budget added to mu's std (``FitOptions.model_error_rel``;
+            0: none): ``sqrt(std^2 + (model_error_rel * mu)^2)``.
         near_limit_fraction: the data came near the limit when the used friction reached this
             fraction of the fitted mu.
         unidentified_mu: what the controller gets for a fitted context whose mu is not
@@ -167,6 +169,7 @@ class LiveFitConfig:
     effect_max_windows: int = 100
     effect_min_windows: int = 10
     identifiable_std: float = 0.05
+    model_error_rel: float = 0.0
     near_limit_fraction: float = 0.6
     unidentified_mu: str = "estimate"
     probe_step_rel: float = 0.1
@@ -199,6 +202,10 @@ class LiveFitConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"LiveFitConfig.{name} must be > 0, got {value!r}")
+        if not (math.isfinite(self.model_error_rel) and self.model_error_rel >= 0):
+            raise ValueError(
+                f"LiveFitConfig.model_error_rel must be >= 0, got {self.model_error_rel!r}"
+            )
         if not (0 < self.near_limit_fraction <= 1):
             raise ValueError(
                 f"LiveFitConfig.near_limit_fraction must be in (0, 1], got "
@@ -295,10 +302,13 @@ class ContextEstimator:
                 rel_sigma=self.config.stiffness_prior_rel,
                 max_iterations=self.config.max_iterations,
                 min_windows=self.config.min_windows,
+                model_error_rel=self.config.model_error_rel,
             )
         else:
             self._options = FitOptions(
-                max_iterations=self.config.max_iterations, min_windows=self.config.min_windows
+                max_iterations=self.config.max_iterations,
+                min_windows=self.config.min_windows,
+                model_error_rel=self.config.model_error_rel,
             )
         self._effect_fitter = None
         if self.config.effects:
@@ -311,6 +321,7 @@ class ContextEstimator:
                 max_windows=cfg.effect_max_windows,
                 max_iterations=cfg.max_iterations,
                 min_windows=cfg.effect_min_windows,
+                model_error_rel=cfg.model_error_rel,
             )
 
     def __deepcopy__(self, memo) -> ContextEstimator:

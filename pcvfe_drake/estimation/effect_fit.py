@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pcvfe_drake.estimation.estimate_table import Z95
-from pcvfe_drake.estimation.fit_options import COVARIANCES, HAC_LAG_S
+from pcvfe_drake.estimation.fit_options import COVARIANCES, HAC_LAG_S, with_model_error
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import BETA, NX, PSI_DOT, V
 
@@ -274,10 +274,11 @@ class EffectFitter:
     per refit (warm-started). Standard deviations: ``covariance`` ``hac`` (default: the sandwich
     with a Newey-West estimate over the time-ordered windows, lag ``horizon_s + hac_lag_s``;
     ``least_squares.hac_covariance``) or ``iid`` (the workbench's Gauss-Newton std inflated for
-    the windows' overlap). A weak Gaussian prior on mu (mean: ``mu_start``, the estimator's
-    prior mu; sd ``mu_prior_sd``, inf: none) keeps a peak the data never approached near the
-    prior instead of on a bound; on data that determine mu (std ~0.02) it moves mu by ~0.1 %
-    of its distance to the prior.
+    the windows' overlap); ``model_error_rel`` adds a model-error budget to mu's std
+    (``fit_options.with_model_error``). A weak Gaussian prior on mu (mean: ``mu_start``, the
+    estimator's prior mu; sd ``mu_prior_sd``, inf: none) keeps a peak the data never approached
+    near the prior instead of on a bound; on data that determine mu (std ~0.02) it moves mu by
+    ~0.1 % of its distance to the prior.
     """
 
     vehicle: VehicleParams
@@ -291,8 +292,13 @@ class EffectFitter:
     mu_prior_sd: float = 0.5
     covariance: str = "hac"
     hac_lag_s: float = HAC_LAG_S
+    model_error_rel: float = 0.0
 
     def __post_init__(self) -> None:
+        if not (math.isfinite(self.model_error_rel) and self.model_error_rel >= 0):
+            raise ValueError(
+                f"EffectFitter.model_error_rel must be >= 0, got {self.model_error_rel!r}"
+            )
         if self.covariance not in COVARIANCES:
             raise ValueError(
                 f"EffectFitter.covariance must be one of {COVARIANCES}, got {self.covariance!r}"
@@ -368,14 +374,15 @@ class EffectFitter:
             fixed=self.fixed,
             hac_lag=self.hac_lag(),
         )
-        return to_result(self.model, res, starts.size)
+        return to_result(self.model, res, starts.size, self.model_error_rel)
 
 
-def to_result(model, res, n_windows: int) -> EffectFitResult:
-    """An :class:`EffectFitResult` from a workbench ``FitResult`` (context 0)."""
+def to_result(model, res, n_windows: int, model_error_rel: float = 0.0) -> EffectFitResult:
+    """An :class:`EffectFitResult` from a workbench ``FitResult`` (context 0); mu's std with
+    the model-error budget ``model_error_rel``."""
     theta = controller_theta(model, res.theta)
     std = np.full(3, np.nan)
-    std[0] = res.std[0]
+    std[0] = with_model_error(res.theta[0], res.std[0], model_error_rel)
     warnings = []
     at = res.at_bound()
     if at[0]:
@@ -406,6 +413,7 @@ def fit_log(
     near_limit_fraction: float = 0.6,
     covariance: str = "hac",
     hac_lag_s: float = HAC_LAG_S,
+    model_error_rel: float = 0.0,
 ) -> dict:
     """``pcvfe fit --effects``: the effect model fitted on a whole log as ``pcvfe diagnose
     --add`` fits it (one model, mu per context, the effect parameters shared; the diagnosis's
@@ -413,7 +421,8 @@ def fit_log(
 
     Returns a JSON-ready dict: ``effects``, ``params`` (every parameter: value, std, unit, ...),
     ``mu_is_peak``, and per context the controller's theta, mu's std (``covariance``: ``hac``,
-    the Newey-West sandwich over the time-ordered training windows, or ``iid``, the workbench's),
+    the Newey-West sandwich over the time-ordered training windows, or ``iid``, the workbench's;
+    with the model-error budget ``model_error_rel``),
     its lower bound from the friction used, ``near_limit``, ``identifiable`` and the 95 %
     interval ``mu_interval_95`` (as ``ContextEstimate.mu_interval_95``; None: no upper bound).
     """
@@ -436,7 +445,7 @@ def fit_log(
         mu_idx = next(i for i, p in enumerate(model.params) if p.effect is None and p.context == c)
         rows = data.context == c
         used = friction_used(data.t[rows], data.x[rows], lateral_only=friction_is_peak(model))
-        std = float(res.std[mu_idx])
+        std = with_model_error(theta[0], float(res.std[mu_idx]), model_error_rel)
         near = bool(math.isfinite(used) and used >= near_limit_fraction * theta[0])
         below = bool(friction_is_peak(model) and math.isfinite(used) and theta[0] < used)
         if near or not math.isfinite(used):  # the data came near the limit: two-sided
@@ -463,5 +472,6 @@ def fit_log(
         "converged": bool(res.converged),
         "training_windows": int(wb.train_starts.size),
         "covariance": covariance,
+        "model_error_rel": model_error_rel,
         "contexts": contexts,
     }

@@ -41,6 +41,14 @@ HAC_LAG_S = 2.0
 (beyond a window's own span: a model error persists over a manoeuvre, ~2 s of the NMPC's
 horizon)."""
 
+
+def with_model_error(mu: float, std: float, model_error_rel: float) -> float:
+    """mu's std with the model-error budget: ``sqrt(std^2 + (model_error_rel * mu)^2)``."""
+    if model_error_rel <= 0 or not math.isfinite(std):
+        return std
+    return math.hypot(std, model_error_rel * abs(mu))
+
+
 STATUS_CONVERGED = "converged"
 STATUS_MAX_ITERATIONS = "max_iterations"
 STATUS_DIVERGED = "diverged"
@@ -78,6 +86,10 @@ class FitOptions:
         covariance: ``hac`` (default) or ``iid``: how the standard deviations are computed (see
             ``COVARIANCES``).
         hac_lag_s: the ``hac`` covariance's correlation time beyond a window's span [s].
+        model_error_rel: a model-error budget: mu's std is ``sqrt(std^2 + (model_error_rel *
+            mu)^2)`` (0: none). For an error every window shares (a biased tyre law), which no
+            covariance of the context's own data sees; calibrated against ground truth
+            (``benchmarks/interval_coverage.py --calibrate``, docs/fitting.md).
     """
 
     free: tuple[str, ...] = ("mu",)
@@ -96,6 +108,7 @@ class FitOptions:
     rel_std_warn: float = 0.5
     covariance: str = "hac"
     hac_lag_s: float = HAC_LAG_S
+    model_error_rel: float = 0.0
 
     def __post_init__(self) -> None:
         free = tuple(self.free)
@@ -129,6 +142,8 @@ class FitOptions:
             raise ValueError(f"covariance must be one of {COVARIANCES}, got {self.covariance!r}")
         if not (math.isfinite(self.hac_lag_s) and self.hac_lag_s >= 0):
             raise ValueError(f"hac_lag_s must be >= 0 s, got {self.hac_lag_s!r}")
+        if not (math.isfinite(self.model_error_rel) and self.model_error_rel >= 0):
+            raise ValueError(f"model_error_rel must be >= 0, got {self.model_error_rel!r}")
 
     @property
     def free_index(self) -> np.ndarray:

@@ -33,6 +33,7 @@ from pcvfe_drake.estimation.fit_options import (
     STATUS_TOO_LITTLE_DATA,
     FitOptions,
     FitResult,
+    with_model_error,
 )
 from pcvfe_drake.estimation.fit_quality import assess
 from pcvfe_drake.vehicle.params import THETA_NAMES, VehicleParams
@@ -110,6 +111,9 @@ def uncertainty(
         std[free] = np.sqrt(np.where(diag >= 0, diag, np.inf))
     except np.linalg.LinAlgError:
         std[free] = np.inf
+    mu_i = THETA_NAMES.index("mu")
+    if mu_i in free:  # the model-error budget (FitOptions.model_error_rel)
+        std[mu_i] = with_model_error(theta[mu_i], std[mu_i], options.model_error_rel)
     for i, name in zip(free, names, strict=True):
         if not (std[i] <= options.rel_std_warn * abs(theta[i])):
             warnings.append(
