@@ -31,8 +31,10 @@ Prints a table per run kind and one JSON object as its last line.
 from __future__ import annotations
 
 import argparse
+import glob
 import json
 import math
+import os
 import time
 from pathlib import Path
 
@@ -102,6 +104,33 @@ def interval(mu, std, lower_bound, near, upper, two_sided) -> tuple[float, float
     return lower_bound, upper
 
 
+def synthetic(n_seeds: int, peak: float = 0.7) -> dict:
+    """z = (mu_hat - peak) / std of the effect fit (``peak_tyre`` with ``k_s`` 0) on logs of
+    that very model (``workbench.synth``: magic-formula tyre, stiffness not following the peak),
+    with either std: a calibrated std gives an RMS z of ~1."""
+    from pcvfe_drake.workbench.synth import Truth, simulate_truths
+
+    vehicle = load_vehicle("ford_escort")
+    z: dict[str, list[float]] = {m: [] for m in METHODS}
+    for seed in range(n_seeds):
+        log = simulate_truths([Truth(mf_peak=peak)], vehicle, 60.0, 20.0, seed=seed)[0]
+        t = log["t"].to_numpy(float)
+        x = log[list(STATE_NAMES)].to_numpy(float)
+        u = log[["steer_rate", "accel"]].to_numpy(float)
+        for method in METHODS:
+            res = EffectFitter(vehicle, ["peak_tyre:k_s=0"], covariance=method)(
+                t, x, u, None, vehicle.theta[0]
+            )
+            z[method].append((res.theta[0] - peak) / res.std[0])
+        print(f"seed {seed}: " + ", ".join(f"{m} z {z[m][-1]:+.2f}" for m in METHODS))
+    return {
+        "benchmark": "interval_coverage",
+        "synthetic_seeds": n_seeds,
+        **{f"z_rms_{m}": float(np.sqrt(np.mean(np.square(z[m])))) for m in METHODS},
+        "z": z,
+    }
+
+
 def needed_rel(fit: dict, true_mu: float) -> float:
     """The smallest model-error budget whose 95 % interval around ``fit`` holds ``true_mu``."""
     gap = (abs(fit["mu"] - true_mu) / Z95) ** 2 - fit["std_data"] ** 2
@@ -110,7 +139,12 @@ def needed_rel(fit: dict, true_mu: float) -> float:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("runs", nargs="+", help="run folders")
+    ap.add_argument(
+        "runs",
+        nargs="*",
+        help="run folders (default: the saved runs of PCVFE_COVERAGE_RUNS, a glob, if set)",
+    )
+    ap.add_argument("--quick", action="store_true", help="(benchmarks/run_all.py) no effect")
     ap.add_argument("--calibration-seeds", default="0-4")
     ap.add_argument("--two-sided", action="store_true")
     ap.add_argument("--json-only", action="store_true")
@@ -119,7 +153,28 @@ def main() -> None:
     ap.add_argument("--calibrate", action="store_true")
     ap.add_argument("--calibrate-on", default="effects", choices=("effects", "st"))
     ap.add_argument("--target", type=float, default=0.9)
+    ap.add_argument(
+        "--synthetic",
+        type=int,
+        default=0,
+        metavar="N",
+        help="instead: the effect fit's std on its own model's truth (peak_tyre, peak 0.7, "
+        "k_s 0; 60 s at 20 Hz), N seeds: z-scores of both stds",
+    )
     args = ap.parse_args()
+    if args.synthetic:
+        print(json.dumps(synthetic(args.synthetic)))
+        return
+    if not args.runs and os.environ.get("PCVFE_COVERAGE_RUNS"):
+        args.runs = sorted(glob.glob(os.environ["PCVFE_COVERAGE_RUNS"]))
+    if not args.runs:
+        reason = (
+            "no run folders given: pass the folders of `pcvfe evaluate` runs (e.g. the "
+            "pcvfe_effects experiment's runs/*) or set PCVFE_COVERAGE_RUNS to a glob of them"
+        )
+        print(f"skipped: {reason}")
+        print(json.dumps({"benchmark": "interval_coverage", "skipped": True, "reason": reason}))
+        return
     calib = seeds(args.calibration_seeds)
     rows = []
     t_start = time.process_time()
@@ -176,7 +231,12 @@ def main() -> None:
             rows.append(row)
     cpu = time.process_time() - t_start
     rel = args.model_error_rel
-    result = {"two_sided": args.two_sided, "calibration_seeds": sorted(calib), "cpu_s": cpu}
+    result = {
+        "benchmark": "interval_coverage",
+        "two_sided": args.two_sided,
+        "calibration_seeds": sorted(calib),
+        "cpu_s": cpu,
+    }
     if args.calibrate:
         need = sorted(
             needed_rel(r["hac"], r["true_mu"])
