@@ -1,0 +1,164 @@
+"""Why the friction peaks of grass and sand come out low in the loop (``paper_eval_effects``):
+offline fits of saved closed-loop runs, varying what the effect model holds fixed and adds.
+
+Input: a ``pcvfe evaluate`` output folder whose ``runs/<scenario>__<source>__sNNN/`` hold
+``drive_log.parquet`` (20 Hz rows with the measured state, the true state ``true_*``, the
+commands and the terrain under the car), e.g. ``pcvfe evaluate pcvfe_effects --out DIR``.
+
+Per seed and terrain (the rows where the car was on it), with ``EffectFitter`` (the online
+fitter's own fit, here on all of the terrain's 1 s windows, 10 iterations, cold start):
+
+* ``as_run``: the scenario's model (``peak_tyre`` k_s 0 + ``axle_stiffness`` k_f 1.01, k_r 1.24)
+  on the measured states, and on the true states (``true_state``: noise or not);
+* ``stiffness_free``: k_f, k_r fitted too (are the fixed values the cause?);
+* ``stiffness_stiff``: k_f 1.15, k_r 1.5 (what brick and concrete give when fitted);
+* ``more_effects``: + ``speed_scale`` (k 0.97) + ``rolling_resistance`` (c_rr 0.003), the
+  workbench's rich-excitation findings, and the same two fitted;
+* ``shape_1``: the magic-formula shape C = 1.0 instead of ``peak_tyre``'s 1.35 (a flatter law);
+
+the used friction (95th percentile over the terrain) as ``friction_used`` measures it (total
+and lateral only; measured and true states); and the front axle's lateral force per load
+against its slip angle from the true states (quasi-static: ``F_yf + F_yr = m a_y``, ``lf F_yf -
+lr F_yr = I_z r_dot``; central differences at 20 Hz), in quartile bins of the slip, beside what
+``peak_tyre`` at the terrain's true mu would give.
+
+Usage: python benchmarks/peak_bias_offline.py --runs DIR [--source pcvfe_effects]
+       [--scenario paper_eval_effects] [--seeds 0,1,2] [--terrains patchy_grass,sand,brick]
+Each fit takes about a second. Last stdout line: one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pcvfe_drake.estimation.effect_fit import EffectFitter, friction_used
+from pcvfe_drake.vehicle.params import ford_escort
+from pcvfe_drake.workbench.tyre_effects import MF_SHAPE, PeakTyre
+
+STATES = ["sx", "sy", "delta", "v", "psi", "psi_dot", "beta"]
+TRUE_MU = {"patchy_grass": 0.30, "sand": 0.45, "concrete": 0.60, "brick": 0.80}
+PEAK = {"name": "peak_tyre", "fixed": {"k_s": 0.0}}
+AXLE = {"name": "axle_stiffness", "fixed": {"k_f": 1.01, "k_r": 1.24}}
+MODELS = {
+    "as_run": [PEAK, AXLE],
+    "stiffness_free": [PEAK, {"name": "axle_stiffness"}],
+    "stiffness_stiff": [PEAK, {"name": "axle_stiffness", "fixed": {"k_f": 1.15, "k_r": 1.5}}],
+    "more_effects": [
+        PEAK,
+        AXLE,
+        {"name": "speed_scale", "fixed": {"k": 0.97}},
+        {"name": "rolling_resistance", "fixed": {"c_rr": 0.003}},
+    ],
+    "more_effects_fitted": [PEAK, AXLE, {"name": "speed_scale"}, {"name": "rolling_resistance"}],
+}
+
+
+def fit(vp, effects, t, x, u, shape=MF_SHAPE) -> dict:
+    old = PeakTyre.shape
+    PeakTyre.shape = shape  # a flatter or sharper law: the class attribute a subclass would set
+    try:
+        res = EffectFitter(vp, effects, max_windows=1000, max_iterations=10)(t, x, u, None, vp.mu)
+    finally:
+        PeakTyre.shape = old
+    values = dict(zip(res.param_names, map(float, res.model_theta), strict=True))
+    return {
+        "mu": float(res.theta[0]),
+        "std": float(res.std[0]),
+        "cost": float(res.loss),
+        "params": values,
+    }
+
+
+def front_axle_curve(vp, t, x, mu_true: float) -> list[dict]:
+    m = 1
+    span = t[2 * m :] - t[: -2 * m]
+    beta_dot = (x[2 * m :, 6] - x[: -2 * m, 6]) / span
+    r_dot = (x[2 * m :, 5] - x[: -2 * m, 5]) / span
+    v_dot = (x[2 * m :, 3] - x[: -2 * m, 3]) / span
+    mid = x[m:-m]
+    v, r, beta, delta = mid[:, 3], mid[:, 5], mid[:, 6], mid[:, 2]
+    wheelbase = vp.lf + vp.lr
+    fy = vp.m * v * (r + beta_dot)
+    fyf = (vp.I_z * r_dot + vp.lr * fy) / wheelbase
+    fzf = vp.m * (vp.g * vp.lr - v_dot * vp.h) / wheelbase
+    alpha = delta - np.arctan((v * np.sin(beta) + vp.lf * r) / (v * np.cos(beta)))
+    use = v > 2.0
+    a, f = np.abs(alpha[use]), (np.sign(alpha) * fyf / fzf)[use]
+    k = vp.C_Sf * vp.mu
+    edges = np.quantile(a, [0.0, 0.5, 0.75, 0.9, 1.0])
+    out = []
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        sel = (a >= lo) & (a <= hi)
+        am = float(a[sel].mean())
+        law = mu_true * math.sin(MF_SHAPE * math.atan(k * am / (MF_SHAPE * mu_true)))
+        out.append(
+            {
+                "slip_rad": am,
+                "force_per_load": float(f[sel].mean()),
+                "secant_per_rad": float(f[sel].mean() / am),
+                "peak_tyre_at_true_mu": law,
+            }
+        )
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", required=True, help="a pcvfe evaluate output folder")
+    ap.add_argument("--scenario", default="paper_eval_effects")
+    ap.add_argument("--source", default="pcvfe_effects")
+    ap.add_argument("--seeds", default="0,1,2")
+    ap.add_argument("--terrains", default="patchy_grass,sand,brick")
+    args = ap.parse_args()
+    vp = ford_escort()
+    results = []
+    for seed in [int(s) for s in args.seeds.split(",")]:
+        folder = Path(args.runs) / "runs" / f"{args.scenario}__{args.source}__s{seed:03d}"
+        log = pd.read_parquet(folder / "drive_log.parquet")
+        for terrain in args.terrains.split(","):
+            rows = log[log.terrain == terrain]
+            if len(rows) < 100:
+                continue
+            t = rows.t.to_numpy()
+            u = rows[["steer_rate", "accel"]].to_numpy()
+            xm = rows[STATES].to_numpy()
+            xt = rows[["true_" + c for c in STATES]].to_numpy()
+            entry = {"seed": seed, "terrain": terrain, "true_mu": TRUE_MU.get(terrain)}
+            entry["fits"] = {name: fit(vp, eff, t, xm, u) for name, eff in MODELS.items()}
+            entry["fits"]["as_run_true_states"] = fit(vp, MODELS["as_run"], t, xt, u)
+            entry["fits"]["shape_1"] = fit(vp, MODELS["as_run"], t, xm, u, shape=1.0)
+            entry["used"] = {
+                "measured_total": friction_used(t, xm),
+                "measured_lateral": friction_used(t, xm, lateral_only=True),
+                "true_total": friction_used(t, xt),
+                "true_lateral": friction_used(t, xt, lateral_only=True),
+            }
+            entry["front_axle"] = front_axle_curve(vp, t, xt, TRUE_MU.get(terrain, vp.mu))
+            fits = "  ".join(f"{k} {v['mu']:.3f}+-{v['std']:.3f}" for k, v in entry["fits"].items())
+            used = entry["used"]
+            print(
+                f"seed {seed} {terrain:13s} (mu {entry['true_mu']}): {fits}\n"
+                f"   used: total {used['measured_total']:.3f} (true {used['true_total']:.3f}), "
+                f"lateral {used['measured_lateral']:.3f} (true {used['true_lateral']:.3f})\n"
+                "   front axle F/Fz at slip: "
+                + ", ".join(
+                    f"{b['slip_rad']:.4f} rad {b['force_per_load']:.3f} "
+                    f"(law {b['peak_tyre_at_true_mu']:.3f})"
+                    for b in entry["front_axle"]
+                ),
+                flush=True,
+            )
+            results.append(entry)
+    print(
+        json.dumps({"benchmark": "peak_bias_offline", "runs": str(args.runs), "results": results})
+    )
+
+
+if __name__ == "__main__":
+    main()
