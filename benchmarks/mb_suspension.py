@@ -21,7 +21,7 @@ directly, states and forces, no noise:
   regression on sign(a_y), a_y and a_x sign(a_y) (the part no function of the accelerations
   describes: roll and pitch dynamics, the sign flips).
 
-Usage: python benchmarks/mb_suspension.py [--seconds S] [--mu MU]
+Usage: python benchmarks/mb_suspension.py [--seconds S] [--mu MU] [--quick]  (--quick: 20 s)
 Last stdout line: one JSON object.
 """
 
@@ -199,7 +199,10 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60.0, help="length of the drive [s]")
     parser.add_argument("--mu", type=float, default=0.6, help="friction of the drive")
+    parser.add_argument("--quick", action="store_true", help="a 20 s drive")
     args = parser.parse_args()
+    if args.quick:
+        args.seconds = 20.0
     t0 = time.perf_counter()
     vp = load_vehicle("ford_escort")
     truth = MbTruth("ford_escort", "peak_and_stiffness")

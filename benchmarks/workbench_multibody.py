@@ -25,9 +25,18 @@ and ``final_error_to_baseline_floor``).
 * ``full_model``: the model with the three effects the study found (``peak_tyre``,
   ``axle_stiffness``, ``rotating_inertia``) added whatever the loop says, fitted on the same
   training blocks: its held-out error over the floor and its mu per terrain.
+* ``last_round``: for the effects in ``WATCH`` (``suspension_lag``), their entry in the loop's
+  last round on top of the final model (of ``--add peak_tyre``): significant or not, the
+  likelihood-ratio p-value and the held-out error drop (negative: the held-out error rose).
+
+``--no-camber-offset`` (a diagnosis of what remains, not the truth the project uses): the
+multi-body tyre's camber terms that CommonRoad multiplies by the camber's sign, ``p_vy1`` (a
+lateral force of 3.7 % of the load) and ``p_hy1`` (a 0.0027 rad slip shift), are set to 0; the
+terms proportional to the camber stay.
 
 Usage: python benchmarks/workbench_multibody.py [--duration S] [--seed N]
-       [--mappings m1,m2] [--out DIR]   (--out: the workbench's figures per mapping)
+       [--mappings m1,m2] [--out DIR] [--no-camber-offset]
+       (--out: the workbench's figures per mapping)
 Last stdout line: one JSON object.
 """
 
@@ -48,6 +57,35 @@ from pcvfe_drake.workbench.report import diagnose, write_report
 TERRAINS = {"patchy_grass": 0.30, "sand": 0.45, "concrete": 0.60, "brick": 0.80}
 """The paper map's quadrant terrains and their friction (pcvfe_drake.perception.terrain)."""
 FULL_MODEL = ("peak_tyre", "axle_stiffness", "rotating_inertia")
+WATCH = ("suspension_lag",)
+"""Effects whose last-round entry is reported (added to the library after the study)."""
+
+
+def _last_round(report: dict) -> dict:
+    return {
+        r["name"]: {
+            "significant": bool(r["significant"]),
+            "p_value": float(r["p_value"]),
+            "heldout_error_drop": round(float(r["heldout_error_drop"]), 4),
+        }
+        for r in report.get("remaining", [])
+        if r["name"] in WATCH
+    }
+
+
+def without_camber_offset():
+    """Make ``MbTruth`` build the Ford Escort with ``p_vy1 = p_hy1 = 0`` (see the docstring)."""
+    from pcvfe_drake.vehicle import mb_truth
+
+    make = mb_truth.MB_VEHICLES["ford_escort"]
+
+    def patched():
+        p = make()
+        p.tire.p_vy1 = 0.0
+        p.tire.p_hy1 = 0.0
+        return p
+
+    mb_truth.MB_VEHICLES["ford_escort"] = patched
 
 
 def _mu(params: dict) -> dict:
@@ -120,6 +158,8 @@ def study(mapping: str, duration_s: float, seed: int, out: str | None) -> dict:
             if not k.startswith("mu")
         },
         "with_peak_tyre_verdict": added["verdict"]["text"],
+        "last_round": _last_round(report),
+        "with_peak_tyre_last_round": _last_round(added),
         "full_model": list(FULL_MODEL),
         "full_model_error_to_floor": round(full_eval["model_error"] / full_eval["noise_floor"], 3),
         "full_model_error_to_baseline_floor": round(
@@ -141,7 +181,14 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--mappings", default=",".join(FRICTION_SCALINGS))
     parser.add_argument("--out", default=None, help="write each mapping's report here")
+    parser.add_argument(
+        "--no-camber-offset",
+        action="store_true",
+        help="the tyre without its sign-of-camber offsets p_vy1, p_hy1 (a diagnosis)",
+    )
     args = parser.parse_args()
+    if args.no_camber_offset:
+        without_camber_offset()
     mappings = [m.strip() for m in args.mappings.split(",") if m.strip()]
     bad = [m for m in mappings if m not in FRICTION_SCALINGS]
     if bad:
@@ -156,6 +203,7 @@ def main() -> int:
         "benchmark": "workbench_multibody",
         "duration_s": args.duration,
         "seed": args.seed,
+        "no_camber_offset": bool(args.no_camber_offset),
         "terrains": TERRAINS,
         "target_error_to_floor": 1.5,
         "per_mapping": {
@@ -177,6 +225,8 @@ def main() -> int:
                     default=float("nan"),
                 ),
                 "full_model_error_to_floor": r["full_model_error_to_floor"],
+                "last_round": r["last_round"],
+                "with_peak_tyre_last_round": r["with_peak_tyre_last_round"],
                 "max_abs_full_model_mu_error": max(
                     (abs(v) for v in r["full_model_mu_error"].values()), default=float("nan")
                 ),
