@@ -7,7 +7,7 @@ noise), one 1 s update at a time, once with the ST fit (default ``fitter``) and 
 list given (``fitter.effects``), and reports the CPU time per refit (median and 95th percentile,
 ``time.process_time``) and the ratio to the ST fit, measured in the same run.
 
-Usage: python benchmarks/context_refit_speed.py [--seconds 90] [--effects tire_saturation ...]
+Usage: python benchmarks/context_refit_speed.py [--quick] [--seconds 90] [--effects tire_saturation ...]
 Last stdout line: one JSON object.
 """
 
@@ -53,10 +53,13 @@ def drive(est: ContextEstimator, t, S, U) -> dict:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=90.0)
+    parser.add_argument("--quick", action="store_true", help="30 s of driving (run_all --quick)")
     parser.add_argument(
         "--effects", nargs="*", default=["tire_saturation"], help="effect lists, ';'-separated"
     )
     args = parser.parse_args()
+    if args.quick:
+        args.seconds = min(args.seconds, 30.0)
     vp = ford_escort()
     truth = synth.Truth(mu=0.8, mu_peak=0.7)
     print(f"simulating {args.seconds:g} s of the synthetic drive at 100 Hz", flush=True)

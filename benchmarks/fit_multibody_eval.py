@@ -21,7 +21,7 @@ seed) pairs within 0.05 after 20 s (contexts that reached 20 s), of runs within 
 scored context, and the 95 % interval coverage; mean speed relative to the oracle of the same
 seed.
 
-Usage: python benchmarks/fit_multibody_eval.py [--seeds 1] [--sources st,effects,oracle]
+Usage: python benchmarks/fit_multibody_eval.py [--quick] [--seeds 1] [--sources st,effects,oracle]
        [--mappings lateral_peak,peak_and_stiffness] [--effects MAPPING=E1,E2 ...]
 Runs take minutes each (multi-body truth). Last stdout line: one JSON object.
 """
@@ -169,7 +169,12 @@ def main() -> int:
         help="the effect model for a mapping (replaces EFFECTS[MAPPING])",
     )
     parser.add_argument("--out", default=None, help="also write the JSON here")
+    parser.add_argument(
+        "--quick", action="store_true", help="a quarter lap per run, seed 0 (run_all --quick)"
+    )
     args = parser.parse_args()
+    if args.quick:
+        args.laps, args.seeds = min(args.laps, 0.25), 1
     effects = {k: list(v) for k, v in EFFECTS.items()}
     for item in args.effects:
         mapping, _, names = item.partition("=")

@@ -34,7 +34,7 @@ multi-body tyre's camber terms that CommonRoad multiplies by the camber's sign, 
 lateral force of 3.7 % of the load) and ``p_hy1`` (a 0.0027 rad slip shift), are set to 0; the
 terms proportional to the camber stay.
 
-Usage: python benchmarks/workbench_multibody.py [--duration S] [--seed N]
+Usage: python benchmarks/workbench_multibody.py [--quick] [--duration S] [--seed N]
        [--mappings m1,m2] [--out DIR] [--no-camber-offset]
        (--out: the workbench's figures per mapping)
 Last stdout line: one JSON object.
@@ -186,7 +186,12 @@ def main() -> int:
         action="store_true",
         help="the tyre without its sign-of-camber offsets p_vy1, p_hy1 (a diagnosis)",
     )
+    parser.add_argument(
+        "--quick", action="store_true", help="an 80 s log (20 s per terrain; run_all --quick)"
+    )
     args = parser.parse_args()
+    if args.quick:
+        args.duration = min(args.duration, 80.0)
     if args.no_camber_offset:
         without_camber_offset()
     mappings = [m.strip() for m in args.mappings.split(",") if m.strip()]
