@@ -5,7 +5,11 @@ The ``ContextFitter`` refits up to 2 contexts per 1 s update, each warm-started 
 saturating-tyre drive (``workbench.synth``, brush tyre, stiffness mu 0.8, peak 0.7, survey-grade
 noise), one 1 s update at a time, once with the ST fit (default ``fitter``) and once per effect
 list given (``fitter.effects``), and reports the CPU time per refit (median and 95th percentile,
-``time.process_time``) and the ratio to the ST fit, measured in the same run.
+``time.process_time``) and the ratio to the ST fit, measured in the same run. It also times the
+standard deviations' step alone (``covariance_cpu_s``): the ``hac`` sandwich
+(``least_squares.hac_covariance``) and the Gauss-Newton ``least_squares.covariance`` on a
+Jacobian of each fit's live size (ST: 512 windows x 10 steps x 7 states, lag 42 windows; effect
+model: 100 windows x 15 steps x 5 states, 2 parameters, lag 6).
 
 Usage: python benchmarks/context_refit_speed.py [--quick] [--seconds 90] [--effects tire_saturation ...]
 Last stdout line: one JSON object.
@@ -50,6 +54,31 @@ def drive(est: ContextEstimator, t, S, U) -> dict:
     }
 
 
+def covariance_cost(repeats: int = 50) -> dict:
+    """CPU per call of the sandwich and of the Gauss-Newton covariance on live-size Jacobians."""
+    from pcvfe_drake.estimation import least_squares as lsq
+
+    rng = np.random.default_rng(0)
+    out = {}
+    for name, (windows, rows, p, lag) in {
+        "single_track": (512, 70, 1, 42),
+        "effects": (100, 75, 2, 6),
+    }.items():
+        J = rng.normal(size=(windows * rows, p))
+        r = rng.normal(size=windows * rows)
+        timing = {}
+        for label, call in (
+            ("hac", lambda J=J, r=r, w=windows, lag=lag: lsq.hac_covariance(J, r, w, lag)),
+            ("gauss_newton", lambda J=J, r=r: lsq.covariance(J, float(r @ r))),
+        ):
+            c0 = time.process_time()
+            for _ in range(repeats):
+                call()
+            timing[label] = (time.process_time() - c0) / repeats
+        out[name] = timing
+    return out
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=90.0)
@@ -76,6 +105,8 @@ def main() -> int:
         res["cpu_ratio_vs_st"] = res["cpu_median_s"] / st["cpu_median_s"]
         runs[spec] = res
         print(f"{spec}: {res}", flush=True)
+    cov = covariance_cost()
+    print(f"covariance step alone (CPU per call): {cov}", flush=True)
     print(
         json.dumps(
             {
@@ -84,6 +115,7 @@ def main() -> int:
                 "truth": {"mu": 0.8, "mu_peak": 0.7},
                 "single_track": st,
                 "effects": runs,
+                "covariance_cpu_s": cov,
             }
         )
     )
