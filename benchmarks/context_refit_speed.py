@@ -11,7 +11,8 @@ standard deviations' step alone (``covariance_cpu_s``): the ``hac`` sandwich
 Jacobian of each fit's live size (ST: 512 windows x 10 steps x 7 states, lag 42 windows; effect
 model: 100 windows x 15 steps x 5 states, 2 parameters, lag 6).
 
-Usage: python benchmarks/context_refit_speed.py [--quick] [--seconds 90] [--effects tire_saturation ...]
+Usage: python benchmarks/context_refit_speed.py [--quick] [--seconds 90]
+           [--effects tire_saturation ...]
 Last stdout line: one JSON object.
 """
 
