@@ -152,11 +152,14 @@ def test_estimator_probes_a_not_identifiable_context_and_backs_off():
         slot.estimate, theta=(0.55, *slot.estimate.theta[1:]), identifiable=True
     )
     assert est.theta_for()[0] == 0.55
-    # never above the estimate of a not identifiable context
+    # never above the upper end of a not identifiable estimate's 95 % interval
     slot.estimate = replace(
-        slot.estimate, theta=(0.32, *slot.estimate.theta[1:]), identifiable=False
+        slot.estimate,
+        theta=(0.32, *slot.estimate.theta[1:]),
+        theta_std=(0.01, np.nan, np.nan),
+        identifiable=False,
     )
-    assert est.theta_for()[0] == pytest.approx(0.32)
+    assert est.theta_for()[0] == pytest.approx(0.32 + 1.96 * 0.01)
 
 
 def test_probe_settings_are_checked():

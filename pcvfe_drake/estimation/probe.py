@@ -177,7 +177,9 @@ def controller_theta(
     * ``unidentified_mu: lower_bound``: a context whose mu is not identifiable gets
       ``max(mu_lower_bound, floor_mu)`` (at most its estimate);
     * ``unidentified_mu: probe``: such a context gets the probe's mu (before its first step
-      the lower bound's value; at most the estimate unless that is below the used friction).
+      the lower bound's value), at most the upper end of the estimate's 95 % interval ``mu +
+      1.96 std`` (a value the context's data do not exclude; no limit when the estimate is
+      below the used friction or has no std).
     """
     mu = float(theta[0])
     bound = estimate.mu_lower_bound if math.isfinite(estimate.mu_lower_bound) else 0.0
@@ -186,8 +188,10 @@ def controller_theta(
     if not estimate.identifiable and unidentified_mu in ("lower_bound", "probe"):
         cap = math.inf if estimate.below_used else mu
         start = max(bound, floor_mu)
-        if unidentified_mu == "probe" and probe.started:
-            start = probe.mu
+        if unidentified_mu == "probe":
+            std = estimate.mu_std
+            cap = mu + 1.96 * std if math.isfinite(std) and not estimate.below_used else math.inf
+            start = probe.mu if probe.started else start
         mu = min(start, cap)
     if mu == theta[0]:
         return theta
