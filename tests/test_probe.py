@@ -228,3 +228,22 @@ def test_peak_slip_is_the_peak_tyres_and_limits_are_per_axle():
     x[:, 6] = -0.03  # rear slip 0.03 rad, front 0.03 rad
     assert saturated(x, vp.lf, vp.lr, (0.05, 0.02))
     assert not saturated(x, vp.lf, vp.lr, (0.05, 0.04))
+
+
+def test_back_offs_never_go_below_the_start_nor_judge_noise():
+    # repeated saturation at the start level: it stays there (a ratchet to nothing otherwise)
+    s = _step(ProbeState(), 0.0, lb=0.2)
+    for t in range(1, 30):
+        s = _step(s, float(t), lb=0.2, sat=True)
+    assert s.mu == pytest.approx(0.3) and s.ceiling == pytest.approx(0.3)
+    # a slip limit below the measurement noise is raised to the noise floor
+    from pcvfe_drake.estimation.probe import MIN_SLIP_LIMIT_RAD
+
+    vp = ford_escort()
+    rng = np.random.default_rng(0)
+    x = np.zeros((100, 7))
+    x[:, 3] = 5.0
+    x[:, 6] = rng.normal(0.0, 0.005, 100)  # INS side-slip noise only
+    assert not saturated(x, vp.lf, vp.lr, 0.002)
+    x[:, 6] += 2 * MIN_SLIP_LIMIT_RAD
+    assert saturated(x, vp.lf, vp.lr, 0.002)

@@ -24,16 +24,16 @@ The rules (:func:`probe_step`), each number a field of ``LiveFitConfig``:
   fills it from ``nmpc.speed_margin``);
 * **never above** the prior mu (the most the operator believes any terrain has), nor above a
   ceiling set by an earlier back-off;
-* **back off** on a sign of saturation (:func:`saturated`: a large slip angle on either axle,
-  i.e. side slip at the rear or yaw response short of the steering at the front): two steps
-  down, and the level one step below the one that saturated becomes the context's ceiling.
-  "Large" is ``probe_slip_fraction`` (0.5) of the slip at which a magic-formula tyre (shape
-  ``MF_SHAPE`` = 1.35, as ``peak_tyre``) with the fitted small-slip stiffness ``K`` would peak
-  at the mu being handed (:func:`peak_slip_rad`: ``tan(pi / (2 C)) C mu / K``, 0.043 rad for
-  mu 0.3 at the Ford Escort's K = 21.9 /rad). At half that slip such a tyre already delivers
-  92 % of its peak, about twice the slip a linear tyre needs for the force; the planner asks
-  for 0.64 of the handed mu, which needs only a quarter of the peak slip (0.24) if the peak is
-  where the probe assumes. A larger slip says the peak is lower than the handed mu.
+* **back off** on a sign of saturation (:func:`saturated`: a large slip angle on either axle, i.e.
+  side slip at the rear or yaw response short of the steering at the front): two steps down, but
+  never below the start, and the level one step below the one that saturated becomes the context's
+  ceiling (at least the start). "Large" is ``probe_slip_fraction`` (0.5) of the slip at which a
+  magic-formula tyre (shape ``MF_SHAPE`` = 1.35, as ``peak_tyre``) with the fitted small-slip
+  stiffness ``K`` would peak at the mu being handed (:func:`peak_slip_rad`: ``tan(pi / (2 C)) C mu
+  / K``, 0.043 rad for mu 0.3 at the Ford Escort's K = 21.9 /rad). At half that slip such a tyre
+  already delivers 92 % of its peak, about twice the slip a linear tyre needs for the force; the
+  planner asks for 0.64 of the handed mu, which needs only a quarter of the peak slip (0.24) if
+  the peak is where the probe assumes. A larger slip says the peak is lower than the handed mu.
 
 No pydrake.
 """
@@ -49,6 +49,10 @@ from pcvfe_drake.vehicle.single_track import BETA, DELTA, PSI_DOT, V
 
 MIN_PROBE_MU = 0.05
 """Smallest mu a back-off hands (keeps the speed profile defined)."""
+MIN_SLIP_LIMIT_RAD = 0.01
+"""Smallest slip limit of the saturation test [rad]: the 90th percentile of the slip angles'
+measurement noise alone (INS side slip 0.005 rad, yaw rate 0.01 rad/s: ~0.009 rad); a limit
+below it would call every low level saturated and ratchet the probe down."""
 MF_SHAPE = 1.35
 """Magic-formula shape factor of the tyre the saturation test assumes (``peak_tyre``'s C)."""
 MIN_SPEED_MPS = 2.0
@@ -112,7 +116,7 @@ def saturated(
 ) -> bool:
     """A sign of saturation in the measured states: the ``quantile`` of ``|alpha_f|`` or
     ``|alpha_r|`` over the samples at >= 2 m/s exceeds ``max_slip_rad`` (one number, or one
-    per axle: front, rear). A large rear slip is
+    per axle: front, rear; never below ``MIN_SLIP_LIMIT_RAD``, the noise). A large rear slip is
     side slip (the rear lets go); a large front slip is a yaw rate short of what the steering
     asks (the front lets go). The quantile (not the largest value) keeps one noisy sample from
     triggering it. Fewer than 10 usable samples: False."""
@@ -123,7 +127,9 @@ def saturated(
     if use.sum() < 10:
         return False
     af, ar = axle_slip_angles(x[use], lf, lr)
-    limit_f, limit_r = np.broadcast_to(np.asarray(max_slip_rad, dtype=float), (2,))
+    limit_f, limit_r = np.maximum(
+        np.broadcast_to(np.asarray(max_slip_rad, dtype=float), (2,)), MIN_SLIP_LIMIT_RAD
+    )
     return bool(
         np.quantile(np.abs(af), quantile) > limit_f or np.quantile(np.abs(ar), quantile) > limit_r
     )
@@ -148,8 +154,10 @@ def probe_step(
     if not state.started:
         return ProbeState(mu=base, last_step_s=t_now)
     if is_saturated:
-        down = max(state.mu / (1.0 + step_rel) ** 2, MIN_PROBE_MU)
-        ceiling = max(state.mu / (1.0 + step_rel), MIN_PROBE_MU)
+        # never below where it started (what lower_bound hands: the demonstrated friction or
+        # the floor), else repeated back-offs would ratchet it down to nothing
+        down = max(state.mu / (1.0 + step_rel) ** 2, min(base, state.mu), MIN_PROBE_MU)
+        ceiling = max(state.mu / (1.0 + step_rel), min(base, state.mu), MIN_PROBE_MU)
         return ProbeState(
             mu=down,
             ceiling=min(state.ceiling, ceiling),
