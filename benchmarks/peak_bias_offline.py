@@ -22,7 +22,10 @@ against its slip angle from the true states (quasi-static: ``F_yf + F_yr = m a_y
 lr F_yr = I_z r_dot``; central differences at 20 Hz), in quartile bins of the slip, beside what
 ``peak_tyre`` at the terrain's true mu would give.
 
-Usage: python benchmarks/peak_bias_offline.py --runs DIR [--source pcvfe_effects]
+Without ``--runs`` the runs are made first: ``pcvfe evaluate pcvfe_effects --seeds N`` into a
+temporary folder (``--quick``: one seed of the experiment's quick 30 s, sand only).
+
+Usage: python benchmarks/peak_bias_offline.py [--runs DIR] [--quick] [--source pcvfe_effects]
        [--scenario paper_eval_effects] [--seeds 0,1,2] [--terrains patchy_grass,sand,brick]
 Each fit takes about a second. Last stdout line: one JSON object.
 """
@@ -32,6 +35,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -110,12 +114,37 @@ def front_axle_curve(vp, t, x, mu_true: float) -> list[dict]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--runs", required=True, help="a pcvfe evaluate output folder")
+    ap.add_argument(
+        "--runs", default=None, help="a pcvfe evaluate output folder (default: make the runs)"
+    )
+    ap.add_argument("--quick", action="store_true", help="without --runs: seed 0, 30 s, sand")
     ap.add_argument("--scenario", default="paper_eval_effects")
     ap.add_argument("--source", default="pcvfe_effects")
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--terrains", default="patchy_grass,sand,brick")
     args = ap.parse_args()
+    if args.quick:
+        args.seeds, args.terrains = "0", "sand"
+    with tempfile.TemporaryDirectory(prefix="peak_bias_") as tmp:
+        if args.runs is None:
+            args.runs = make_runs(args, Path(tmp) / "evaluate")
+        study(args)
+
+
+def make_runs(args, out: Path) -> Path:
+    """``pcvfe evaluate pcvfe_effects`` for seeds 0 .. the largest asked (quick: its 30 s)."""
+    from pcvfe_drake.cli import main as pcvfe
+
+    n = max(int(s) for s in args.seeds.split(",")) + 1
+    cmd = ["evaluate", "pcvfe_effects", "--out", str(out), "--workers", "2", "--seeds", str(n)]
+    cmd += ["--quick"] if args.quick else []
+    print("making the runs: pcvfe " + " ".join(cmd), flush=True)
+    if pcvfe(cmd) != 0:
+        raise SystemExit("peak_bias_offline: pcvfe evaluate failed")
+    return out
+
+
+def study(args) -> None:
     vp = ford_escort()
     results = []
     for seed in [int(s) for s in args.seeds.split(",")]:
