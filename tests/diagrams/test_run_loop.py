@@ -92,6 +92,7 @@ def _sigterm_after(monkeypatch, t_s: float):
 @pytest.mark.parametrize("how", ["osqp_ctrl_c", "sigterm"])
 def test_interrupts_stop_the_run_and_keep_everything(tmp_path, monkeypatch, how):
     previous = None
+    sigint_before = signal.getsignal(signal.SIGINT)  # SIG_IGN where started in the background
     if how == "osqp_ctrl_c":
         _nmpc_interrupts_after(monkeypatch, updates=40)  # t = 2.0 s at 20 Hz
     else:
@@ -112,7 +113,7 @@ def test_interrupts_stop_the_run_and_keep_everything(tmp_path, monkeypatch, how)
     assert written["interrupted"] is True
     assert len(read_drive_log(folder.drive_log)) == s["log_rows"] >= 40
     assert result.figures["fig5_mu_over_time"]
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
+    assert signal.getsignal(signal.SIGINT) is sigint_before  # restored
 
 
 def test_a_full_disk_mid_run_names_the_file_and_keeps_the_summary(tmp_path):
