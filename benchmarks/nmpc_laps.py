@@ -26,31 +26,12 @@ import time
 
 import numpy as np
 
-from pcvfe_drake.control.closed_loop import simulate_closed_loop
+from pcvfe_drake.control.closed_loop import MbTruthPlant, simulate_closed_loop
 from pcvfe_drake.control.course import initial_state, load_course
 from pcvfe_drake.control.nmpc import NmpcConfig, NmpcController
 from pcvfe_drake.vehicle.params import ford_escort, roboracer
 
 RMS_LIMIT_M = 0.3
-
-
-class MbTruthPlant:
-    """CommonRoad's multi-body model as a closed-loop truth (RK4 substeps of 1 ms)."""
-
-    def __init__(self, vehicle: str = "ford_escort") -> None:
-        from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
-
-        self.mb = MbTruth(vehicle)
-        self._st_state = st_state
-        self.x = None
-
-    def reset(self, x0):
-        self.x = self.mb.initial_state(x0)
-        return self._st_state(self.x)
-
-    def step(self, u, mu, dt):
-        self.x = self.mb.integrate(self.x, u, mu, dt, method="rk4", rk4_step_s=1e-3)
-        return self._st_state(self.x)
 
 
 def run(

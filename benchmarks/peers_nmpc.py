@@ -53,7 +53,7 @@ import time
 
 import numpy as np
 
-from pcvfe_drake.control.closed_loop import simulate_closed_loop
+from pcvfe_drake.control.closed_loop import MbTruthPlant, simulate_closed_loop
 from pcvfe_drake.control.course import initial_state, load_course
 from pcvfe_drake.control.nmpc import NmpcConfig, NmpcController, NmpcDiagnostics, NmpcMemory
 from pcvfe_drake.control.plan import NmpcPlan
@@ -288,25 +288,6 @@ FRICTION_LIMITED_MAX_SPEED_MPS = 12.0
 """``paper_eval``'s speed cap: above every curve's friction-limited speed on the slalom."""
 
 
-class MbTruthPlant:
-    """CommonRoad's multi-body model as the closed-loop truth (RK4 substeps of 1 ms)."""
-
-    def __init__(self, vehicle: str = "ford_escort", friction_scaling: str = "lateral_peak"):
-        from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
-
-        self.mb = MbTruth(vehicle, friction_scaling=friction_scaling)
-        self._st_state = st_state
-        self.x = None
-
-    def reset(self, x0):
-        self.x = self.mb.initial_state(x0)
-        return self._st_state(self.x)
-
-    def step(self, u, mu, dt):
-        self.x = self.mb.integrate(self.x, u, mu, dt, method="rk4", rk4_step_s=1e-3)
-        return self._st_state(self.x)
-
-
 def _run(label, ctrl, course, mu_at, duration_s, laps, truth=None):
     prof = ctrl.profile(float(mu_at(np.array(course.sample(0.0)[:2]))))
     x0 = initial_state(course, ctrl.params, float(prof.speed_at(0.0)))
@@ -411,7 +392,7 @@ def main(argv=None) -> int:
     )
 
     def truth():
-        return MbTruthPlant() if args.friction_limited else None
+        return MbTruthPlant(friction_scaling="lateral_peak") if args.friction_limited else None
 
     ours = _run(
         "RTI + OSQP (ours)",

@@ -291,3 +291,15 @@ def test_catching_up_before_a_bend_follows_the_profile(course, params, limited):
     else:
         assert np.max(res.u[:, 1]) > 1.5 * a_profile
         assert np.max(used_g) > 0.85 * 0.45
+
+
+def test_multibody_truth_plant_drives_the_closed_loop(course, params):
+    from pcvfe_drake.control.closed_loop import MbTruthPlant
+
+    ctrl = NmpcController(course, params, CFG)
+    x0 = offset_start(course, params, s_m=20.0, speed=5.0)
+    plant = MbTruthPlant(friction_scaling="lateral_peak")
+    np.testing.assert_allclose(plant.reset(x0)[:2], x0[:2])
+    res = simulate_closed_loop(ctrl, x0, 1.0, mu_at=lambda xy: 0.6, truth=plant)
+    assert res.failure == "" and res.metrics(course)["fallbacks"] == 0
+    assert res.x[-1, V] > 4.0 and np.max(np.abs(res.lateral_error)) < 0.3

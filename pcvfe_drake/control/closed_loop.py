@@ -86,6 +86,29 @@ class StTruth:
         return self.x.copy()
 
 
+class MbTruthPlant:
+    """CommonRoad's multi-body model as a closed-loop truth (RK4 substeps of 1 ms); returns the
+    ST states it implies (``vehicle.mb_truth.st_state``)."""
+
+    def __init__(
+        self, vehicle: str = "ford_escort", friction_scaling: str = "peak_and_stiffness"
+    ) -> None:
+        from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
+
+        self.mb = MbTruth(vehicle, friction_scaling=friction_scaling)
+        self._st_state = st_state
+        self.x = None
+
+    def reset(self, x0: np.ndarray) -> np.ndarray:
+        self.x = self.mb.initial_state(x0)
+        return self._st_state(self.x)
+
+    def step(self, u: np.ndarray, mu: float, dt: float) -> np.ndarray:
+        """Advance by ``dt`` [s] with ``u`` held on friction ``mu``; returns the ST state."""
+        self.x = self.mb.integrate(self.x, u, mu, dt, method="rk4", rk4_step_s=1e-3)
+        return self._st_state(self.x)
+
+
 def simulate_closed_loop(
     controller: NmpcController,
     x0,
