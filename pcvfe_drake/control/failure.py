@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pcvfe_drake.json_numbers import finite_or_none
+
 SPIN_BETA_RAD = math.radians(30.0)
 """Side-slip angle beyond which the car counts as spinning [rad]."""
 SPIN_COURSE_ANGLE_RAD = math.radians(60.0)
@@ -45,14 +47,11 @@ class FailureEvent:
     detail: str
 
     def to_dict(self) -> dict:
-        def num(v):
-            return float(v) if math.isfinite(v) else None
-
         return {
-            "t_s": num(self.t_s),
-            "sx_m": num(self.x_m),
-            "sy_m": num(self.y_m),
-            "s_m": num(self.s_m),
+            "t_s": finite_or_none(self.t_s),
+            "sx_m": finite_or_none(self.x_m),
+            "sy_m": finite_or_none(self.y_m),
+            "s_m": finite_or_none(self.s_m),
             "kind": self.kind,
             "detail": self.detail,
         }

@@ -11,6 +11,7 @@ import math
 from dataclasses import dataclass
 
 from pcvfe_drake.estimation.probe import ProbeState
+from pcvfe_drake.json_numbers import finite_or_none
 from pcvfe_drake.vehicle.params import THETA_NAMES
 
 Z95 = 1.959964
@@ -106,31 +107,30 @@ class ContextEstimate:
         return self.fits > 0
 
     def to_dict(self) -> dict:
-        def num(x):
-            return float(x) if math.isfinite(x) else None
-
         return {
             "context_id": self.context_id,
-            "theta": dict(zip(THETA_NAMES, map(num, self.theta), strict=True)),
-            "std": dict(zip(THETA_NAMES, map(num, self.theta_std), strict=True)),
+            "theta": dict(zip(THETA_NAMES, map(finite_or_none, self.theta), strict=True)),
+            "std": dict(zip(THETA_NAMES, map(finite_or_none, self.theta_std), strict=True)),
             "samples": self.samples,
             "n_windows": self.n_windows,
-            "last_update_s": num(self.last_update_s),
-            "first_fit_s": num(self.first_fit_s),
+            "last_update_s": finite_or_none(self.last_update_s),
+            "first_fit_s": finite_or_none(self.first_fit_s),
             "status": self.status,
             "fits": self.fits,
             "diverged": self.diverged,
-            "loss": num(self.loss),
+            "loss": finite_or_none(self.loss),
             "message": self.message,
-            "mu_lower_bound": num(self.mu_lower_bound),
+            "mu_lower_bound": finite_or_none(self.mu_lower_bound),
             "near_limit": self.near_limit,
             "identifiable": self.identifiable,
             "below_used": self.below_used,
-            "mu_interval_95": [num(v) for v in self.mu_interval_95],  # None: no bound / unknown
+            # None: no bound / unknown
+            "mu_interval_95": [finite_or_none(v) for v in self.mu_interval_95],
             "mu_is_peak": self.mu_is_peak,
             "probe": None if self.probe is None else self.probe.to_dict(),
             "model_params": {
-                n: {"value": num(v), "std": num(sd)} for n, v, sd in self.model_params
+                n: {"value": finite_or_none(v), "std": finite_or_none(sd)}
+                for n, v, sd in self.model_params
             },
         }
 

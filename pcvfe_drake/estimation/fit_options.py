@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pcvfe_drake.json_numbers import finite_or_none
 from pcvfe_drake.vehicle.params import THETA_NAMES, VehicleParams
 from pcvfe_drake.vehicle.single_track import NTHETA
 
@@ -242,26 +243,22 @@ class FitResult:
     def to_dict(self) -> dict:
         """A JSON-ready dict (NaN/inf become None)."""
 
-        def num(x):
-            x = float(x)
-            return x if math.isfinite(x) else None
-
         return {
-            "theta": {n: num(v) for n, v in zip(THETA_NAMES, self.theta, strict=True)},
-            "std": {n: num(v) for n, v in zip(THETA_NAMES, self.std, strict=True)},
+            "theta": {n: finite_or_none(v) for n, v in zip(THETA_NAMES, self.theta, strict=True)},
+            "std": {n: finite_or_none(v) for n, v in zip(THETA_NAMES, self.std, strict=True)},
             "free": list(self.free),
-            "loss": num(self.loss),
-            "loss_initial": num(self.loss_initial),
+            "loss": finite_or_none(self.loss),
+            "loss_initial": finite_or_none(self.loss_initial),
             "n_windows": int(self.n_windows),
             "windows_skipped": {k: int(v) for k, v in self.windows_skipped.items()},
             "converged": bool(self.converged),
             "status": self.status,
             "iterations": int(self.iterations),
             "solver": self.solver,
-            "condition_number": num(self.condition_number),
+            "condition_number": finite_or_none(self.condition_number),
             "ill_conditioned": bool(self.ill_conditioned),
             "warnings": list(self.warnings),
-            "elapsed_s": num(self.elapsed_s),
+            "elapsed_s": finite_or_none(self.elapsed_s),
             "quality": _jsonable(self.quality),
         }
 

@@ -45,6 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pcvfe_drake.json_numbers import finite_or_none
 from pcvfe_drake.vehicle.single_track import BETA, DELTA, PSI_DOT, V
 
 MIN_PROBE_MU = 0.05
@@ -82,12 +83,9 @@ class ProbeState:
         return math.isfinite(self.mu)
 
     def to_dict(self) -> dict:
-        def num(x):
-            return float(x) if math.isfinite(x) else None
-
         return {
-            "mu": num(self.mu),
-            "ceiling": num(self.ceiling),
+            "mu": finite_or_none(self.mu),
+            "ceiling": finite_or_none(self.ceiling),
             "steps": self.steps,
             "backoffs": self.backoffs,
         }

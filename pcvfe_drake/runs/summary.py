@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from pcvfe_drake.json_numbers import finite_or_none
 from pcvfe_drake.contexts import metrics
 from pcvfe_drake.estimation.estimate_table import Z95
 from pcvfe_drake.control import failure
@@ -56,10 +57,6 @@ SETTLE_TIME_S = 20.0
 """A context's friction error is scored once it has this much driving in it (issue 7)."""
 
 REQUIRED = ("t", "sx", "sy", "v", "psi", "beta", "terrain", "mu_true", "context", "mu_hat")
-
-
-def _finite_or_none(x: float) -> float | None:
-    return float(x) if x is not None and math.isfinite(float(x)) else None
 
 
 def sample_weights(t_s: np.ndarray) -> np.ndarray:
@@ -180,13 +177,13 @@ def mu_estimates(
         interval = None
         if entry is not None:
             est = float(entry["mu"])
-            std = _finite_or_none(entry.get("mu_std", math.nan))
+            std = finite_or_none(entry.get("mu_std", math.nan))
             interval = entry.get("mu_interval_95")
             samples = int(entry.get("samples", 0))
             status = entry.get("status")
-            first_fit = _finite_or_none(entry.get("first_fit_s", math.nan))
+            first_fit = finite_or_none(entry.get("first_fit_s", math.nan))
             ident = {
-                "mu_lower_bound": _finite_or_none(entry.get("mu_lower_bound", math.nan)),
+                "mu_lower_bound": finite_or_none(entry.get("mu_lower_bound", math.nan)),
                 "near_limit": entry.get("near_limit"),
                 "identifiable": entry.get("identifiable"),
                 "below_used": entry.get("below_used"),
@@ -234,7 +231,7 @@ def mu_estimates(
                 "abs_error_after_settle_max": err_after_max,
                 "scored_time_s": float(np.sum(w[settled])) if err_after is not None else 0.0,
                 "interval_95": (
-                    None if interval is None else [_finite_or_none(v) for v in interval]
+                    None if interval is None else [finite_or_none(v) for v in interval]
                 ),
                 "covered_95": (
                     bool(interval[0] <= true_mu <= interval[1])
@@ -319,20 +316,20 @@ def summarize_run(
             ),
             "true_terrains_visited": visited,
             "excluded_terrains": sorted(set(excluded_terrains)),
-            "ari": _finite_or_none(m.ari) if m is not None else None,
+            "ari": finite_or_none(m.ari) if m is not None else None,
             "noise_fraction": (
-                _finite_or_none(m.noise_fraction) if m is not None else float(np.mean(ctx < 0))
+                finite_or_none(m.noise_fraction) if m is not None else float(np.mean(ctx < 0))
             ),
             "reidentification_latency_s": [
-                {"terrain": str(lab), "t_enter_s": t0, "latency_s": _finite_or_none(x)}
+                {"terrain": str(lab), "t_enter_s": t0, "latency_s": finite_or_none(x)}
                 for lab, t0, x in reid
             ],
-            "reidentification_latency_median_s": _finite_or_none(
+            "reidentification_latency_median_s": finite_or_none(
                 float(np.median(lat)) if lat else math.nan
             ),
             "reidentifications_missed": int(sum(not math.isfinite(x) for x in lat)),
             "new_terrain_latency_s": (
-                {k: _finite_or_none(v) for k, v in sorted(m.first_id_time_s.items())}
+                {k: finite_or_none(v) for k, v in sorted(m.first_id_time_s.items())}
                 if m is not None
                 else {}
             ),
@@ -360,8 +357,8 @@ def summarize_run(
         if has_truth:
             mf = metrics.context_metrics(t, terrain, final, excluded_labels=excluded)
             summary["final_clustering"] = {
-                "ari": _finite_or_none(mf.ari),
-                "noise_fraction": _finite_or_none(mf.noise_fraction),
+                "ari": finite_or_none(mf.ari),
+                "noise_fraction": finite_or_none(mf.noise_fraction),
                 "contexts": int(mf.n_contexts),
             }
         else:
