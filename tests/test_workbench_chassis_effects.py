@@ -2,39 +2,15 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
+from workbench_states import random_states, truth_columns
 
 from pcvfe_drake.vehicle.params import ford_escort
 from pcvfe_drake.workbench import synth
 from pcvfe_drake.workbench.data import prepare
 from pcvfe_drake.workbench.model import WorkbenchModel
 from pcvfe_drake.workbench.report import diagnose
-
-
-def _states(n=9, seed=0):
-    rng = np.random.default_rng(seed)
-    s = np.zeros((n, 8))
-    s[:, 3] = rng.uniform(8.0, 20.0, n)
-    s[:, 5] = rng.normal(0.0, 0.3, n)
-    s[:, 6] = rng.normal(0.0, 0.05, n)
-    s[:, 2] = s[:, 7] = rng.normal(0.0, 0.05, n)
-    u = np.stack([rng.normal(0, 0.1, n), rng.uniform(-3.0, 2.0, n)], axis=1)
-    return s, u
-
-
-def _truth(n, **kw):
-    vp = ford_escort()
-    keys = dict(
-        mu=vp.mu, CdA=0.0, c_rr=0.0, steer_tau=0.0, mu_peak=math.inf, gx=0.0, gy=0.0,
-        p_max_kw=math.inf, mu_speed_slope=0.0, mu_load_sens=0.0, mf_peak=math.inf,
-        mf_shape=1.35, mf_exp=0.0, k_f=1.0, k_r=1.0, m_rot=0.0, ff_drive=0.0,
-        ff_brake=0.0, ff_drag=0.0,
-    )  # fmt: skip
-    keys.update(kw)
-    return {k: np.full(n, v) for k, v in keys.items()}
 
 
 @pytest.mark.parametrize(
@@ -56,10 +32,10 @@ def _truth(n, **kw):
 )
 def test_effects_match_the_separately_written_truth(effects, theta_effects, truth):
     vp = ford_escort()
-    s, u = _states()
+    s, u = random_states()
     n = s.shape[0]
     mu = truth.get("mf_peak", vp.mu)
-    expected = synth._truth_rates(vp, _truth(n, **truth), s, u[:, 0], u[:, 1])[:, :7]
+    expected = synth._truth_rates(vp, truth_columns(n, **truth), s, u[:, 0], u[:, 1])[:, :7]
     model = WorkbenchModel(vp).with_effects(*effects)
     base, eff = model._unpack(np.tile([mu, *theta_effects], (n, 1)), np.zeros(n, int))
     assert np.allclose(model.rhs(s[:, :7], u, base, eff), expected, atol=1e-9)
@@ -75,7 +51,7 @@ def test_effects_match_the_separately_written_truth(effects, theta_effects, trut
 )
 def test_null_values_give_the_baseline(name, null):
     vp = ford_escort()
-    s, u = _states()
+    s, u = random_states()
     n = s.shape[0]
     base_model = WorkbenchModel(vp)
     b0, e0 = base_model._unpack(np.full((n, 1), vp.mu), np.zeros(n, int))

@@ -3,11 +3,10 @@ truth, the null value, and the loop on planted and clean data."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 from scipy.linalg import expm
+from workbench_states import random_states, truth_columns
 
 from pcvfe_drake.vehicle.params import ford_escort
 from pcvfe_drake.workbench import synth
@@ -29,31 +28,6 @@ def test_mode_transition_is_the_matrix_exponential(tau, zeta):
     assert np.allclose(got, expected, atol=1e-12, rtol=1e-9)
 
 
-def _truth(n, **kw):
-    vp = ford_escort()
-    keys = dict(
-        mu=vp.mu, CdA=0.0, c_rr=0.0, steer_tau=0.0, mu_peak=math.inf, gx=0.0, gy=0.0,
-        p_max_kw=math.inf, mu_speed_slope=0.0, mu_load_sens=0.0, mf_peak=math.inf,
-        mf_shape=1.35, mf_exp=0.0, k_f=1.0, k_r=1.0, m_rot=0.0, ff_drive=0.0,
-        ff_brake=0.0, ff_drag=0.0, pitch_tau=0.0, pitch_zeta=0.3,
-    )  # fmt: skip
-    keys.update(kw)
-    return {k: np.full(n, v) for k, v in keys.items()}
-
-
-def _states(n=9, seed=0):
-    rng = np.random.default_rng(seed)
-    s = np.zeros((n, 10))
-    s[:, 3] = rng.uniform(8.0, 20.0, n)
-    s[:, 5] = rng.normal(0.0, 0.3, n)
-    s[:, 6] = rng.normal(0.0, 0.05, n)
-    s[:, 2] = s[:, 7] = rng.normal(0.0, 0.05, n)
-    s[:, 8] = rng.normal(0.0, 2.0, n)  # load-transfer acceleration, away from a_x
-    s[:, 9] = rng.normal(0.0, 5.0, n)
-    u = np.stack([rng.normal(0, 0.1, n), rng.uniform(-3.0, 2.0, n)], axis=1)
-    return s, u
-
-
 @pytest.mark.parametrize(
     "effects, theta, truth",
     [
@@ -63,9 +37,9 @@ def _states(n=9, seed=0):
 )
 def test_rates_match_the_separately_written_truth(effects, theta, truth):
     vp = ford_escort()
-    s, u = _states()
+    s, u = random_states(pitch=True)
     n = s.shape[0]
-    tr = _truth(n, pitch_tau=0.125, pitch_zeta=0.2, **truth)
+    tr = truth_columns(n, pitch_tau=0.125, pitch_zeta=0.2, **truth)
     expected = synth._truth_rates(vp, tr, s, u[:, 0], u[:, 1])
     model = WorkbenchModel(vp).with_effects(*effects, "suspension_lag")
     assert model.param_names[-2:] == ["suspension_lag.tau", "suspension_lag.zeta"]
@@ -80,7 +54,7 @@ def test_rates_match_the_separately_written_truth(effects, theta, truth):
 
 def test_tau_zero_is_the_baseline_and_the_model_is_continuous_in_tau():
     vp = ford_escort()
-    s, u = _states()
+    s, u = random_states(pitch=True)
     n = s.shape[0]
     base_model = WorkbenchModel(vp)
     b0, e0 = base_model._unpack(np.full((n, 1), vp.mu), np.zeros(n, int))

@@ -350,32 +350,14 @@ def _truth_rates(vp, tr, s, steer_cmd, acc_cmd):
     return out
 
 
-def simulate_truths(
-    truths: list[Truth],
-    vehicle: VehicleParams | str | None = None,
-    duration_s: float = 120.0,
-    rate_hz: float = 20.0,
-    seed: int = 0,
-    noise: MeasurementNoise | None = SURVEY_INS_NOISE,
-    substeps: int = 5,
-    v0_mps: float = 10.0,
-) -> list[pd.DataFrame]:
-    """Drive logs (drive-log DataFrames) of several truths at once, same driving program.
-
-    The commands are computed at the log rate by the speed controller and steering tracker
-    from each plant's true state and held until the next sample; the plant is integrated with
-    RK4 at ``substeps`` steps per sample. Noise seeds differ per log (``seed + 1 + i``).
-    """
-    vp = vehicle if isinstance(vehicle, VehicleParams) else load_vehicle(vehicle)
-    dt = 1.0 / rate_hz
-    ex = design_excitation(vp, duration_s, dt, seed)
-    n = ex.v_ref.size
-    b = len(truths)
+def truth_columns(vp: VehicleParams, truths: list[Truth]) -> dict[str, np.ndarray]:
+    """The truths' parameters as the columns :func:`_truth_rates` reads: one array per key, an
+    entry per truth (``mu`` None becomes the vehicle's)."""
 
     def col(fn):
         return np.array([fn(t) for t in truths], dtype=float)
 
-    tr = {
+    return {
         "mu": col(lambda t: vp.mu if t.mu is None else t.mu),
         "CdA": col(lambda t: t.CdA),
         "c_rr": col(lambda t: t.c_rr),
@@ -398,7 +380,32 @@ def simulate_truths(
         "pitch_tau": col(lambda t: t.pitch_mode[0]),
         "pitch_zeta": col(lambda t: t.pitch_mode[1]),
     }
-    delay = col(lambda t: t.accel_delay)
+
+
+def simulate_truths(
+    truths: list[Truth],
+    vehicle: VehicleParams | str | None = None,
+    duration_s: float = 120.0,
+    rate_hz: float = 20.0,
+    seed: int = 0,
+    noise: MeasurementNoise | None = SURVEY_INS_NOISE,
+    substeps: int = 5,
+    v0_mps: float = 10.0,
+) -> list[pd.DataFrame]:
+    """Drive logs (drive-log DataFrames) of several truths at once, same driving program.
+
+    The commands are computed at the log rate by the speed controller and steering tracker
+    from each plant's true state and held until the next sample; the plant is integrated with
+    RK4 at ``substeps`` steps per sample. Noise seeds differ per log (``seed + 1 + i``).
+    """
+    vp = vehicle if isinstance(vehicle, VehicleParams) else load_vehicle(vehicle)
+    dt = 1.0 / rate_hz
+    ex = design_excitation(vp, duration_s, dt, seed)
+    n = ex.v_ref.size
+    b = len(truths)
+
+    tr = truth_columns(vp, truths)
+    delay = np.array([t.accel_delay for t in truths], dtype=float)
     s = np.zeros((b, 10))
     s[:, 3] = v0_mps
     states = np.empty((n, b, 7))
