@@ -49,6 +49,8 @@ STATES = ["sx", "sy", "delta", "v", "psi", "psi_dot", "beta"]
 TRUE_MU = {"patchy_grass": 0.30, "sand": 0.45, "concrete": 0.60, "brick": 0.80}
 PEAK = {"name": "peak_tyre", "fixed": {"k_s": 0.0}}
 AXLE = {"name": "axle_stiffness", "fixed": {"k_f": 1.01, "k_r": 1.24}}
+ROLL_CAMBER_TYRE = {"f0": -0.037, "f1": 0.0, "s0": 0.0027}
+"""``roll_camber`` at the multi-body tyre's own sign-of-camber offsets (``p_vy1``, ``p_hy1``)."""
 MODELS = {
     "as_run": [PEAK, AXLE],
     "stiffness_free": [PEAK, {"name": "axle_stiffness"}],
@@ -60,6 +62,8 @@ MODELS = {
         {"name": "rolling_resistance", "fixed": {"c_rr": 0.003}},
     ],
     "more_effects_fitted": [PEAK, AXLE, {"name": "speed_scale"}, {"name": "rolling_resistance"}],
+    "roll_camber_tyre": [PEAK, AXLE, {"name": "roll_camber", "fixed": ROLL_CAMBER_TYRE}],
+    "roll_camber_fitted": [PEAK, AXLE, {"name": "roll_camber"}],
 }
 
 

@@ -57,7 +57,7 @@ from pcvfe_drake.workbench.report import diagnose, write_report
 TERRAINS = {"patchy_grass": 0.30, "sand": 0.45, "concrete": 0.60, "brick": 0.80}
 """The paper map's quadrant terrains and their friction (pcvfe_drake.perception.terrain)."""
 FULL_MODEL = ("peak_tyre", "axle_stiffness", "rotating_inertia")
-WATCH = ("suspension_lag",)
+WATCH = ("suspension_lag", "roll_camber")
 """Effects whose last-round entry is reported (added to the library after the study)."""
 
 

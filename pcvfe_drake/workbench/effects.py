@@ -13,6 +13,8 @@ hook                what it changes
 ``friction``        a factor on the friction of one axle, seeing the state and the axle load
                     (speed- and load-dependent friction)
 ``cornering_stiffness`` the axle's normalised cornering stiffness (not its peak)
+``tire_offsets``    a slip shift inside the tyre law and a side force added to it, per axle
+                    (roll camber)
 ``body_forces``     extra axle lateral forces and longitudinal acceleration after the tyres
 ``tire``            the lateral tire force law (saturation); sees the state too
 ``longitudinal``    extra longitudinal acceleration [m/s^2] (drag, rolling, grade)
@@ -177,6 +179,13 @@ class Effect:
         """The normalised cornering stiffness [1/rad] (N,) of the axle ``ctx.axle`` (default
         ``C_Sf`` or ``C_Sr``); unlike a ``friction`` factor it leaves a tyre law's peak alone.
         Return None for no change."""
+        return None
+
+    def tire_offsets(self, fz, ctx: StepContext, p: dict):
+        """Offsets of the axle ``ctx.axle``'s tyre law (Pacejka's ``S_H``, ``S_V``):
+        ``(slip shift [rad], side force [N])``, each (N,) or 0; the law is evaluated at
+        ``alpha + shift`` and the force added to its result (positive: toward +y, the left).
+        None for none."""
         return None
 
     def tire(self, alpha, fz, c_alpha, p: dict, ctx: StepContext | None = None):

@@ -16,7 +16,8 @@ followed by the effects' own states)::
     8. tire forces            F_y = mu_axle C_S Fz alpha (linear; cornering_stiffness hooks
                               change C_S), or a tire hook
                               (tire_saturation, peak_tyre; it sees the state, the friction
-                              factor and the base mu)
+                              factor and the base mu); tire_offsets hooks shift the slip
+                              the law sees and add a side force to it (roll_camber)
     9. body_forces hooks      extra lateral force per axle and longitudinal acceleration
                               (wheel_force_steer: the wheels' forces turned by the steering)
        yaw and slip           r' = (lf F_yf - lr F_yr) / I_z,  beta' = (F_yf + F_yr) / (m v) - r
@@ -255,6 +256,11 @@ class WorkbenchModel:
                 if stiff is not None:
                     c_s = stiff
             c_alpha = base["mu"] * scale * c_s * fz
+            side = 0.0
+            for e in self.effects:
+                out = e.tire_offsets(fz, ctx, eff[e.name])
+                if out is not None:
+                    alpha, side = alpha + out[0], side + out[1]
             fy = c_alpha * alpha
             for e in self.effects:
                 if self._tire_takes_ctx[e.name]:
@@ -263,7 +269,7 @@ class WorkbenchModel:
                     out = e.tire(alpha, fz, c_alpha, eff[e.name])
                 if out is not None:
                     fy = out
-            forces.append(fy)
+            forces.append(fy + side)
         fyf, fyr = forces
         ctx.delta_wheel = delta_w
         for e in self.effects:

@@ -72,6 +72,10 @@ class Truth:
         pitch_mode: (time constant tau [s], damping ratio [-]) of the body's pitch: the axle
             loads follow the car's longitudinal acceleration through
             ``tau^2 q'' + 2 zeta tau q' + q = a_x`` (tau 0: instantly).
+        roll_camber: (f0 [-], f1 [-], s0 [rad]) of wheels cambered by roll: with the
+            steady lateral acceleration ``a = v r`` and the cornering direction
+            ``c = tanh(a / 0.5 m/s^2)`` every tyre sees the slip ``alpha + s0 c`` and gets
+            the side force ``Fz (f0 c + f1 a / g)`` on top of its law.
     """
 
     mu: float | None = None
@@ -94,6 +98,7 @@ class Truth:
     rotating_mass_kg: float = 0.0
     front_forces: tuple[float, float, float] = (0.0, 0.0, 0.0)
     pitch_mode: tuple[float, float] = (0.0, 0.3)
+    roll_camber: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 PLANTED: dict[str, tuple[Truth, str, float]] = {
@@ -114,6 +119,7 @@ PLANTED: dict[str, tuple[Truth, str, float]] = {
     "rotating_inertia": (Truth(rotating_mass_kg=60.0), "m_rot", 60.0),
     "wheel_force_steer": (Truth(front_forces=(1.0, 0.76, 1.0)), "k_drag", 1.0),
     "suspension_lag": (Truth(pitch_mode=(0.125, 0.2)), "tau", 0.125),
+    "roll_camber": (Truth(roll_camber=(-0.037, -0.08, 0.0)), "f1", -0.08),
 }
 """Realistic planted magnitudes per effect: (truth, the parameter's name, its planted value).
 Ford Escort class car: CdA 0.75 m^2 (Cd 0.36 x 2.1 m^2), c_rr 0.015, steering lag 0.15 s,
@@ -127,7 +133,12 @@ cornering stiffnesses 0.93 / 1.12 x nominal, a 60 kg rotating mass and front whe
 the drive and 76 % of the brake force, turned with the steering (CommonRoad's Ford Escort;
 the values the workbench reads on its multi-body model), and a pitch mode of 1.27 Hz with
 damping ratio 0.2 (tau 0.125 s; near the multi-body Ford Escort's 1.4 Hz and 0.22, fitted to a
-braking step by ``benchmarks/mb_suspension.py``)."""
+braking step by ``benchmarks/mb_suspension.py``), and roll camber: a camber thrust of -8 % of
+the load per g of lateral acceleration (wheels leaning out with the body's roll, ~0.1 rad per
+g, on a tyre with a camber stiffness of ~0.8 Fz per rad; checked: ``f1``) and a step side
+force of -3.7 % of the load switching with the cornering direction (CommonRoad's multi-body
+tyre: ``p_vy1`` by the camber's sign); its slip shift is not planted: on the linear tyre it is
+the same as a force)."""
 
 
 LATERAL_PATTERN_MPS2 = np.array([1.0, 5.5, 2.5, 6.0, 3.5, 5.0])
@@ -294,8 +305,14 @@ def _truth_rates(vp, tr, s, steer_cmd, acc_cmd):
     a_load = np.where(pitched, s[:, 8], a_x) if s.shape[1] > 8 else a_x
     fzf = fzf0 - vp.m * a_load * vp.h / wheelbase
     fzr = fzr0 + vp.m * a_load * vp.h / wheelbase
-    alpha_f = wheel - beta - vp.lf * r / vs
-    alpha_r = -beta + vp.lr * r / vs
+    # roll camber: the tyres see a shifted slip and get a side force per unit load
+    a_lat = v * r
+    turn = np.tanh(a_lat / 0.5)
+    zeros = np.zeros(s.shape[0])
+    cam_shift = tr.get("cam_s0", zeros) * turn
+    cam_side = tr.get("cam_f0", zeros) * turn + tr.get("cam_f1", zeros) * a_lat / vp.g
+    alpha_f = wheel - beta - vp.lf * r / vs + cam_shift
+    alpha_r = -beta + vp.lr * r / vs + cam_shift
     mu_v = tr["mu"] * (1.0 - tr["mu_speed_slope"] * (v - 15.0))
     mu_f = mu_v * (1.0 - tr["mu_load_sens"] * (fzf / fzf0 - 1.0))
     mu_r = mu_v * (1.0 - tr["mu_load_sens"] * (fzr / fzr0 - 1.0))
@@ -325,6 +342,8 @@ def _truth_rates(vp, tr, s, steer_cmd, acc_cmd):
         )
         fyf = np.where(np.isfinite(tr["mf_peak"]), mf_f, fyf)
         fyr = np.where(np.isfinite(tr["mf_peak"]), mf_r, fyr)
+    fyf = fyf + cam_side * fzf
+    fyr = fyr + cam_side * fzr
     sin_w = np.sin(wheel)
     fxf = vp.m * acc * np.where(acc > 0, tr["ff_drive"], tr["ff_brake"])
     a_x = a_x - tr["ff_drag"] * fyf * sin_w / vp.m
@@ -379,6 +398,9 @@ def truth_columns(vp: VehicleParams, truths: list[Truth]) -> dict[str, np.ndarra
         "ff_drag": col(lambda t: t.front_forces[2]),
         "pitch_tau": col(lambda t: t.pitch_mode[0]),
         "pitch_zeta": col(lambda t: t.pitch_mode[1]),
+        "cam_f0": col(lambda t: t.roll_camber[0]),
+        "cam_f1": col(lambda t: t.roll_camber[1]),
+        "cam_s0": col(lambda t: t.roll_camber[2]),
     }
 
 

@@ -15,6 +15,13 @@ And one tyre law that uses the ``tire`` hook:
 * ``peak_tyre``: a Pacejka magic-formula lateral tyre with which the base ``mu`` IS the
   friction peak (``friction_is_peak``), its small-slip stiffness following the friction level
   by an exponent (see :class:`PeakTyre`).
+
+And one that uses the ``tire_offsets`` hook (a slip shift and a side force, Pacejka's
+``S_H`` and ``S_V``):
+
+* ``roll_camber``: the side force and slip shift of wheels cambered by the body's roll, with
+  a part that switches with the cornering direction and a part that grows with the lateral
+  acceleration (see :class:`RollCamber`).
 """
 
 from __future__ import annotations
@@ -133,5 +140,73 @@ class PeakTyre(Effect):
         return (ay**3)[:, None]
 
 
-for _cls in (FrictionSpeed, FrictionLoad, PeakTyre):
+ROLL_SIGN_WIDTH_MPS2 = 0.5
+"""Width of ``roll_camber``'s smooth sign ``tanh(v psi_dot / width)`` [m/s^2]: below about
+this lateral acceleration the roll is small against the cambers the suspension sets per
+wheel, the two wheels of an axle have cambers of opposite sign and their step forces cancel.
+On CommonRoad's multi-body Ford Escort a regression of the axles' camber forces on
+``tanh(v psi_dot / w)`` and ``v psi_dot`` leaves the least unexplained with w 0.2-0.5 m/s^2
+(0.5 m/s^2 for both axles together; ``benchmarks/mb_camber.py``)."""
+
+
+class RollCamber(Effect):
+    """Side force and slip shift of wheels cambered by the body's roll (camber thrust).
+
+    In a bend the body rolls towards the outside and the roll cambers the wheels of both
+    axles the same way; a cambered tyre makes a side force (camber thrust) and its force
+    curve shifts along the slip. Per axle, with ``a = v psi_dot`` (the lateral acceleration
+    of steady cornering; the roll follows it) and ``s = tanh(a / 0.5 m/s^2)`` (the cornering
+    direction, smooth)::
+
+        slip the tyre law sees   alpha + s0 s                       (Pacejka's S_H)
+        side force added         Fz (f0 s + f1 a / g)               (Pacejka's S_V)
+
+    Positive values push toward the inside of the bend (they add to the cornering force).
+    ``f1`` is the part proportional to the roll: a real tyre's camber thrust, its force
+    proportional to the camber (Pacejka's ``p_vy3 gamma``; the roll angle grows linearly with
+    the lateral acceleration). ``f0`` and ``s0`` are a step with the cornering direction: a
+    real tyre has none; CommonRoad's multi-body tyre code multiplies the magic formula's
+    offsets ``p_vy1`` (0.037 of the load) and ``p_hy1`` (0.0027 rad), in Pacejka's model
+    constant offsets (conicity, ply steer) that do not switch, by the sign of the wheel's
+    camber (``S_vy = sign(gamma) F_z (p_vy1 + p_vy3 |gamma|)``, ``S_hy = sign(gamma) (p_hy1
+    + p_hy3 |gamma|)``), so on that model they switch with the roll. On a real car use
+    ``f1`` (fix ``f0 = s0 = 0``). The smooth sign's width (``ROLL_SIGN_WIDTH_MPS2``) stands in
+    for the lateral accelerations at which the two wheels of an axle have cambers of opposite
+    sign (straight running: the suspension's static camber) and their forces cancel.
+
+    With a linear tyre a slip shift is a force ``mu C_S Fz s0``, the same as ``f0``: ``s0``
+    and ``f0`` separate only where the tyre saturates (with ``peak_tyre`` near the limit,
+    where the shift moves the peak along the slip but not its height). Null: all 0.
+    Residual signature: the side slip's residual follows the cornering direction (equal
+    forces per unit load make no yaw moment at the static loads).
+    """
+
+    name = "roll_camber"
+    description = (
+        "roll camber: slip alpha + s0 s, side force Fz (f0 s + f1 a_y / g), "
+        "s = tanh(a_y / 0.5 m/s^2), a_y = v psi_dot"
+    )
+    params = (
+        EffectParam("f0", "-", -0.1, 0.1, 0.0, 0.01, 0.0, "step side force per axle load"),
+        EffectParam("f1", "-", -0.3, 0.3, 0.0, 0.02, 0.0, "side force per load per g of a_y"),
+        EffectParam("s0", "rad", -0.01, 0.01, 0.0, 0.001, 0.0, "step slip shift"),
+    )
+    signature_state = "beta"
+    signature_label = "cornering direction tanh(v psi_dot / 0.5)"
+
+    @staticmethod
+    def direction(x) -> tuple[np.ndarray, np.ndarray]:
+        """(``a = v psi_dot`` [m/s^2], its smooth sign) of states ``x`` (N, 7)."""
+        a = x[:, 3] * x[:, 5]
+        return a, np.tanh(a / ROLL_SIGN_WIDTH_MPS2)
+
+    def tire_offsets(self, fz, ctx, p):
+        a, s = self.direction(ctx.x)
+        return p["s0"] * s, fz * (p["f0"] * s + p["f1"] * a / ctx.vehicle.g)
+
+    def signature_regressors(self, data):
+        return self.direction(data.x)[1][:, None]
+
+
+for _cls in (FrictionSpeed, FrictionLoad, PeakTyre, RollCamber):
     register_effect(_cls)
