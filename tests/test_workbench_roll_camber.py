@@ -3,10 +3,9 @@ the cornering direction, and the loop on planted and clean data."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
+from workbench_states import random_states, truth_columns
 
 from pcvfe_drake.vehicle.params import ford_escort
 from pcvfe_drake.workbench import synth
@@ -16,30 +15,6 @@ from pcvfe_drake.workbench.ranking import Workbench
 from pcvfe_drake.workbench.report import diagnose
 from pcvfe_drake.workbench.selection import try_effect
 from pcvfe_drake.workbench.tyre_effects import ROLL_SIGN_WIDTH_MPS2, RollCamber
-
-
-def _truth(n, **kw):
-    vp = ford_escort()
-    keys = dict(
-        mu=vp.mu, CdA=0.0, c_rr=0.0, steer_tau=0.0, mu_peak=math.inf, gx=0.0, gy=0.0,
-        p_max_kw=math.inf, mu_speed_slope=0.0, mu_load_sens=0.0, mf_peak=math.inf,
-        mf_shape=1.35, mf_exp=0.0, k_f=1.0, k_r=1.0, m_rot=0.0, ff_drive=0.0,
-        ff_brake=0.0, ff_drag=0.0, cam_f0=0.0, cam_f1=0.0, cam_s0=0.0,
-    )  # fmt: skip
-    keys.update(kw)
-    return {k: np.full(n, v) for k, v in keys.items()}
-
-
-def _states(n=12, seed=0):
-    rng = np.random.default_rng(seed)
-    s = np.zeros((n, 8))
-    s[:, 3] = rng.uniform(5.0, 20.0, n)
-    s[:, 5] = rng.normal(0.0, 0.3, n)  # lateral accelerations up to ~10 m/s^2, both ways
-    s[:, 6] = rng.normal(0.0, 0.05, n)
-    s[:, 2] = s[:, 7] = rng.normal(0.0, 0.05, n)
-    u = np.stack([rng.normal(0, 0.1, n), rng.uniform(-3.0, 2.0, n)], axis=1)
-    return s, u
-
 
 CAMBER = (-0.037, 0.03, 0.0027)
 
@@ -54,22 +29,22 @@ CAMBER = (-0.037, 0.03, 0.0027)
 )
 def test_rates_match_the_separately_written_truth(effects, theta, truth):
     vp = ford_escort()
-    s, u = _states()
+    s, u = random_states(12)
     n = s.shape[0]
-    tr = _truth(n, cam_f0=CAMBER[0], cam_f1=CAMBER[1], cam_s0=CAMBER[2], **truth)
+    tr = truth_columns(n, cam_f0=CAMBER[0], cam_f1=CAMBER[1], cam_s0=CAMBER[2], **truth)
     expected = synth._truth_rates(vp, tr, s, u[:, 0], u[:, 1])
     model = WorkbenchModel(vp).with_effects(*effects, "roll_camber")
     assert model.param_names[-3:] == ["roll_camber.f0", "roll_camber.f1", "roll_camber.s0"]
     base, eff = model._unpack(np.tile([*theta, *CAMBER], (n, 1)), np.zeros(n, int))
     assert np.allclose(model.rhs(s[:, :7], u, base, eff), expected[:, :7], atol=1e-9)
     # and the offsets matter: the truth without them differs
-    plain = synth._truth_rates(vp, _truth(n, **truth), s, u[:, 0], u[:, 1])
+    plain = synth._truth_rates(vp, truth_columns(n, **truth), s, u[:, 0], u[:, 1])
     assert np.min(np.abs(plain[:, 6] - expected[:, 6])) > 1e-4
 
 
 def test_null_is_the_baseline_and_offsets_follow_the_cornering_direction():
     vp = ford_escort()
-    s, u = _states()
+    s, u = random_states(12)
     n = s.shape[0]
     base_model = WorkbenchModel(vp)
     b0, e0 = base_model._unpack(np.full((n, 1), vp.mu), np.zeros(n, int))
