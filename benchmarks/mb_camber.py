@@ -20,7 +20,7 @@ wheel ``S_hy = sign(gamma) (p_hy1 + p_hy3 |gamma|)`` to the slip and ``S_vy = si
   magic formula, alpha = the mean slip of its wheels) fitted to it by least squares: the
   parameters and the RMS left.
 
-Usage: python benchmarks/mb_camber.py [--seconds S]
+Usage: python benchmarks/mb_camber.py [--seconds S] [--quick]
 Last stdout line: one JSON object.
 """
 
@@ -162,7 +162,10 @@ def drive(truth, vp, mapping: str, mu: float, seconds: float) -> dict:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=40.0, help="length of each drive [s]")
+    parser.add_argument("--quick", action="store_true", help="15 s drives")
     args = parser.parse_args()
+    if args.quick:
+        args.seconds = 15.0
     t0 = time.perf_counter()
     vp = load_vehicle("ford_escort")
     check = sign_check(MbTruth("ford_escort", "lateral_peak"))
