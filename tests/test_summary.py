@@ -269,3 +269,26 @@ def test_a_log_without_truth_is_scored_only_where_truth_is_not_needed(course):
     assert "ground truth" in table and "none:" in table
     assert "lcm (state: late 2, timeouts 1)" in table
     assert summarize(planted_log(course), course)["ground_truth"] is True
+
+
+def test_transition_entries_time_the_id_the_first_fit_and_the_lateral_error(course):
+    log = planted_log(course)
+    # Context 1 ("b") first fitted 1.5 s after its id; context 2 ("c") fitted before its entry
+    # is impossible here, so give it a fit long after its visit ended: none during the visit.
+    table = [
+        {"id": 1, "mu": 0.82, "mu_std": 0.01, "samples": 10, "first_fit_s": math.nan},
+        {"id": 2, "mu": 0.47, "mu_std": 0.01, "samples": 10, "first_fit_s": 1e6},
+    ]
+    t = log["t"].to_numpy()
+    b_entry = t[np.flatnonzero(log["terrain"].to_numpy() == "b")[0]]
+    table[0]["first_fit_s"] = b_entry + 3.5
+    s = summarize(log, course, estimate_table=table)
+    entries = {e["terrain"]: e for e in s["transition_response"]["entries"]}
+    b, c = entries["b"], entries["c"]
+    assert b["context"] == 1 and b["context_id_s"] == pytest.approx(2.0, abs=1e-6)
+    assert b["first_fit_s"] == pytest.approx(3.5, abs=1e-6)
+    assert c["context"] == 2 and c["context_id_s"] == pytest.approx(2.0, abs=1e-6)
+    assert c["first_fit_s"] is None
+    # The planted path follows the course: the lateral error is ~0 on every visit.
+    assert all(e["max_abs_lateral_error_m"] < 0.05 for e in entries.values())
+    json.dumps(s, allow_nan=False)

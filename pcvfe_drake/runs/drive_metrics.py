@@ -15,13 +15,16 @@ under the car.
   least ``settle_s`` (10 s) after entering the current terrain (transition strips excluded):
   the steady-state error of any friction source, with or without contexts.
 - :func:`transition_response`: per entry into a terrain, the time until mu_hat is first within
-  ``tol`` (0.05) of that terrain's mu (null if never during the visit).
+  ``tol`` (0.05) of that terrain's mu (null if never during the visit); with the context column,
+  also the time until the visit's context was first reported (``context_id_s``) and, given the
+  fitter's first-fit times, until that context had a fit (``first_fit_s``); with the lateral
+  error, its largest magnitude over the visit.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
 from typing import Any
 
 import numpy as np
@@ -126,27 +129,68 @@ def mu_error_after_settling(
     }
 
 
+def visit_context(ctx: np.ndarray) -> int | None:
+    """The context of a visit: the id most often reported over its rows (noise left out)."""
+    ids = ctx[ctx >= 0]
+    if ids.size == 0:
+        return None
+    values, counts = np.unique(ids, return_counts=True)
+    return int(values[np.argmax(counts)])
+
+
 def transition_response(
-    log: pd.DataFrame, excluded: Collection[str] = (), tol: float = TRANSITION_TOL
+    log: pd.DataFrame,
+    excluded: Collection[str] = (),
+    tol: float = TRANSITION_TOL,
+    *,
+    first_fit_s: Mapping[int, float] | None = None,
+    lateral_error_m: np.ndarray | None = None,
 ) -> dict[str, Any]:
-    """Per terrain entry (the run's start excluded): time until |mu_hat - mu_true| <= ``tol``."""
+    """Per terrain entry (the run's start excluded): time until |mu_hat - mu_true| <= ``tol``.
+
+    Each entry also has, where the log allows: ``context`` (the visit's context,
+    :func:`visit_context` of its rows' ``context`` column) and ``context_id_s``, the time from
+    the entry until that context was first reported (the new terrain's latency to an id: a
+    re-clustering must name a terrain never seen before); ``first_fit_s``, the time from the
+    entry until that context had its first fit (``first_fit_s``: {context id: sim time of its
+    first fit [s]}; never before ``context_id_s``: the estimate reaches the controller with
+    the id); ``max_abs_lateral_error_m`` over the visit (``lateral_error_m``: per row [m]).
+    Times are None when it never happened during the visit.
+    """
     t = log["t"].to_numpy(float)
     err = np.abs(log["mu_hat"].to_numpy(float) - log["mu_true"].to_numpy(float))
     terrain = log["terrain"].astype(str).to_numpy()
+    ctx = log["context"].to_numpy(float) if "context" in log.columns else None
     entries = []
     for a, b, name in _visits(terrain, set(excluded)):
         if a == 0:
             continue
         within = np.flatnonzero(err[a:b] <= tol)
         latency = float(t[a + within[0]] - t[a]) if within.size else math.inf
-        entries.append(
-            {
-                "terrain": name,
-                "t_enter_s": float(t[a]),
-                "visit_s": float(t[b - 1] - t[a]),
-                "response_s": latency if math.isfinite(latency) else None,
-            }
-        )
+        entry: dict[str, Any] = {
+            "terrain": name,
+            "t_enter_s": float(t[a]),
+            "visit_s": float(t[b - 1] - t[a]),
+            "response_s": latency if math.isfinite(latency) else None,
+        }
+        if ctx is not None:
+            ids = np.where(np.isfinite(ctx[a:b]), ctx[a:b], -1).astype(int)
+            k = visit_context(ids)
+            entry["context"] = k
+            named = None if k is None else float(t[a + np.flatnonzero(ids == k)[0]] - t[a])
+            entry["context_id_s"] = named
+            fit = None
+            if named is not None and first_fit_s is not None:
+                t_fit = first_fit_s.get(k)
+                if t_fit is not None and math.isfinite(t_fit) and t_fit <= t[b - 1]:
+                    fit = max(named, float(t_fit - t[a]))
+            entry["first_fit_s"] = fit
+        if lateral_error_m is not None:
+            lat = np.abs(np.asarray(lateral_error_m, dtype=float)[a:b])
+            entry["max_abs_lateral_error_m"] = (
+                float(np.nanmax(lat)) if np.isfinite(lat).any() else None
+            )
+        entries.append(entry)
     done = [e["response_s"] for e in entries if e["response_s"] is not None]
     return {
         "tolerance": tol,

@@ -69,6 +69,20 @@ def sample_weights(t_s: np.ndarray) -> np.ndarray:
     return np.append(dt, dt[-1])
 
 
+def lateral_error_rows(log: pd.DataFrame, course) -> np.ndarray | None:
+    """Signed lateral error [m] of every row's position against ``course`` (NaN where the state
+    is not finite; None without a course)."""
+    if course is None:
+        return None
+    xy = log[["sx", "sy"]].to_numpy(float)
+    psi = log["psi"].to_numpy(float)
+    finite = np.all(np.isfinite(xy), axis=1) & np.isfinite(psi)
+    lat = np.full(len(log), np.nan)
+    if finite.any():
+        lat[finite] = course.project(xy[finite], heading=psi[finite]).lateral_error
+    return lat
+
+
 def course_tracking(log: pd.DataFrame, course) -> dict[str, Any]:
     """Lap count, lap time and catastrophic failures of the driven path against ``course``.
 
@@ -306,7 +320,17 @@ def summarize_run(
     summary["mu_error_after_entry"] = drive_metrics.mu_error_after_settling(
         log, excluded_terrains
     )
-    summary["transition_response"] = drive_metrics.transition_response(log, excluded_terrains)
+    first_fit = {
+        int(r["id"]): float(r["first_fit_s"])
+        for r in (estimate_table or [])
+        if finite_or_none(r.get("first_fit_s", math.nan)) is not None
+    }
+    summary["transition_response"] = drive_metrics.transition_response(
+        log,
+        excluded_terrains,
+        first_fit_s=first_fit,
+        lateral_error_m=lateral_error_rows(truth, course),
+    )
     summary["transition_response_s"] = summary["transition_response"]["median_s"]
     lat = [r[2] for r in reid]
     summary.update(
