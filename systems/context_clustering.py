@@ -19,7 +19,8 @@ from pcvfe_drake.contexts.clustering import (
 
 
 class ContextClustering(LeafSystem):
-    """Assigns every camera frame a terrain context id; re-clusters with HDBSCAN every 10 s.
+    """Assigns every camera frame a terrain context id; re-clusters with HDBSCAN every 10 s (and,
+    optionally, as soon as a new terrain has gathered enough frames).
 
     .. pydrake_system::
 
@@ -56,6 +57,14 @@ class ContextClustering(LeafSystem):
     :class:`ContextClusterer` (store, table, random generator) lives in the context's abstract
     state. A frame with non-finite features gets -1
     and is not stored.
+
+    Novelty trigger (``params.novelty_window_s`` set; off by default, the paper's design): when
+    a noise frame finds the recent frames mostly noise (:meth:`ContextClusterer.novelty_due`: a
+    terrain not seen before has gathered enough frames to form a context), the frame event
+    tries a re-clustering at once (:meth:`ContextClusterer.recluster_if_novel`: kept only if it
+    names a new context), rate-limited by ``params.novelty_min_interval_s``; if kept, the frame
+    takes its id from the new clustering, ids persist and ``frame_labels`` gets a new version
+    exactly as after a periodic re-clustering. The periodic one keeps running.
     """
 
     def __init__(
@@ -151,7 +160,10 @@ class ContextClustering(LeafSystem):
     def _on_frame(self, context: Context, state: State) -> EventStatus:
         z = np.asarray(self._features_port.Eval(context), dtype=float)
         clusterer = state.get_mutable_abstract_state(self._clusterer_index).get_mutable_value()
-        context_id = clusterer.assign(z, context.get_time())
+        t = context.get_time()
+        context_id = clusterer.assign(z, t)
+        if context_id == NOISE and clusterer.novelty_due(t) and clusterer.recluster_if_novel(t):
+            context_id = int(clusterer.predict(z)[0])
         state.get_mutable_discrete_state(self._id_index).SetAtIndex(0, float(context_id))
         return EventStatus.Succeeded()
 

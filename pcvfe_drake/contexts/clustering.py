@@ -108,6 +108,9 @@ class ContextClusterer:
         self._records: dict[int, ClusterRecord] = {}
         self._next_id = 0
         self._recluster_time_s = math.nan
+        self._novelty_try_s = math.nan
+        self._n_novelty_tries = 0
+        self._n_novelty_kept = 0
         self._n_reclusterings = 0
         self._last_recluster_duration_s = 0.0
         self._n_frames = 0
@@ -299,6 +302,62 @@ class ContextClusterer:
 
     # ----------------------------------------------------------------------------------------
     # Re-clustering
+    def recent_noise_frames(self, t_s: float, window_s: float) -> int:
+        """Noise frames taken in (``t_s - window_s``, ``t_s``] that are still in the store.
+
+        The noise window keeps the newest ``noise_memory_s`` of them, so for a window shorter
+        than that this is every noise frame of the window."""
+        noise = self._used & (self._label == NOISE)
+        return int(np.count_nonzero(noise & (self._t > t_s - window_s) & (self._t <= t_s)))
+
+    def novelty_due(self, t_s: float) -> bool:
+        """True when a novelty-triggered re-clustering is due at ``t_s`` [s].
+
+        ``params.novelty_window_s`` None: never. Otherwise: at least ``params.novelty_frames``
+        noise frames in the last ``novelty_window_s`` (a terrain never seen before, gathering
+        at the camera rate) and ``novelty_min_interval_s`` since the latest re-clustering or
+        triggered attempt.
+        """
+        p = self.params
+        need = p.novelty_frames
+        if need is None:
+            return False
+        for last in (self._recluster_time_s, self._novelty_try_s):
+            if math.isfinite(last) and t_s - last < p.novelty_min_interval_s:
+                return False
+        return self.recent_noise_frames(t_s, p.novelty_window_s) >= need
+
+    @property
+    def novelty_counts(self) -> tuple[int, int]:
+        """(triggered attempts, attempts kept) of :meth:`recluster_if_novel` so far."""
+        return self._n_novelty_tries, self._n_novelty_kept
+
+    def recluster_if_novel(self, t_s: float) -> bool:
+        """A triggered re-clustering, kept only if it names a context not active before.
+
+        It runs on a copy; the copy replaces this clusterer only if a new context appeared (a
+        fresh id, or a vanished one back). Otherwise nothing changes (store, table, label
+        version): the recent noise frames of a new terrain are not yet dense enough to stand on
+        their own, and a clustering that merged them into a neighbouring context would widen
+        its gate over the new terrain until the next periodic re-clustering splits them. The
+        attempt counts for the rate limit either way.
+
+        Returns:
+            True if the re-clustering was kept.
+        """
+        self._novelty_try_s = float(t_s)
+        self._n_novelty_tries += 1
+        before = {k for k, r in self._records.items() if r.active}
+        trial = copy.deepcopy(self)
+        trial.recluster(t_s)
+        after = {k for k, r in trial._records.items() if r.active}
+        if not after - before:
+            self._last_recluster_duration_s = trial._last_recluster_duration_s
+            return False
+        trial._n_novelty_kept += 1
+        self.__dict__.update(trial.__dict__)
+        return True
+
     def recluster(self, t_s: float) -> ClusterTable:
         """Re-cluster the store with HDBSCAN, keep ids by Algorithm 1, rebuild strata and gates.
 

@@ -42,6 +42,16 @@ class ClusteringParams:
             feature backend (CLIP or descriptor vectors have different scales).
         persistence_scale: see ``persistence_epsilon``.
         seed: seed of the reservoir sampling.
+        novelty_window_s: novelty-triggered re-clustering (None, the default: off, the paper's
+            periodic re-clustering only). When the frames of the last ``novelty_window_s``
+            seconds were mostly noise (at least ``novelty_fraction`` of the frames the camera
+            rate gives in that time), a terrain not seen before has gathered enough frames to
+            form a context: :meth:`ContextClusterer.novelty_due` says so, and the system
+            re-clusters at once instead of waiting for the period. At least
+            ``min_cluster_duration_s`` (a shorter window could not hold a cluster).
+        novelty_fraction: share of noise frames in the window that triggers, in (0, 1].
+        novelty_min_interval_s: at most one triggered re-clustering per this many seconds after
+            any re-clustering (bounds the cost while a terrain stays noise).
     """
 
     frame_rate_hz: float = 10.0
@@ -56,6 +66,9 @@ class ClusteringParams:
     persistence_epsilon: float | None = None
     persistence_scale: float = 1.5
     seed: int = 0
+    novelty_window_s: float | None = None
+    novelty_fraction: float = 0.8
+    novelty_min_interval_s: float = 1.0
 
     def __post_init__(self) -> None:
         positive = (
@@ -89,6 +102,32 @@ class ClusteringParams:
                 "ClusteringParams.persistence_epsilon must be None or a positive number, got "
                 f"{self.persistence_epsilon!r}"
             )
+        if self.novelty_window_s is not None and not (
+            isinstance(self.novelty_window_s, int | float)
+            and math.isfinite(self.novelty_window_s)
+            and self.novelty_window_s >= self.min_cluster_duration_s
+        ):
+            raise ValueError(
+                "ClusteringParams.novelty_window_s must be None (off) or a number of seconds >= "
+                f"min_cluster_duration_s ({self.min_cluster_duration_s!r}), got "
+                f"{self.novelty_window_s!r}"
+            )
+        if not (
+            isinstance(self.novelty_fraction, int | float) and 0.0 < self.novelty_fraction <= 1.0
+        ):
+            raise ValueError(
+                "ClusteringParams.novelty_fraction must be in (0, 1], got "
+                f"{self.novelty_fraction!r}"
+            )
+        if not (
+            isinstance(self.novelty_min_interval_s, int | float)
+            and math.isfinite(self.novelty_min_interval_s)
+            and self.novelty_min_interval_s > 0
+        ):
+            raise ValueError(
+                "ClusteringParams.novelty_min_interval_s must be a positive number of seconds, "
+                f"got {self.novelty_min_interval_s!r}"
+            )
         if self.min_cluster_size < 2:
             raise ValueError(
                 "ClusteringParams: min_cluster_duration_s * frame_rate_hz must give at least 2 "
@@ -115,6 +154,13 @@ class ClusteringParams:
         """Frames of the noise window (``noise_memory_s``, at most a third of ``max_stored``)."""
         window = min(round(self.noise_memory_s * self.frame_rate_hz), self.max_stored // 3)
         return max(self.min_cluster_size, window)
+
+    @property
+    def novelty_frames(self) -> int | None:
+        """Noise frames within ``novelty_window_s`` that trigger a re-clustering (None: off)."""
+        if self.novelty_window_s is None:
+            return None
+        return max(1, math.ceil(self.novelty_fraction * self.novelty_window_s * self.frame_rate_hz))
 
     @property
     def min_reservoir(self) -> int:

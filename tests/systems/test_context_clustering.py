@@ -167,3 +167,47 @@ def test_frame_offset_assigns_the_frame_of_the_same_period(offset_s, age_s):
     assert clustering.frame_offset_s == offset_s
     with pytest.raises(ValueError, match="frame_offset_s"):
         ContextClustering(feature_dim=1, frame_offset_s=0.1)
+
+
+def test_novelty_trigger_names_a_new_terrain_without_waiting_for_the_period():
+    # Terrain A 0-25 s, B 25-45 s, A again: the same stream as above, with the novelty trigger.
+    stream = synthetic_feature_stream(
+        n_laps=2, terrain_durations_s=(25.0, 20.0), outlier_fraction=0.0, seed=5
+    )
+    params = ClusteringParams(frame_rate_hz=10.0, novelty_window_s=5.0)
+    builder = DiagramBuilder()
+    source = builder.AddNamedSystem(
+        "features",
+        TrajectorySource(PiecewisePolynomial.ZeroOrderHold(stream.t_s, stream.z.T)),
+    )
+    clustering = builder.AddNamedSystem("context_clustering", ContextClustering(36, params))
+    builder.Connect(source.get_output_port(), clustering.GetInputPort("features"))
+    logger = LogVectorOutput(clustering.GetOutputPort("context_id"), builder, 0.1)
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(52.0)
+
+    log = logger.FindLog(simulator.get_context())
+    t, ids = log.sample_times(), log.data()[0]
+    truth = stream.label[np.clip(np.round(t * 10).astype(int) - 1, 0, None)]
+    # A is named once 5 s of it are stored (the periodic re-clustering would wait until 10 s).
+    first_a = t[(ids == 0) & (truth == 0)][0]
+    assert 4.0 <= first_a <= 7.0
+    # B too: a few seconds after its entry (25.6 s, after the transition strip), not at the
+    # re-clustering of 40 s.
+    b = (truth == 1) & (t < 45.0)
+    assert not np.any(ids[b] == 0)
+    first_b = t[b & (ids == 1)][0]
+    assert first_b - t[b][0] <= 7.0
+    assert np.mean(ids[b & (t > first_b + 1.0)] == 1) > 0.95
+    # Back on A: re-identified with its old id (Algorithm 1 across triggered re-clusterings).
+    a_again = (truth == 0) & (t > 45.0)
+    assert t[a_again & (ids == 0)][0] - t[a_again][0] <= 0.3
+    context = clustering.GetMyContextFromRoot(simulator.get_context())
+    table = clustering.GetOutputPort("cluster_table").Eval(context)
+    assert table.active_ids == [0, 1]
+    # Periodic ones (5 by 52 s) plus the triggered ones, at most one per min interval while noise
+    # piles up: a handful, not one per frame.
+    assert 5 < table.n_reclusterings <= 5 + 12
+    frames = clustering.GetOutputPort("frame_labels").Eval(context)
+    assert frames.version == table.n_reclusterings
