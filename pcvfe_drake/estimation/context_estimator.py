@@ -41,10 +41,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from pcvfe_drake.estimation.context_switch import RiseGuard, check_confirm_s
 from pcvfe_drake.estimation.effect_fit import (
     EffectFitter,
     FitterEffect,
-    friction_used,
+    identifiability,
     parse_effects,
 )
 from pcvfe_drake.estimation.estimate_table import ContextEstimate, EstimateTable
@@ -99,6 +100,8 @@ class LiveFitConfig:
             (default: the vehicle's nominal [mu, C_Sf, C_Sr]).
         noise_hold_s: how long [s] a noise/unknown context keeps the last known context's
             theta before the unknown-context policy takes over (0: at once).
+        rise_confirm_s: a switch to a context with more friction waits until the new context
+            has been reported this long (0: off; ``pcvfe_drake.estimation.context_switch``).
         unknown_context: what the controller gets while the context is unknown (noise beyond
             ``noise_hold_s``, or a context with no fit yet): ``"prior"``, ``"last_known"`` or
             ``"conservative"`` (``pcvfe_drake.estimation.unknown_context``).
@@ -158,6 +161,7 @@ class LiveFitConfig:
     max_iterations: int = 5
     max_contexts_per_update: int = 2
     noise_hold_s: float = 1.0
+    rise_confirm_s: float = 0.0
     unknown_context: str = DEFAULT_POLICY
     unknown_floor_mu: float = DEFAULT_FLOOR_MU
     unknown_sigmas: float = DEFAULT_SIGMAS
@@ -232,6 +236,7 @@ class LiveFitConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"LiveFitConfig.{name} must be > 0, got {value!r}")
+        check_confirm_s(self.rise_confirm_s, "LiveFitConfig.rise_confirm_s")
         if not (math.isfinite(self.noise_hold_s) and self.noise_hold_s >= 0):
             raise ValueError(f"LiveFitConfig.noise_hold_s must be >= 0, got {self.noise_hold_s!r}")
         if not math.isfinite(self.min_speed_mps):
@@ -289,8 +294,10 @@ class ContextEstimator:
     last_fitted_context: int = -1
     labels_version: int = 0
     relabelled_samples: int = 0
+    switch: RiseGuard = field(default_factory=RiseGuard)
 
     def __post_init__(self) -> None:
+        self.switch = RiseGuard(self.config.rise_confirm_s)
         prior = self.params.theta if self.config.prior_theta is None else self.config.prior_theta
         self._prior = tuple(float(v) for v in prior)
         capacity = max(1, int(round(self.config.buffer_s / self.config.sample_period_s)))
@@ -327,6 +334,7 @@ class ContextEstimator:
     def __deepcopy__(self, memo) -> ContextEstimator:
         other = copy.copy(self)
         other._slots = {k: copy.copy(v) for k, v in self._slots.items()}
+        other.switch = copy.copy(self.switch)
         other._store = copy.deepcopy(self._store, memo)
         return other
 
@@ -354,6 +362,7 @@ class ContextEstimator:
             self.last_sample_time_s = t
             if ident >= 0:
                 self.last_known_context, self.last_known_time_s = ident, t
+            self.switch.observe(t, ident, self.handed_context())
         if not (math.isfinite(t) and np.all(np.isfinite(state)) and np.all(np.isfinite(inputs))):
             self.rejected_samples += 1
             return -1
@@ -427,28 +436,38 @@ class ContextEstimator:
                     slot.changes += count
         return {k: v for k, v in gained.items() if v}
 
+    def handed_context(self) -> int:
+        """The context whose theta the controller gets now: the current one; while noise, the
+        last known one within ``noise_hold_s`` of its last sample; else -1 (unknown)."""
+        if self.current_context >= 0:
+            return self.current_context
+        held = self.last_sample_time_s - self.last_known_time_s <= self.config.noise_hold_s
+        return self.last_known_context if held else -1
+
     def theta_for(self, context_id: int | None = None) -> np.ndarray:
         """theta in use for ``context_id`` (default: the current one): always finite.
 
-        An explicit id gets its own theta (the prior until fitted). The current context: noise
-        within ``noise_hold_s`` of the last known context keeps that context's theta; longer
-        noise, or a current context without a fit, gets the unknown-context policy's theta
-        (``LiveFitConfig.unknown_context``).
+        An explicit id gets its own theta (the prior until fitted). The current context
+        (:meth:`handed_context`) without a fit, or unknown, gets the unknown-context policy's
+        theta (``LiveFitConfig.unknown_context``); a switch to more friction not yet confirmed
+        keeps the friction before it (``rise_confirm_s``, ``context_switch.RiseGuard``).
         """
-        ident = self.current_context if context_id is None else int(context_id)
-        if (
-            context_id is None
-            and ident < 0
-            and self.last_sample_time_s - self.last_known_time_s <= self.config.noise_hold_s
-        ):
-            ident = self.last_known_context
+        ident = self.handed_context() if context_id is None else int(context_id)
         slot = self._slots.get(ident)
+        if context_id is None and self.switch.pending(ident):
+            before = self._fitted_or_unknown(self.switch.confirmed)
+            return self.switch.limit(self._fitted_or_unknown(ident), before)
         if context_id is None and (slot is None or not slot.estimate.fitted):
             return self.unknown_theta()
         theta = np.array(self._prior if slot is None else slot.estimate.theta)
         if slot is not None and slot.estimate.fitted:
             theta = self._unidentified(slot, theta)
         return theta if np.all(np.isfinite(theta)) else np.array(self._prior)
+
+    def _fitted_or_unknown(self, ident: int) -> np.ndarray:
+        slot = self._slots.get(ident)
+        fitted = slot is not None and slot.estimate.fitted
+        return self.theta_for(ident) if fitted else self.unknown_theta()
 
     def _unidentified(self, slot: _ContextSlot, theta: np.ndarray) -> np.ndarray:
         """A fitted context's theta for the controller
@@ -606,32 +625,8 @@ class ContextEstimator:
             diverged=old.diverged,
             loss=float(result.loss),
             message="; ".join(result.warnings),
-            **self._identifiability(old, t, states, result.theta[0], std[0], peak=False),
+            **self._identifiability(old, t, states, result.theta[0], std[0], False),
         )
-
-    def _identifiability(
-        self, old: ContextEstimate, t, states, mu: float, std: float, peak: bool
-    ) -> dict:
-        """The table's identifiability fields after a fit with ``mu +- std`` on the buffer.
-
-        ``peak``: mu is the tyre's lateral friction peak (an effect model with a peak tyre):
-        the lower bound is then the lateral friction used (``friction_used(lateral_only=True)``;
-        braking and driving say nothing about a lateral peak), and a fitted peak below it is
-        impossible (``below_used``: not identifiable, whatever its std)."""
-        used = friction_used(t, states, lateral_only=peak)
-        if math.isfinite(old.mu_lower_bound):
-            used = old.mu_lower_bound if not math.isfinite(used) else max(used, old.mu_lower_bound)
-        near = bool(math.isfinite(used) and used >= self.config.near_limit_fraction * mu)
-        below = bool(peak and math.isfinite(used) and mu < used)
-        ident = bool(
-            near and not below and math.isfinite(std) and std <= self.config.identifiable_std
-        )
-        return {
-            "mu_lower_bound": float(used),
-            "near_limit": near,
-            "identifiable": ident,
-            "below_used": below,
-        }
 
     def _refit_effects(self, slot: _ContextSlot, t, states, inputs, t_now: float) -> None:
         """``fitter.effects``: refit the context with the workbench's effect model."""
@@ -657,6 +652,7 @@ class ContextEstimator:
         if not (np.all(np.isfinite(result.theta)) and math.isfinite(result.loss)):
             slot.estimate = _discarded(old, samples, t_now, "diverged")
             return
+        peak = result.mu_is_peak
         slot.estimate = ContextEstimate(
             context_id=old.context_id,
             theta=tuple(float(v) for v in result.theta),
@@ -677,9 +673,14 @@ class ContextEstimator:
                     result.param_names, result.model_theta, result.model_std, strict=True
                 )
             ),
-            **self._identifiability(
-                old, t, states, result.theta[0], result.std[0], peak=result.mu_is_peak
-            ),
+            **self._identifiability(old, t, states, result.theta[0], result.std[0], peak),
+        )
+
+    def _identifiability(self, old: ContextEstimate, t, states, mu, std, peak: bool) -> dict:
+        cfg = self.config
+        lower = old.mu_lower_bound
+        return identifiability(
+            t, states, mu, std, peak, lower, cfg.near_limit_fraction, cfg.identifiable_std
         )
 
     def table(self, time_s: float = float("nan")) -> EstimateTable:

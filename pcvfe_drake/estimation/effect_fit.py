@@ -165,6 +165,40 @@ def controller_theta(model, theta: np.ndarray, context: int = 0) -> np.ndarray:
     return np.array([mu, k[0] / mu, k[1] / mu])
 
 
+def identifiability(
+    t: np.ndarray,
+    states: np.ndarray,
+    mu: float,
+    std: float,
+    peak: bool,
+    lower_bound: float,
+    near_limit_fraction: float,
+    identifiable_std: float,
+) -> dict:
+    """A context estimate's identifiability fields after a fit with ``mu +- std`` on its buffer
+    (``t``, ``states``); ``lower_bound``: the previous estimate's ``mu_lower_bound`` (NaN:
+    none).
+
+    ``peak``: mu is the tyre's lateral friction peak (an effect model with a peak tyre): the
+    lower bound is then the lateral friction used (``friction_used(lateral_only=True)``; braking
+    and driving say nothing about a lateral peak), and a fitted peak below it is impossible
+    (``below_used``: not identifiable, whatever its std). Near the limit: the used friction
+    reached ``near_limit_fraction`` of mu; identifiable: near it, not below it, and ``std <=
+    identifiable_std``."""
+    used = friction_used(t, states, lateral_only=peak)
+    if math.isfinite(lower_bound):
+        used = lower_bound if not math.isfinite(used) else max(used, lower_bound)
+    near = bool(math.isfinite(used) and used >= near_limit_fraction * mu)
+    below = bool(peak and math.isfinite(used) and mu < used)
+    ident = bool(near and not below and math.isfinite(std) and std <= identifiable_std)
+    return {
+        "mu_lower_bound": float(used),
+        "near_limit": near,
+        "identifiable": ident,
+        "below_used": below,
+    }
+
+
 def friction_used(
     t: np.ndarray,
     states: np.ndarray,
