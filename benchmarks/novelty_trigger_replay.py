@@ -9,7 +9,9 @@ until the visit's context is first reported (``drive_metrics.transition_response
 (wrong) and frames of the transition strips reported as any context, the triggered attempts and
 the kept ones, and the wall time of every HDBSCAN re-clustering (mean, max) on the stored set.
 
-Usage: python benchmarks/novelty_trigger_replay.py RUN_DIR [RUN_DIR ...] [--window 6]
+Usage: python benchmarks/novelty_trigger_replay.py [RUN_DIR ...] [--window 6] [--quick]
+Without run folders it makes one (``terrain_entry_latency.make_run``: ``pcvfe simulate
+paper_eval_effects --seed 0``, one lap; ``--quick``: its first 45 s).
 Prints one JSON object as its last line.
 """
 
@@ -18,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -90,9 +93,16 @@ def score(log: pd.DataFrame, ids: np.ndarray) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("runs", nargs="+", type=Path, help="run folders with a drive log")
+    ap.add_argument("runs", nargs="*", type=Path, help="run folders with a drive log")
     ap.add_argument("--window", type=float, default=6.0, help="novelty_window_s [s]")
+    ap.add_argument("--quick", action="store_true", help="without runs: a 45 s run")
     args = ap.parse_args(argv)
+    if not args.runs:
+        from terrain_entry_latency import make_run
+
+        with tempfile.TemporaryDirectory(prefix="novelty_replay_") as tmp:
+            made = make_run(Path(tmp) / "run", "paper_eval_effects", args.quick)
+            return main([str(made), "--window", str(args.window)])
     settings = {
         "period": ClusteringParams(),
         "trigger": ClusteringParams(novelty_window_s=args.window),

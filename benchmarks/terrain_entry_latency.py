@@ -14,7 +14,9 @@ these numbers are read alike; ``pcvfe_drake.runs.drive_metrics.transition_respon
 Plus each run's mean speed, lap time and largest lateral error, and per terrain the mean of the
 three latencies over the runs (a "never" counts as the visit's length).
 
-Usage: python benchmarks/terrain_entry_latency.py RUN_DIR [RUN_DIR ...]
+Usage: python benchmarks/terrain_entry_latency.py [RUN_DIR ...] [--quick] [--scenario S]
+Without run folders it makes one: ``pcvfe simulate SCENARIO --seed 0`` (default
+``paper_eval_effects``; one lap, 1-3 min; ``--quick``: the first 45 s, one terrain entry).
 Prints one JSON object as its last line.
 """
 
@@ -23,6 +25,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -94,10 +97,28 @@ def per_terrain(runs: list[dict]) -> dict:
     return out
 
 
+def make_run(out: Path, scenario: str, quick: bool) -> Path:
+    """One run of ``scenario``, seed 0, into ``out`` (quick: its first 45 s)."""
+    from pcvfe_drake.cli import main as pcvfe
+
+    cmd = ["simulate", scenario, "--seed", "0", "--no-meshcat", "--out", str(out)]
+    cmd += ["--duration", "45"] if quick else []
+    print("making a run: pcvfe " + " ".join(cmd), flush=True)
+    if pcvfe(cmd) != 0:
+        raise SystemExit("pcvfe simulate failed")
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("runs", nargs="+", type=Path, help="run folders with summary.json")
+    ap.add_argument("runs", nargs="*", type=Path, help="run folders with summary.json")
+    ap.add_argument("--quick", action="store_true", help="without runs: a 45 s run")
+    ap.add_argument("--scenario", default="paper_eval_effects", help="without runs: this one")
     args = ap.parse_args(argv)
+    if not args.runs:
+        with tempfile.TemporaryDirectory(prefix="entry_latency_") as tmp:
+            made = make_run(Path(tmp) / "run", args.scenario, args.quick)
+            return main([str(made)])
     runs = []
     for folder in args.runs:
         if not (folder / "summary.json").is_file():
