@@ -57,6 +57,7 @@ def test_params_validate_the_trigger():
     assert ClusteringParams().novelty_frames is None
     p = ClusteringParams(frame_rate_hz=10.0, novelty_window_s=6.0, novelty_fraction=0.75)
     assert p.novelty_frames == 45
+    assert ClusteringParams(novelty_window_s=6.0).novelty_frames == 48  # no rounding up
     with pytest.raises(ValueError, match="novelty_window_s"):
         ClusteringParams(novelty_window_s=2.0)  # shorter than min_cluster_duration_s (5 s)
     with pytest.raises(ValueError, match="novelty_fraction"):

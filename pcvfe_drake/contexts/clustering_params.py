@@ -160,7 +160,8 @@ class ClusteringParams:
         """Noise frames within ``novelty_window_s`` that trigger a re-clustering (None: off)."""
         if self.novelty_window_s is None:
             return None
-        return max(1, math.ceil(self.novelty_fraction * self.novelty_window_s * self.frame_rate_hz))
+        frames = self.novelty_fraction * self.novelty_window_s * self.frame_rate_hz
+        return max(1, math.ceil(frames - 1e-9))  # 0.8 * 6 s * 10 Hz is 48, not 48.000...1
 
     @property
     def min_reservoir(self) -> int:
