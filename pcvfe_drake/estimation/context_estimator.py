@@ -466,8 +466,7 @@ class ContextEstimator:
 
     def _fitted_or_unknown(self, ident: int) -> np.ndarray:
         slot = self._slots.get(ident)
-        fitted = slot is not None and slot.estimate.fitted
-        return self.theta_for(ident) if fitted else self.unknown_theta()
+        return self.theta_for(ident) if slot and slot.estimate.fitted else self.unknown_theta()
 
     def _unidentified(self, slot: _ContextSlot, theta: np.ndarray) -> np.ndarray:
         """A fitted context's theta for the controller
