@@ -247,3 +247,238 @@ def test_back_offs_never_go_below_the_start_nor_judge_noise():
     assert not saturated(x, vp.lf, vp.lr, 0.002)
     x[:, 6] += 2 * MIN_SLIP_LIMIT_RAD
     assert saturated(x, vp.lf, vp.lr, 0.002)
+
+
+def _mf_slalom(peak, amplitude_rad, seconds=6.0, v=6.0, noise=False, seed=0):
+    """States (N, 7) at 100 Hz of a single-track car at constant speed on magic-formula tyres
+    (shape 1.35, the Ford Escort's stiffness per unit load, friction peak ``peak``), steered
+    ``amplitude_rad sin(2 pi t / 6 s)`` (a bend every 3 s, as the paper's slalom at 6 m/s);
+    ``noise``: INS-like noise on the side slip (0.005 rad) and yaw rate (0.01 rad/s)."""
+    from pcvfe_drake.estimation.probe import MF_SHAPE
+
+    vp = ford_escort()
+    L = vp.lf + vp.lr
+    fz = np.array([vp.lr, vp.lf]) / L * vp.m * 9.81
+    k = 1.0 * np.array([vp.C_Sf, vp.C_Sr])  # small-slip stiffness per unit load at mu = 1
+    dt, beta, r, rows = 1e-3, 0.0, 0.0, []
+    for i in range(int(seconds / dt)):
+        t = i * dt
+        delta = amplitude_rad * np.sin(2 * np.pi * t / 6.0)
+        x = np.array([[0, 0, delta, v, 0, r, beta]])
+        af, ar = (a[0] for a in axle_slip_angles(x, vp.lf, vp.lr))
+        f = fz * peak * np.sin(MF_SHAPE * np.arctan(k * np.array([af, ar]) / (MF_SHAPE * peak)))
+        if i % 10 == 0:
+            rows.append([0, 0, delta, v, 0, r, beta])
+        beta += dt * ((f[0] + f[1]) / (vp.m * v) - r)
+        r += dt * (vp.lf * f[0] - vp.lr * f[1]) / vp.I_z
+    x = np.array(rows)
+    if noise:
+        rng = np.random.default_rng(seed)
+        x[:, 6] += rng.normal(0.0, 0.005, len(x))
+        x[:, 5] += rng.normal(0.0, 0.01, len(x))
+    return np.arange(len(x)) * 0.01, x, k
+
+
+def test_bend_ratio_reads_how_far_along_the_tyre_curve_the_car_works():
+    from pcvfe_drake.estimation.probe import bend_ratios
+
+    vp = ford_escort()
+
+    def ratios(peak, amp, **kw):
+        t, x, k = _mf_slalom(peak, amp, **kw)
+        return bend_ratios(t, x, vp.lf, vp.lr, vp.I_z / vp.m, k, 0.1)
+
+    # the same steering (lateral force up to ~0.33 of the axle load) on a high and on a low
+    # peak: linear on the high one, bent near the low one, in between on sand-like 0.45
+    assert all(abs(b - 1.0) < 0.02 for b in ratios(2.0, 0.2))
+    assert min(ratios(0.34, 0.2)) > 1.25  # q ~0.95: beyond the back-off limit
+    assert 1.1 < max(ratios(0.45, 0.2)) < 1.25  # q ~0.73: the slow steps' band
+    assert max(ratios(0.6, 0.15)) <= 1.1  # q ~0.41: fast steps
+    # the INS-like noise scatters the ratio, it does not bias it
+    for seed in range(3):
+        assert all(abs(b - 1.0) < 0.05 for b in ratios(2.0, 0.2, noise=True, seed=seed))
+        assert min(ratios(0.34, 0.2, noise=True, seed=seed)) > 1.25
+    # straight running: no force, no evidence
+    t, x, k = _mf_slalom(2.0, 0.0)
+    assert all(np.isnan(b) for b in bend_ratios(t, x, vp.lf, vp.lr, vp.I_z / vp.m, k, 0.1))
+
+
+def test_magic_formula_bend_ratios_behind_the_thresholds():
+    from pcvfe_drake.estimation.probe import MF_SHAPE, sine_bend_ratio
+
+    def ratio_at(q):  # slip needed over a linear tyre's, at q of the peak
+        x = np.tan(np.arcsin(q) / MF_SHAPE)
+        return MF_SHAPE * x / q
+
+    assert ratio_at(0.5) == pytest.approx(1.1, abs=0.01)
+    assert ratio_at(1.0) == pytest.approx(3.12, abs=0.01)
+    # over a whole bend (force q sin of the peak): the probe's thresholds
+    assert sine_bend_ratio(0.57) == pytest.approx(1.1, abs=0.005)  # probe_linear_ratio
+    assert sine_bend_ratio(0.80) == pytest.approx(1.25, abs=0.01)  # probe_bend_limit
+    cfg = LiveFitConfig()
+    assert (cfg.probe_linear_ratio, cfg.probe_bend_limit) == (1.1, 1.25)
+    # a fast step from the linear limit: the planner's demand (0.64 of the handed mu) then at
+    # most 0.71 of the peak, below the back-off limit's 0.80
+    assert 0.57 * (1 + cfg.probe_fast_step_rel) == pytest.approx(0.71, abs=0.005)
+
+
+FAST = dict(fast_step_rel=0.25, linear_ratio=1.1, bend_limit=1.25)
+
+
+def test_probe_step_size_follows_the_bend_ratio():
+    s = ProbeState(mu=0.4, last_step_s=0.0)
+    lb = 0.4  # demonstrated enough that the excess cap is far
+    fast = probe_step(
+        s,
+        3.0,
+        lower_bound=lb,
+        floor_mu=0.3,
+        prior_mu=1.05,
+        is_saturated=False,
+        bend=1.0,
+        **RULES,
+        **FAST,
+    )
+    assert fast.mu == pytest.approx(0.5) and fast.steps == 1
+    slow = probe_step(
+        s,
+        3.0,
+        lower_bound=lb,
+        floor_mu=0.3,
+        prior_mu=1.05,
+        is_saturated=False,
+        bend=1.2,
+        **RULES,
+        **FAST,
+    )
+    assert slow.mu == pytest.approx(0.4) and slow.steps == 0  # bent within the limit: stays
+    unknown = probe_step(
+        s, 3.0, lower_bound=lb, floor_mu=0.3, prior_mu=1.05, is_saturated=False, **RULES, **FAST
+    )
+    assert unknown.mu == pytest.approx(0.44)  # no evidence: the slow step
+    old = probe_step(
+        s,
+        3.0,
+        lower_bound=lb,
+        floor_mu=0.3,
+        prior_mu=1.05,
+        is_saturated=False,
+        bend=1.2,
+        **RULES,
+        **{**FAST, "fast_step_rel": None},
+    )
+    assert old.mu == pytest.approx(0.44)  # the bend unused for the raise: the 10 % step
+    bent = probe_step(
+        s,
+        1.0,
+        lower_bound=0.2,
+        floor_mu=0.3,
+        prior_mu=1.05,
+        is_saturated=False,
+        bend=1.5,
+        **RULES,
+        **FAST,
+    )
+    assert bent.backoffs == 1 and bent.mu == pytest.approx(0.4 / 1.21)  # at once, no hold
+    assert bent.ceiling == pytest.approx(0.4 / 1.1)
+    # the fast step is still bounded by the demonstrated friction
+    capped = probe_step(
+        s,
+        3.0,
+        lower_bound=0.2,
+        floor_mu=0.3,
+        prior_mu=1.05,
+        is_saturated=False,
+        bend=1.0,
+        **RULES,
+        **FAST,
+    )
+    assert capped.mu == pytest.approx(0.28 / 0.64)
+
+
+def test_probe_with_bend_ratio_rises_fast_stops_near_the_peak_and_backs_off():
+    """A car that uses the planner's demand (0.64 of the handed mu) and whose tyres show the
+    magic formula's bend ratio over a bend at that demand: on a high peak the probe climbs in
+    fast steps and stops near the peak, on a low one it stops too; a tyre that stays linear up
+    to 3/4 of its peak and then slides makes it back off."""
+    from pcvfe_drake.estimation.probe import sine_bend_ratio
+
+    def mf(q):
+        return np.inf if q >= 1.0 else sine_bend_ratio(q)
+
+    def drive(peak, seconds=40, tyre=mf):
+        s, lb, history = ProbeState(), 0.2, []
+        for t in np.arange(0.0, seconds, 1.0):
+            demand = 0.64 * (s.mu if s.started else 0.3)
+            lb = max(lb, min(demand, peak))
+            s = probe_step(
+                s,
+                float(t),
+                lower_bound=lb,
+                floor_mu=0.3,
+                prior_mu=1.05,
+                is_saturated=False,
+                bend=tyre(demand / peak),
+                **RULES,
+                **FAST,
+            )
+            history.append(s.mu)
+        return s, np.array(history)
+
+    s, mu = drive(0.8)
+    # 0.3 -> within 0.89-1.11 of the peak in 4 fast steps (12 s), then it stays: no back-off
+    assert 0.88 * 0.8 <= mu[12] <= 1.11 * 0.8 and s.steps == 4 and s.backoffs == 0
+    assert np.all(mu[12:] == mu[12])
+    slow = ProbeState()
+    for t in np.arange(0.0, 13.0, 1.0):  # the 10 % steps alone are still near 0.45 there
+        slow = probe_step(
+            slow,
+            float(t),
+            lower_bound=0.64 * (slow.mu if slow.started else 0.3),
+            floor_mu=0.3,
+            prior_mu=1.05,
+            is_saturated=False,
+            **RULES,
+        )
+    assert slow.mu < 0.45
+    s, mu = drive(0.35)
+    assert s.backoffs == 0 and 0.3 <= mu[-1] <= 1.11 * 0.35
+    s, mu = drive(0.35, tyre=lambda q: 1.0 if q < 0.75 else 2.0)
+    assert s.backoffs >= 1 and mu.max() <= 1.25 * 1.1 * 0.35
+    assert 0.3 <= mu[-1] and 0.64 * mu[-1] < 0.75 * 0.35  # settled where it does not slide
+
+
+def test_estimator_reads_the_bend_ratio_of_the_current_level():
+    """The estimator's probe: fast steps while the slalom's data are linear, a back-off as soon
+    as the current level's data bend past the limit (no large slip angles involved)."""
+    params = ford_escort()
+    est = ContextEstimator(params, LiveFitConfig(unidentified_mu="probe", sample_period_s=0.01))
+    est.add_sample(0.0, np.array([0, 0, 0, 6.0, 0, 0, 0]), [0, 0], [0])
+    slot = est._slots[0]
+    slot.estimate = replace(
+        slot.estimate,
+        theta=(1.0, params.C_Sf, params.C_Sr),  # handed stiffness mu * C_S = C_S: _mf_slalom's
+        theta_std=(0.5, np.nan, np.nan),
+        fits=1,
+        mu_lower_bound=0.3,
+    )
+
+    def drive(t0, peak, seconds=3.0):
+        t, x, _ = _mf_slalom(peak, 0.2, seconds=seconds)
+        for ti, xi in zip(t, x, strict=True):
+            est.add_sample(t0 + 0.01 + float(ti), xi, [0, 0], [0])
+        est.update_probe(t0 + seconds)
+        return est.theta_for()[0]
+
+    est.update_probe(0.0)  # starts at max(bound, floor)
+    mus = [drive(3.0 * k, 2.0) for k in range(4)]
+    # linear data: 25 % steps up to the demonstrated-friction cap (0.3 + 0.08) / 0.64
+    np.testing.assert_allclose(mus, [0.3 * 1.25, 0.3 * 1.25**2, 0.3 * 1.25**3, 0.38 / 0.64])
+    # the next level's data bend (peak 0.34 under a ~0.33 demand): back off, no hold needed
+    mu = drive(12.0, 0.34, seconds=2.0)
+    assert mu == pytest.approx(0.38 / 0.64 / 1.21)
+    from pcvfe_drake.estimation.probe import peak_slip_rad
+
+    _, x, k = _mf_slalom(0.34, 0.2, seconds=2.0)  # the slip-angle test alone would not have
+    assert not saturated(x, params.lf, params.lr, 0.5 * peak_slip_rad(0.38 / 0.64, k))
+    assert est.table().get(0).probe.backoffs == 1

@@ -65,6 +65,8 @@ from pcvfe_drake.estimation.fit_options import (
 from pcvfe_drake.estimation.fitting import fit_gauss_newton
 from pcvfe_drake.estimation.probe import (
     ProbeState,
+    bend_ratios,
+    check_probe_settings,
     controller_theta,
     peak_slip_rad,
     probe_step,
@@ -137,14 +139,9 @@ class LiveFitConfig:
             stiffnesses scaled so that mu * C_S, the small-slip stiffness, stays the fit's) or
             ``"probe"`` (exploration: ``pcvfe_drake.estimation.probe``; starts at the lower
             bound's value and raises it step by step while the tyres show no saturation).
-        probe_step_rel, probe_hold_s, probe_max_excess, probe_use_fraction,
-            probe_slip_fraction, probe_window_s: the probe's numbers (``probe``'s module
-            docstring gives the reason for each): raise by this fraction after this many
-            seconds on the context; ask the planner for at most this much friction above the
-            demonstrated lower bound; the planner's share of mu (``speed_margin^2``; None: 0.64,
-            the scenario fills it from ``nmpc.speed_margin``); back off when an axle's slip
-            angle (90th percentile over the newest ``probe_window_s`` of the context) exceeds
-            this fraction of the slip at which the fitted tyre would peak at the handed mu.
+        probe_*: the probe's numbers, each explained in ``probe``'s module docstring
+            (``probe_use_fraction`` None: 0.64; the scenario fills it from ``nmpc.speed_margin``;
+            ``probe_fast_step_rel`` None: no fast raise).
     """
 
     horizon_steps: int = DEFAULT_HORIZON
@@ -182,6 +179,10 @@ class LiveFitConfig:
     probe_use_fraction: float | None = None
     probe_slip_fraction: float = 0.5
     probe_window_s: float = 1.0
+    probe_fast_step_rel: float | None = 0.25
+    probe_linear_ratio: float = 1.1
+    probe_bend_limit: float = 1.25
+    probe_min_force: float = 0.1
 
     def __post_init__(self) -> None:
         if self.unidentified_mu not in UNIDENTIFIED_MU:
@@ -190,19 +191,8 @@ class LiveFitConfig:
                 f"{self.unidentified_mu!r}"
             )
         self.effects = parse_effects(self.effects)
-        if self.probe_use_fraction is not None and not (0 < self.probe_use_fraction <= 1):
-            raise ValueError(
-                f"LiveFitConfig.probe_use_fraction must be in (0, 1], got "
-                f"{self.probe_use_fraction!r} (the planner's share of mu, speed_margin^2)"
-            )
-        probe_positive = (
-            "probe_step_rel",
-            "probe_hold_s",
-            "probe_max_excess",
-            "probe_slip_fraction",
-            "probe_window_s",
-        )
-        for name in ("effect_horizon_s", "effect_stride_s", "identifiable_std", *probe_positive):
+        check_probe_settings(self, "LiveFitConfig")
+        for name in ("effect_horizon_s", "effect_stride_s", "identifiable_std"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"LiveFitConfig.{name} must be > 0, got {value!r}")
@@ -469,47 +459,56 @@ class ContextEstimator:
         return self.theta_for(ident) if slot and slot.estimate.fitted else self.unknown_theta()
 
     def _unidentified(self, slot: _ContextSlot, theta: np.ndarray) -> np.ndarray:
-        """A fitted context's theta for the controller
-        (``pcvfe_drake.estimation.probe.controller_theta``)."""
-        cfg = self.config
+        """A fitted context's theta for the controller (``probe.controller_theta``)."""
+        c = self.config
         return controller_theta(
-            slot.estimate, slot.probe, theta, cfg.unidentified_mu, cfg.unknown_floor_mu
+            slot.estimate, slot.probe, theta, c.unidentified_mu, c.unknown_floor_mu
         )
 
     def update_probe(self, t_now: float) -> None:
         """``unidentified_mu: probe``: one step of the current context's probe (called by
-        :meth:`refit`): a fitted, not identifiable context raises, holds or backs off its
-        handed mu (``pcvfe_drake.estimation.probe.probe_step``) after checking its newest
-        ``probe_window_s`` of samples for saturation."""
-        cfg = self.config
+        :meth:`refit`; ``pcvfe_drake.estimation.probe.probe_step``): a fitted, not identifiable
+        context raises, holds or backs off its handed mu after checking its newest
+        ``probe_window_s`` for large slip angles and the current level's newest ``probe_hold_s``
+        for the tyres' bend ratio (``probe.bend_ratios``)."""
+        cfg, vp = self.config, self.params
         slot = self._slots.get(self.current_context)
         if cfg.unidentified_mu != "probe" or slot is None or not slot.estimate.fitted:
             return
         est = slot.estimate
         if est.identifiable:
             return
-        rows = np.flatnonzero(
-            (self._store.labels() == self.current_context)
-            & (self._store.times() >= t_now - cfg.probe_window_s)
+        mine = self._store.labels() == self.current_context
+        times = self._store.times()
+        _, states, _ = self._store.rows(
+            np.flatnonzero(mine & (times >= t_now - cfg.probe_window_s))
         )
-        _, states, _ = self._store.rows(rows)
-        use = (
-            DEFAULT_PROBE_USE_FRACTION if cfg.probe_use_fraction is None else cfg.probe_use_fraction
-        )
+        level = t_now - cfg.probe_hold_s
+        if slot.probe.started:  # the current level's own data
+            level = max(level, slot.probe.last_step_s)
+        t_level, s_level, _ = self._store.rows(np.flatnonzero(mine & (times >= level)))
+        use = cfg.probe_use_fraction or DEFAULT_PROBE_USE_FRACTION
         handed = self._unidentified(slot, np.array(est.theta))  # what the car drove with
         stiffness = handed[0] * handed[1:]  # mu * C_S per axle: the fit's small-slip stiffness
         limit = cfg.probe_slip_fraction * peak_slip_rad(handed[0], stiffness)
+        bends = bend_ratios(
+            t_level, s_level, vp.lf, vp.lr, vp.I_z / vp.m, stiffness, cfg.probe_min_force
+        )
         slot.probe = probe_step(
             slot.probe,
             t_now,
             lower_bound=est.mu_lower_bound,
             floor_mu=cfg.unknown_floor_mu,
             prior_mu=self._prior[0],
-            is_saturated=saturated(states, self.params.lf, self.params.lr, limit),
+            is_saturated=saturated(states, vp.lf, vp.lr, limit),
             step_rel=cfg.probe_step_rel,
             hold_s=cfg.probe_hold_s,
             max_excess=cfg.probe_max_excess,
             use_fraction=use,
+            bend=max((b for b in bends if math.isfinite(b)), default=math.nan),
+            fast_step_rel=cfg.probe_fast_step_rel,
+            linear_ratio=cfg.probe_linear_ratio,
+            bend_limit=cfg.probe_bend_limit,
         )
 
     def unknown_theta(self) -> np.ndarray:

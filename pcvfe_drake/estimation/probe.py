@@ -17,6 +17,24 @@ The rules (:func:`probe_step`), each number a field of ``LiveFitConfig``:
   spent on the context without a sign of saturation: the paper's slalom has a bend every
   18.7 m, about 3 s at the 5-6 m/s driven there, so each level is tried in a bend before the
   next;
+* **raise faster where the tyres are plainly linear, stop where they bend**: by ``1 +
+  probe_fast_step_rel`` (0.25) when the current level's *bend ratio* (:func:`bend_ratios`: the
+  slip the tyres needed for the force they made, over the slip a linear tyre with the fitted
+  small-slip stiffness would need, a least-squares slope over the level's samples at force) is
+  at most ``probe_linear_ratio`` (1.1) on both axles; not at all while it is above (the handed
+  mu is near the peak: the level is kept); by the slow step without the evidence (fewer than
+  ``MIN_BEND_S`` of samples at ``probe_min_force`` of lateral force, e.g. on a straight).
+  Over a bend whose demand rises and falls as a sine to ``q`` of the peak, a magic-formula tyre
+  (shape 1.35) gives a slope of 1.1 at q = 0.57 (:func:`sine_bend_ratio`): the planner's demand
+  (0.64 of the handed mu) is then at most 0.57 of the peak, the handed mu at most 0.89 of it,
+  and one step of 25 % hands at most 1.11 of it (the planner then asks for 0.71 of the peak, a
+  slope of 1.18: the probe stays there, below the back-off limit). Where the handed mu equals
+  the peak the slope is 1.14. Under the public simulator's friction mapping the stiffness does
+  not follow mu, so the slope says how far along the curve the tyres work; on the multi-body
+  truth it read 1.10-1.21 with the handed mu at the truth (`paper_eval_effects` and
+  `_project`, seeds 0 and 5: sand, concrete, grass);
+* **never above** a bend ratio of ``probe_bend_limit`` (1.25: q = 0.80, a handed mu 1.25
+  times the peak): above it the level counts as saturated (back-off below);
 * **bounded** by ``(mu_lower_bound + probe_max_excess) / probe_use_fraction``: the planner is
   never asked to use more than ``probe_max_excess`` (0.08, about one step on sand's 0.45) more
   friction than the car has demonstrated; the bound moves up only as the car actually uses
@@ -25,7 +43,8 @@ The rules (:func:`probe_step`), each number a field of ``LiveFitConfig``:
 * **never above** the prior mu (the most the operator believes any terrain has), nor above a
   ceiling set by an earlier back-off;
 * **back off** on a sign of saturation (:func:`saturated`: a large slip angle on either axle, i.e.
-  side slip at the rear or yaw response short of the steering at the front): two steps down, but
+  side slip at the rear or yaw response short of the steering at the front; or the current
+  level's bend ratio above ``probe_bend_limit``): two steps down, but
   never below the start, and the level one step below the one that saturated becomes the context's
   ceiling (at least the start). "Large" is ``probe_slip_fraction`` (0.5) of the slip at which a
   magic-formula tyre (shape ``MF_SHAPE`` = 1.35, as ``peak_tyre``) with the fitted small-slip
@@ -58,6 +77,15 @@ MF_SHAPE = 1.35
 """Magic-formula shape factor of the tyre the saturation test assumes (``peak_tyre``'s C)."""
 MIN_SPEED_MPS = 2.0
 """Samples slower than this are not used for the slip angles (kinematic slip dominates)."""
+G_MPS2 = 9.81
+BEND_SMOOTH_S = 0.1
+"""Central-difference half span [s] of the yaw and side-slip rates in :func:`axle_force_per_load`
+(as ``effect_fit.friction_used``: averages the rate noise)."""
+MIN_BEND_S = 1.0
+"""Least time [s] of samples at force a bend ratio is computed from (a third of a bend of the
+paper's slalom; over shorter spans the INS noise made the ratio of a level near the start of
+sand, 1.0-1.1 over 3 s, cross the back-off limit 1.25 and pin the probe at its start); less: no
+evidence (NaN)."""
 
 
 @dataclass(frozen=True)
@@ -91,6 +119,39 @@ class ProbeState:
         }
 
 
+PROBE_POSITIVE = (
+    "probe_step_rel",
+    "probe_hold_s",
+    "probe_max_excess",
+    "probe_slip_fraction",
+    "probe_window_s",
+    "probe_linear_ratio",
+    "probe_bend_limit",
+    "probe_min_force",
+)
+
+
+def check_probe_settings(cfg, where: str) -> None:
+    """Raise ValueError naming ``where`` and the field when a probe setting of ``cfg`` (a
+    ``LiveFitConfig``) is invalid."""
+    use = cfg.probe_use_fraction
+    if use is not None and not (0 < use <= 1):
+        raise ValueError(
+            f"{where}.probe_use_fraction must be in (0, 1], got {use!r} (the planner's share of "
+            "mu, speed_margin^2)"
+        )
+    fast = cfg.probe_fast_step_rel
+    for name in PROBE_POSITIVE + (() if fast is None else ("probe_fast_step_rel",)):
+        value = getattr(cfg, name)
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{where}.{name} must be > 0, got {value!r}")
+    if not cfg.probe_linear_ratio < cfg.probe_bend_limit:
+        raise ValueError(
+            f"{where}.probe_linear_ratio ({cfg.probe_linear_ratio!r}) must be below "
+            f"probe_bend_limit ({cfg.probe_bend_limit!r}): a level cannot be both linear and bent"
+        )
+
+
 def axle_slip_angles(states: np.ndarray, lf: float, lr: float) -> tuple[np.ndarray, np.ndarray]:
     """Front and rear slip angles [rad] of the single-track model from states (N, 7):
     ``alpha_f = delta - atan((v sin beta + lf psi_dot) / (v cos beta))``, ``alpha_r =
@@ -101,6 +162,81 @@ def axle_slip_angles(states: np.ndarray, lf: float, lr: float) -> tuple[np.ndarr
     alpha_f = x[:, DELTA] - np.arctan((v * np.sin(beta) + lf * r) / vx)
     alpha_r = -np.arctan((v * np.sin(beta) - lr * r) / vx)
     return alpha_f, alpha_r
+
+
+def axle_force_per_load(t: np.ndarray, states: np.ndarray, lf: float, lr: float, iz_per_m: float):
+    """Lateral force per static axle load [g] of each axle from measured states (N, 7) at times
+    ``t``, from the single-track model's force and moment balance ``F_f + F_r = m a_y``, ``lf
+    F_f - lr F_r = I_z r_dot``: ``f_f = (a_y + I_z r_dot / (m lr)) / g``, ``f_r = (a_y - I_z
+    r_dot / (m lf)) / g``, with ``a_y = v (psi_dot + beta_dot)`` and the rates by central
+    differences over +-``BEND_SMOOTH_S``. Returns ``(rows, f_f, f_r)``: the rows of ``states``
+    the forces belong to (those whose neighbours are evenly spaced; none with too few
+    samples)."""
+    t = np.asarray(t, dtype=float)
+    x = np.asarray(states, dtype=float)
+    empty = (np.zeros(0, int), np.zeros(0), np.zeros(0))
+    if t.size < 3:
+        return empty
+    dt = float(np.median(np.diff(t)))
+    m = max(1, int(round(BEND_SMOOTH_S / max(dt, 1e-9))))
+    if t.size <= 2 * m:
+        return empty
+    span = t[2 * m :] - t[: -2 * m]
+    ok = np.abs(span - 2 * m * dt) <= 0.1 * 2 * m * dt
+    span = np.where(ok, span, 1.0)
+    beta_dot = (x[2 * m :, BETA] - x[: -2 * m, BETA]) / span
+    r_dot = (x[2 * m :, PSI_DOT] - x[: -2 * m, PSI_DOT]) / span
+    rows = np.arange(m, t.size - m)
+    ay = x[rows, V] * (x[rows, PSI_DOT] + beta_dot)
+    f_f = (ay + iz_per_m * r_dot / lr) / G_MPS2
+    f_r = (ay - iz_per_m * r_dot / lf) / G_MPS2
+    return rows[ok], f_f[ok], f_r[ok]
+
+
+def bend_ratios(
+    t: np.ndarray,
+    states: np.ndarray,
+    lf: float,
+    lr: float,
+    iz_per_m: float,
+    stiffness_per_rad,
+    min_force: float,
+) -> tuple[float, float]:
+    """How far along the tyre curve each axle worked: the least-squares slope of the measured
+    slip angle on the slip a linear tyre would need for the measured force, ``alpha ~ b f /
+    K`` (``K``: the small-slip stiffness per unit load, per axle: front, rear), over the
+    samples at >= 2 m/s with ``|f| >= min_force``. 1: the tyre is linear there; a magic-formula
+    tyre (shape 1.35) at a fraction q of its peak needs ``C tan(asin(q) / C) / q`` times the
+    linear slip (1.1 at q = 0.5, 3.1 at the peak; over a whole bend: :func:`sine_bend_ratio`). The
+    slope is taken with the noise on the slip side (the slip angles come from the INS side slip
+    and yaw rate, the forces from smoothed rates), so that noise adds scatter, not bias. NaN
+    for an axle with less than ``MIN_BEND_S`` of such samples."""
+    x = np.asarray(states, dtype=float)
+    k = np.broadcast_to(np.asarray(stiffness_per_rad, dtype=float), (2,))
+    rows, f_f, f_r = axle_force_per_load(t, x, lf, lr, iz_per_m)
+    if rows.size == 0:
+        return math.nan, math.nan
+    alpha_f, alpha_r = axle_slip_angles(x[rows], lf, lr)
+    fast = x[rows, V] >= MIN_SPEED_MPS
+    min_samples = MIN_BEND_S / float(np.median(np.diff(np.asarray(t, dtype=float))))
+    out = []
+    for alpha, f, kk in ((alpha_f, f_f, k[0]), (alpha_r, f_r, k[1])):
+        use = fast & (np.abs(f) >= min_force)
+        if use.sum() < min_samples or not kk > 0:
+            out.append(math.nan)
+            continue
+        lin = f[use] / kk
+        out.append(float(np.sum(alpha[use] * lin) / np.sum(lin * lin)))
+    return out[0], out[1]
+
+
+def sine_bend_ratio(q: float, shape: float = MF_SHAPE, n: int = 2001) -> float:
+    """The bend ratio (:func:`bend_ratios`' slope) of a magic-formula tyre over a bend whose force
+    rises and falls as ``q sin`` of its peak (0 < q < 1): 1.075 at q = 0.5, 1.10 at 0.57, 1.14 at
+    0.64, 1.25 at 0.80, 1.40 at 0.90 (quasi-static, every sample used)."""
+    f = q * np.sin(np.linspace(0.0, math.pi, n))
+    slip = shape * np.tan(np.arcsin(f) / shape)  # K alpha / peak
+    return float(np.sum(slip * f) / np.sum(f * f))
 
 
 def peak_slip_rad(mu: float, stiffness_per_rad, shape: float = MF_SHAPE):
@@ -145,8 +281,17 @@ def probe_step(
     hold_s: float,
     max_excess: float,
     use_fraction: float,
+    bend: float = math.nan,
+    fast_step_rel: float | None = None,
+    linear_ratio: float = 1.1,
+    bend_limit: float = math.inf,
 ) -> ProbeState:
-    """The probe after one update at ``t_now`` (see the module docstring)."""
+    """The probe after one update at ``t_now`` (see the module docstring). ``bend``: the larger
+    of the current level's axle bend ratios (NaN: no evidence, the raise is ``step_rel``); at
+    most ``linear_ratio``: the raise is ``fast_step_rel``; above it: no raise; above
+    ``bend_limit``: a sign of saturation (``fast_step_rel`` None: the bend is not used for the
+    raise)."""
+    is_saturated = is_saturated or bool(bend > bend_limit)
     lb = lower_bound if math.isfinite(lower_bound) else 0.0
     base = min(max(lb, floor_mu), prior_mu)
     if not state.started:
@@ -166,7 +311,11 @@ def probe_step(
     if t_now - state.last_step_s < hold_s:
         return state
     cap = min(prior_mu, state.ceiling, (lb + max_excess) / use_fraction)
-    raised = min(state.mu * (1.0 + step_rel), cap)
+    step = step_rel  # no evidence of the tyres' bend: the slow step
+    if fast_step_rel is not None and math.isfinite(bend):
+        # bent but within the limit: the handed mu is near the peak; stay
+        step = fast_step_rel if bend <= linear_ratio else 0.0
+    raised = min(state.mu * (1.0 + step), cap)
     if raised <= state.mu:
         return ProbeState(state.mu, state.ceiling, t_now, state.steps, state.backoffs)
     return ProbeState(raised, state.ceiling, t_now, state.steps + 1, state.backoffs)
