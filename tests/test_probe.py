@@ -313,16 +313,16 @@ def test_magic_formula_bend_ratios_behind_the_thresholds():
     assert ratio_at(0.5) == pytest.approx(1.1, abs=0.01)
     assert ratio_at(1.0) == pytest.approx(3.12, abs=0.01)
     # over a whole bend (force q sin of the peak): the probe's thresholds
-    assert sine_bend_ratio(0.57) == pytest.approx(1.1, abs=0.005)  # probe_linear_ratio
-    assert sine_bend_ratio(0.80) == pytest.approx(1.25, abs=0.01)  # probe_bend_limit
     cfg = LiveFitConfig()
-    assert (cfg.probe_linear_ratio, cfg.probe_bend_limit) == (1.1, 1.25)
-    # a fast step from the linear limit: the planner's demand (0.64 of the handed mu) then at
-    # most 0.71 of the peak, below the back-off limit's 0.80
-    assert 0.57 * (1 + cfg.probe_fast_step_rel) == pytest.approx(0.71, abs=0.005)
+    # probe_linear_ratio: the planner's share (0.64) of a handed mu equal to the peak
+    assert sine_bend_ratio(0.64) == pytest.approx(cfg.probe_linear_ratio, abs=0.005)
+    # probe_bend_limit: one fast step (25 %) above that
+    q = 0.64 * (1 + cfg.probe_fast_step_rel)
+    assert q == pytest.approx(0.80) and sine_bend_ratio(q) == pytest.approx(1.25, abs=0.01)
+    assert cfg.probe_bend_limit == 1.25
 
 
-FAST = dict(fast_step_rel=0.25, linear_ratio=1.1, bend_limit=1.25)
+FAST = dict(fast_step_rel=0.25, linear_ratio=1.14, bend_limit=1.25)
 
 
 def test_probe_step_size_follows_the_bend_ratio():
@@ -426,11 +426,12 @@ def test_probe_with_bend_ratio_rises_fast_stops_near_the_peak_and_backs_off():
         return s, np.array(history)
 
     s, mu = drive(0.8)
-    # 0.3 -> within 0.89-1.11 of the peak in 4 fast steps (12 s), then it stays: no back-off
-    assert 0.88 * 0.8 <= mu[12] <= 1.11 * 0.8 and s.steps == 4 and s.backoffs == 0
-    assert np.all(mu[12:] == mu[12])
+    # 0.3 -> between the peak and 1.25 times it (the back-off limit) in 5 fast steps (15 s),
+    # then it stays there: no back-off
+    assert 0.8 <= mu[15] <= 1.25 * 0.8 and s.steps == 5 and s.backoffs == 0
+    assert np.all(mu[15:] == mu[15])
     slow = ProbeState()
-    for t in np.arange(0.0, 13.0, 1.0):  # the 10 % steps alone are still near 0.45 there
+    for t in np.arange(0.0, 16.0, 1.0):  # the 10 % steps alone are still below 0.5 there
         slow = probe_step(
             slow,
             float(t),
@@ -440,9 +441,9 @@ def test_probe_with_bend_ratio_rises_fast_stops_near_the_peak_and_backs_off():
             is_saturated=False,
             **RULES,
         )
-    assert slow.mu < 0.45
+    assert slow.mu < 0.5
     s, mu = drive(0.35)
-    assert s.backoffs == 0 and 0.3 <= mu[-1] <= 1.11 * 0.35
+    assert s.backoffs == 0 and 0.35 <= mu[-1] <= 1.25 * 0.35
     s, mu = drive(0.35, tyre=lambda q: 1.0 if q < 0.75 else 2.0)
     assert s.backoffs >= 1 and mu.max() <= 1.25 * 1.1 * 0.35
     assert 0.3 <= mu[-1] and 0.64 * mu[-1] < 0.75 * 0.35  # settled where it does not slide
@@ -482,3 +483,21 @@ def test_estimator_reads_the_bend_ratio_of_the_current_level():
     _, x, k = _mf_slalom(0.34, 0.2, seconds=2.0)  # the slip-angle test alone would not have
     assert not saturated(x, params.lf, params.lr, 0.5 * peak_slip_rad(0.38 / 0.64, k))
     assert est.table().get(0).probe.backoffs == 1
+
+
+def test_probe_hands_an_identifiable_estimate_but_never_below_the_floor():
+    est, slot = _fitted_estimator()
+    slot.estimate = replace(
+        slot.estimate, theta=(0.55, *slot.estimate.theta[1:]), identifiable=True
+    )
+    assert est.theta_for()[0] == 0.55
+    low = replace(slot.estimate, theta=(0.17, *slot.estimate.theta[1:]))
+    slot.estimate = low
+    th = est.theta_for()
+    assert th[0] == pytest.approx(0.3)  # unknown_floor_mu: the lowest friction expected
+    np.testing.assert_allclose(th[0] * th[1:], 0.17 * np.array(low.theta[1:]))  # stiffness kept
+    # the other policies hand such an estimate as it is
+    plain = ContextEstimator(ford_escort(), LiveFitConfig(unidentified_mu="lower_bound"))
+    plain.add_sample(0.0, np.array([0, 0, 0, 8.0, 0, 0, 0]), [0, 0], [0])
+    plain._slots[0].estimate = replace(low, context_id=0)
+    assert plain.theta_for()[0] == pytest.approx(0.17)

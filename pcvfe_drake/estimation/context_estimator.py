@@ -180,7 +180,7 @@ class LiveFitConfig:
     probe_slip_fraction: float = 0.5
     probe_window_s: float = 1.0
     probe_fast_step_rel: float | None = 0.25
-    probe_linear_ratio: float = 1.1
+    probe_linear_ratio: float = 1.14
     probe_bend_limit: float = 1.25
     probe_min_force: float = 0.1
 

@@ -17,24 +17,25 @@ The rules (:func:`probe_step`), each number a field of ``LiveFitConfig``:
   spent on the context without a sign of saturation: the paper's slalom has a bend every
   18.7 m, about 3 s at the 5-6 m/s driven there, so each level is tried in a bend before the
   next;
-* **raise faster where the tyres are plainly linear, stop where they bend**: by ``1 +
+* **raise faster while the tyres say the peak is higher, stop where they bend**: by ``1 +
   probe_fast_step_rel`` (0.25) when the current level's *bend ratio* (:func:`bend_ratios`: the
   slip the tyres needed for the force they made, over the slip a linear tyre with the fitted
   small-slip stiffness would need, a least-squares slope over the level's samples at force) is
-  at most ``probe_linear_ratio`` (1.1) on both axles; not at all while it is above (the handed
-  mu is near the peak: the level is kept); by the slow step without the evidence (fewer than
-  ``MIN_BEND_S`` of samples at ``probe_min_force`` of lateral force, e.g. on a straight).
-  Over a bend whose demand rises and falls as a sine to ``q`` of the peak, a magic-formula tyre
-  (shape 1.35) gives a slope of 1.1 at q = 0.57 (:func:`sine_bend_ratio`): the planner's demand
-  (0.64 of the handed mu) is then at most 0.57 of the peak, the handed mu at most 0.89 of it,
-  and one step of 25 % hands at most 1.11 of it (the planner then asks for 0.71 of the peak, a
-  slope of 1.18: the probe stays there, below the back-off limit). Where the handed mu equals
-  the peak the slope is 1.14. Under the public simulator's friction mapping the stiffness does
-  not follow mu, so the slope says how far along the curve the tyres work; on the multi-body
-  truth it read 1.10-1.21 with the handed mu at the truth (`paper_eval_effects` and
-  `_project`, seeds 0 and 5: sand, concrete, grass);
+  at most ``probe_linear_ratio`` (1.14) on both axles; not at all while it is above (the level
+  is kept); by the slow step without the evidence (less than ``MIN_BEND_S`` of samples at
+  ``probe_min_force`` of lateral force, e.g. on a straight). Over a bend whose demand rises and
+  falls as a sine to ``q`` of the peak, a magic-formula tyre (shape 1.35) gives a slope of
+  1.14 at q = 0.64 (:func:`sine_bend_ratio`): the planner's demand is 0.64 of the handed mu, so
+  a slope of at most 1.14 says the handed mu is at most the peak, and one step of 25 % hands at
+  most 1.25 times the peak, where the slope is 1.25, the back-off limit (the planner then asks
+  for 0.80 of the peak). Under the public simulator's friction mapping the stiffness does not
+  follow mu, so the slope says how far along the curve the tyres work; on the multi-body truth
+  it read 1.10-1.21 with the handed mu at the truth (`paper_eval_effects` and `_project`, seeds
+  0 and 5: sand, concrete, grass), and a slope over less than 1 s of force samples was too
+  noisy to act on;
 * **never above** a bend ratio of ``probe_bend_limit`` (1.25: q = 0.80, a handed mu 1.25
-  times the peak): above it the level counts as saturated (back-off below);
+  times the peak on a magic-formula tyre): above it the level counts as saturated (back-off
+  below);
 * **bounded** by ``(mu_lower_bound + probe_max_excess) / probe_use_fraction``: the planner is
   never asked to use more than ``probe_max_excess`` (0.08, about one step on sand's 0.45) more
   friction than the car has demonstrated; the bound moves up only as the car actually uses
@@ -334,7 +335,12 @@ def controller_theta(
     * ``unidentified_mu: probe``: such a context gets the probe's mu (before its first step
       the lower bound's value), at most the upper end of the estimate's 95 % interval ``mu +
       1.96 std`` (a value the context's data do not exclude; no limit when the estimate is
-      below the used friction or has no std).
+      below the used friction or has no std); an identifiable estimate is handed as it is, but
+      never below ``floor_mu`` (the lowest friction the operator expects on the course, where
+      the probe starts): on the multi-body truth the peak fit is biased low, and with a
+      model-error budget relative to mu a low enough estimate counts as identifiable (grass
+      0.17 +- 0.044 for 0.30 on `paper_eval_effects` seed 0: the car then crawled at 3.8 m/s
+      on grass and the conservative unknown-context value slowed the next terrain too).
     """
     mu = float(theta[0])
     bound = estimate.mu_lower_bound if math.isfinite(estimate.mu_lower_bound) else 0.0
@@ -348,6 +354,8 @@ def controller_theta(
             cap = mu + 1.96 * std if math.isfinite(std) and not estimate.below_used else math.inf
             start = probe.mu if probe.started else start
         mu = min(start, cap)
+    elif estimate.identifiable and unidentified_mu == "probe":
+        mu = max(mu, floor_mu)
     if mu == theta[0]:
         return theta
     return np.array([mu, theta[1] * theta[0] / mu, theta[2] * theta[0] / mu])
