@@ -352,6 +352,23 @@ def test_probe_step_size_follows_the_bend_ratio():
         **FAST,
     )
     assert slow.mu == pytest.approx(0.4) and slow.steps == 0  # bent within the limit: stays
+    from pcvfe_drake.estimation.probe import implied_peak_fraction, sine_bend_ratio
+
+    for q in (0.3, 0.57, 0.64, 0.8):
+        assert implied_peak_fraction(sine_bend_ratio(q)) == pytest.approx(q, abs=2e-3)
+    near = probe_step(
+        s,
+        3.0,
+        lower_bound=lb,
+        floor_mu=0.3,
+        prior_mu=1.05,
+        is_saturated=False,
+        bend=sine_bend_ratio(0.57),
+        **RULES,
+        **FAST,
+    )
+    # the demand (0.64 x 0.4) was 0.57 of the peak: raised to that peak, less than a fast step
+    assert near.mu == pytest.approx(0.64 * 0.4 / 0.57, rel=5e-3) and near.steps == 1
     unknown = probe_step(
         s, 3.0, lower_bound=lb, floor_mu=0.3, prior_mu=1.05, is_saturated=False, **RULES, **FAST
     )

@@ -17,22 +17,25 @@ The rules (:func:`probe_step`), each number a field of ``LiveFitConfig``:
   spent on the context without a sign of saturation: the paper's slalom has a bend every
   18.7 m, about 3 s at the 5-6 m/s driven there, so each level is tried in a bend before the
   next;
-* **raise faster while the tyres say the peak is higher, stop where they bend**: by ``1 +
-  probe_fast_step_rel`` (0.25) when the current level's *bend ratio* (:func:`bend_ratios`: the
-  slip the tyres needed for the force they made, over the slip a linear tyre with the fitted
-  small-slip stiffness would need, a least-squares slope over the level's samples at force) is
-  at most ``probe_linear_ratio`` (1.14) on both axles; not at all while it is above (the level
-  is kept); by the slow step without the evidence (less than ``MIN_BEND_S`` of samples at
-  ``probe_min_force`` of lateral force, e.g. on a straight). Over a bend whose demand rises and
-  falls as a sine to ``q`` of the peak, a magic-formula tyre (shape 1.35) gives a slope of
-  1.14 at q = 0.64 (:func:`sine_bend_ratio`): the planner's demand is 0.64 of the handed mu, so
-  a slope of at most 1.14 says the handed mu is at most the peak, and one step of 25 % hands at
-  most 1.25 times the peak, where the slope is 1.25, the back-off limit (the planner then asks
-  for 0.80 of the peak). Under the public simulator's friction mapping the stiffness does not
-  follow mu, so the slope says how far along the curve the tyres work; on the multi-body truth
-  it read 1.10-1.21 with the handed mu at the truth (`paper_eval_effects` and `_project`, seeds
-  0 and 5: sand, concrete, grass), and a slope over less than 1 s of force samples was too
-  noisy to act on;
+* **raise to the peak the tyres imply, stop where they bend**: the current level's *bend
+  ratio* (:func:`bend_ratios`: the slip the tyres needed for the force they made, over the slip
+  a linear tyre with the fitted small-slip stiffness would need, a least-squares slope over the
+  level's samples at force) says how far along its curve a magic-formula tyre (shape 1.35)
+  worked: over a bend whose demand rises and falls as a sine to a fraction ``q`` of the peak the
+  slope is :func:`sine_bend_ratio` (1.075 at q = 0.5, 1.14 at 0.64, 1.25 at 0.80). The planner's
+  demand is ``probe_use_fraction`` (0.64) of the handed mu, so the implied peak is ``0.64 mu /
+  q`` (:func:`implied_peak_fraction`), and the probe raises the handed mu to it, by at most
+  ``probe_fast_step_rel`` (0.25) at a time, while the slope is at most ``probe_linear_ratio``
+  (1.14, where the implied peak is the handed mu); above it the level is kept. Without the
+  evidence (less than ``MIN_BEND_S`` of samples at ``probe_min_force`` of lateral force, e.g.
+  on a straight) the step is the slow one. One fast step from a handed mu at most the peak
+  hands at most 1.25 times it, where the slope is 1.25, the back-off limit (the planner then
+  asks for 0.80 of the peak). Under the public simulator's friction mapping the stiffness does
+  not follow mu, so the slope says how far along the curve the tyres work; on the multi-body
+  truth it read 1.10-1.21 with the handed mu at the truth (`paper_eval_effects` and
+  `_project`, seeds 0 and 5: sand, concrete, grass); a slope over less than 1 s of force
+  samples was too noisy to act on, and with a fixed 25 % step instead of the implied one the
+  probe passed concrete's 0.60 by a whole step (0.77 on both mappings, seeds 0 and 5);
 * **never above** a bend ratio of ``probe_bend_limit`` (1.25: q = 0.80, a handed mu 1.25
   times the peak on a magic-formula tyre): above it the level counts as saturated (back-off
   below);
@@ -240,6 +243,20 @@ def sine_bend_ratio(q: float, shape: float = MF_SHAPE, n: int = 2001) -> float:
     return float(np.sum(slip * f) / np.sum(f * f))
 
 
+_Q_GRID = np.linspace(0.01, 0.99, 197)
+_SINE_RATIOS = None
+
+
+def implied_peak_fraction(bend: float, shape: float = MF_SHAPE) -> float:
+    """The inverse of :func:`sine_bend_ratio`: the fraction ``q`` of a magic-formula tyre's peak
+    that a bend's demand reached, from its bend ratio (0.01 at or below a ratio of 1, 0.99 at or
+    above that of q = 0.99)."""
+    global _SINE_RATIOS
+    if _SINE_RATIOS is None:
+        _SINE_RATIOS = np.array([sine_bend_ratio(q, shape) for q in _Q_GRID])
+    return float(np.interp(bend, _SINE_RATIOS, _Q_GRID))
+
+
 def peak_slip_rad(mu: float, stiffness_per_rad, shape: float = MF_SHAPE):
     """Slip angle [rad] at which a magic-formula tyre ``F/Fz = mu sin(C atan(K alpha / (C
     mu)))`` peaks: ``tan(pi / (2 C)) C mu / K`` (``K``: small-slip stiffness per unit load)."""
@@ -289,9 +306,9 @@ def probe_step(
 ) -> ProbeState:
     """The probe after one update at ``t_now`` (see the module docstring). ``bend``: the larger
     of the current level's axle bend ratios (NaN: no evidence, the raise is ``step_rel``); at
-    most ``linear_ratio``: the raise is ``fast_step_rel``; above it: no raise; above
-    ``bend_limit``: a sign of saturation (``fast_step_rel`` None: the bend is not used for the
-    raise)."""
+    most ``linear_ratio``: the raise is to the implied peak, at most ``fast_step_rel``; above
+    it: no raise; above ``bend_limit``: a sign of saturation (``fast_step_rel`` None: the bend
+    is not used for the raise)."""
     is_saturated = is_saturated or bool(bend > bend_limit)
     lb = lower_bound if math.isfinite(lower_bound) else 0.0
     base = min(max(lb, floor_mu), prior_mu)
@@ -314,9 +331,11 @@ def probe_step(
     cap = min(prior_mu, state.ceiling, (lb + max_excess) / use_fraction)
     step = step_rel  # no evidence of the tyres' bend: the slow step
     if fast_step_rel is not None and math.isfinite(bend):
-        # bent but within the limit: the handed mu is near the peak; stay
-        step = fast_step_rel if bend <= linear_ratio else 0.0
-    raised = min(state.mu * (1.0 + step), cap)
+        # to the peak the bend implies (the planner's demand, use_fraction of the handed mu, at
+        # the fraction q of it), at most the fast step; bent beyond linear_ratio: stay
+        implied = use_fraction / implied_peak_fraction(bend) - 1.0
+        step = min(fast_step_rel, implied) if bend <= linear_ratio else 0.0
+    raised = min(state.mu * (1.0 + max(step, 0.0)), cap)
     if raised <= state.mu:
         return ProbeState(state.mu, state.ceiling, t_now, state.steps, state.backoffs)
     return ProbeState(raised, state.ceiling, t_now, state.steps + 1, state.backoffs)
