@@ -12,11 +12,11 @@ the first sign of it. The estimate takes over as soon as the fit is identifiable
 The rules (:func:`probe_step`), each number a field of ``LiveFitConfig``:
 
 * **start** at what ``lower_bound`` hands: ``max(mu_lower_bound, unknown_floor_mu)``;
-* **raise** by the factor ``1 + probe_step_rel`` (0.1: the step is a tenth of the friction
-  asked for, so an overshoot past the limit is at most that) after every ``probe_hold_s`` (3 s)
-  spent on the context without a sign of saturation: the paper's slalom has a bend every
-  18.7 m, about 3 s at the 5-6 m/s driven there, so each level is tried in a bend before the
-  next;
+* **raise** at most after every ``probe_hold_s`` (3 s) spent on the context without a sign of
+  saturation: the paper's slalom has a bend every 18.7 m, about 3 s at the 5-6 m/s driven
+  there, so each level is tried in a bend before the next; with ``probe_fast_step_rel: null``
+  (the bend ratio not used for the raise) by the factor ``1 + probe_step_rel`` (0.1: the step
+  is a tenth of the friction asked for, so an overshoot past the limit is at most that);
 * **raise to the peak the tyres imply, stop where they bend**: the current level's *bend
   ratio* (:func:`bend_ratios`: the slip the tyres needed for the force they made, over the slip
   a linear tyre with the fitted small-slip stiffness would need, a least-squares slope over the
@@ -26,16 +26,21 @@ The rules (:func:`probe_step`), each number a field of ``LiveFitConfig``:
   demand is ``probe_use_fraction`` (0.64) of the handed mu, so the implied peak is ``0.64 mu /
   q`` (:func:`implied_peak_fraction`), and the probe raises the handed mu to it, by at most
   ``probe_fast_step_rel`` (0.25) at a time, while the slope is at most ``probe_linear_ratio``
-  (1.14, where the implied peak is the handed mu); above it the level is kept. Without the
-  evidence (less than ``MIN_BEND_S`` of samples at ``probe_min_force`` of lateral force, e.g.
-  on a straight) the step is the slow one. One fast step from a handed mu at most the peak
-  hands at most 1.25 times it, where the slope is 1.25, the back-off limit (the planner then
-  asks for 0.80 of the peak). Under the public simulator's friction mapping the stiffness does
-  not follow mu, so the slope says how far along the curve the tyres work; on the multi-body
-  truth it read 1.10-1.21 with the handed mu at the truth (`paper_eval_effects` and
-  `_project`, seeds 0 and 5: sand, concrete, grass); a slope over less than 1 s of force
-  samples was too noisy to act on, and with a fixed 25 % step instead of the implied one the
-  probe passed concrete's 0.60 by a whole step (0.77 on both mappings, seeds 0 and 5);
+  (1.14, where the implied peak is the handed mu); above it the level is kept, and so it is
+  without the evidence (less than ``MIN_BEND_S`` of samples at ``probe_min_force`` of lateral
+  force, e.g. on a straight: raising the slow step there took concrete from 0.62 to 0.76 on
+  the straight at the terrain's end, seeds 0 and 5). One fast step from a handed mu at most
+  the peak hands at most 1.25 times it, where the slope is 1.25, the back-off limit (the
+  planner then asks for 0.80 of the peak). Under the public simulator's friction mapping the
+  stiffness does not follow mu, so the slope says how far along the curve the tyres work. On
+  the multi-body truth (``python benchmarks/probe_bend_ratio.py RUNS``, 3 s windows of single
+  laps of `paper_eval_effects` and `_project`) the median slope with the handed mu within 10 %
+  of the truth was 1.13 (concrete, public mapping), 1.18 (concrete, project's), 1.23 (grass,
+  project's), but 1.65 on the public mapping's grass (its front axle bends over below 0.30:
+  the fit's low bias, docs/fitting.md); below 0.9 of the truth 0.94-1.07 on brick and
+  concrete. A slope over less than 1 s of force samples was too noisy to act on, and with a
+  fixed 25 % step instead of the implied one the probe passed concrete's 0.60 by a whole step
+  (0.77 on both mappings, seeds 0 and 5);
 * **never above** a bend ratio of ``probe_bend_limit`` (1.25: q = 0.80, a handed mu 1.25
   times the peak on a magic-formula tyre): above it the level counts as saturated (back-off
   below);
@@ -305,10 +310,10 @@ def probe_step(
     bend_limit: float = math.inf,
 ) -> ProbeState:
     """The probe after one update at ``t_now`` (see the module docstring). ``bend``: the larger
-    of the current level's axle bend ratios (NaN: no evidence, the raise is ``step_rel``); at
-    most ``linear_ratio``: the raise is to the implied peak, at most ``fast_step_rel``; above
-    it: no raise; above ``bend_limit``: a sign of saturation (``fast_step_rel`` None: the bend
-    is not used for the raise)."""
+    of the current level's axle bend ratios (NaN: no evidence); at most ``linear_ratio``: the
+    raise is to the implied peak, at most ``fast_step_rel``; above it or without evidence: no
+    raise; above ``bend_limit``: a sign of saturation (``fast_step_rel`` None: the bend is not
+    used for the raise, which is ``step_rel`` after every ``hold_s``)."""
     is_saturated = is_saturated or bool(bend > bend_limit)
     lb = lower_bound if math.isfinite(lower_bound) else 0.0
     base = min(max(lb, floor_mu), prior_mu)
@@ -329,12 +334,13 @@ def probe_step(
     if t_now - state.last_step_s < hold_s:
         return state
     cap = min(prior_mu, state.ceiling, (lb + max_excess) / use_fraction)
-    step = step_rel  # no evidence of the tyres' bend: the slow step
-    if fast_step_rel is not None and math.isfinite(bend):
+    step = step_rel  # the bend not in use: the slow step
+    if fast_step_rel is not None:
         # to the peak the bend implies (the planner's demand, use_fraction of the handed mu, at
-        # the fraction q of it), at most the fast step; bent beyond linear_ratio: stay
-        implied = use_fraction / implied_peak_fraction(bend) - 1.0
-        step = min(fast_step_rel, implied) if bend <= linear_ratio else 0.0
+        # the fraction q of it), at most the fast step; bent beyond linear_ratio, or no
+        # evidence (a straight): stay
+        implied = use_fraction / implied_peak_fraction(bend) - 1.0 if bend <= linear_ratio else 0
+        step = min(fast_step_rel, implied)
     raised = min(state.mu * (1.0 + max(step, 0.0)), cap)
     if raised <= state.mu:
         return ProbeState(state.mu, state.ceiling, t_now, state.steps, state.backoffs)
