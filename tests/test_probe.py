@@ -526,3 +526,19 @@ def test_probe_hands_an_identifiable_estimate_but_never_below_the_floor():
     plain.add_sample(0.0, np.array([0, 0, 0, 8.0, 0, 0, 0]), [0, 0], [0])
     plain._slots[0].estimate = replace(low, context_id=0)
     assert plain.theta_for()[0] == pytest.approx(0.17)
+
+
+def test_a_level_not_tried_in_a_bend_gives_no_evidence():
+    from pcvfe_drake.estimation.probe import bend_ratios, level_bend
+
+    vp = ford_escort()
+    t, x, k = _mf_slalom(2.0, 0.2)  # axle forces up to ~0.33 of the load
+    full = level_bend(t, x, vp, k, 0.1, demand=0.35)
+    assert full == pytest.approx(max(bend_ratios(t, x, vp.lf, vp.lr, vp.I_z / vp.m, k, 0.1)))
+    # the same data for a level whose planner demand (0.64 x 0.8) the bend never approached
+    assert np.isnan(level_bend(t, x, vp, k, 0.1, demand=0.64 * 0.8))
+    # a gentler bend (forces up to ~0.17): evidence enough for a ratio, not for a 0.35 demand
+    t, x, k = _mf_slalom(2.0, 0.1)
+    assert max(bend_ratios(t, x, vp.lf, vp.lr, vp.I_z / vp.m, k, 0.1)) < 1.14  # reads linear
+    assert np.isnan(level_bend(t, x, vp, k, 0.1, demand=0.35))
+    assert np.isfinite(level_bend(t, x, vp, k, 0.1, demand=0.2))

@@ -65,9 +65,9 @@ from pcvfe_drake.estimation.fit_options import (
 from pcvfe_drake.estimation.fitting import fit_gauss_newton
 from pcvfe_drake.estimation.probe import (
     ProbeState,
-    bend_ratios,
     check_probe_settings,
     controller_theta,
+    level_bend,
     peak_slip_rad,
     probe_step,
     saturated,
@@ -470,7 +470,7 @@ class ContextEstimator:
         :meth:`refit`; ``pcvfe_drake.estimation.probe.probe_step``): a fitted, not identifiable
         context raises, holds or backs off its handed mu after checking its newest
         ``probe_window_s`` for large slip angles and the current level's newest ``probe_hold_s``
-        for the tyres' bend ratio (``probe.bend_ratios``)."""
+        for the tyres' bend ratio (``probe.level_bend``)."""
         cfg, vp = self.config, self.params
         slot = self._slots.get(self.current_context)
         if cfg.unidentified_mu != "probe" or slot is None or not slot.estimate.fitted:
@@ -478,11 +478,9 @@ class ContextEstimator:
         est = slot.estimate
         if est.identifiable:
             return
-        mine = self._store.labels() == self.current_context
-        times = self._store.times()
-        _, states, _ = self._store.rows(
-            np.flatnonzero(mine & (times >= t_now - cfg.probe_window_s))
-        )
+        mine, times = self._store.labels() == self.current_context, self._store.times()
+        recent = mine & (times >= t_now - cfg.probe_window_s)
+        _, states, _ = self._store.rows(np.flatnonzero(recent))
         level = t_now - cfg.probe_hold_s
         if slot.probe.started:  # the current level's own data
             level = max(level, slot.probe.last_step_s)
@@ -491,9 +489,7 @@ class ContextEstimator:
         handed = self._unidentified(slot, np.array(est.theta))  # what the car drove with
         stiffness = handed[0] * handed[1:]  # mu * C_S per axle: the fit's small-slip stiffness
         limit = cfg.probe_slip_fraction * peak_slip_rad(handed[0], stiffness)
-        bends = bend_ratios(
-            t_level, s_level, vp.lf, vp.lr, vp.I_z / vp.m, stiffness, cfg.probe_min_force
-        )
+        bend = level_bend(t_level, s_level, vp, stiffness, cfg.probe_min_force, use * handed[0])
         slot.probe = probe_step(
             slot.probe,
             t_now,
@@ -505,7 +501,7 @@ class ContextEstimator:
             hold_s=cfg.probe_hold_s,
             max_excess=cfg.probe_max_excess,
             use_fraction=use,
-            bend=max((b for b in bends if math.isfinite(b)), default=math.nan),
+            bend=bend,
             fast_step_rel=cfg.probe_fast_step_rel,
             linear_ratio=cfg.probe_linear_ratio,
             bend_limit=cfg.probe_bend_limit,

@@ -90,6 +90,12 @@ G_MPS2 = 9.81
 BEND_SMOOTH_S = 0.1
 """Central-difference half span [s] of the yaw and side-slip rates in :func:`axle_force_per_load`
 (as ``effect_fit.friction_used``: averages the rate noise)."""
+TRIED_FRACTION = 0.8
+"""A level counts as tried in a bend (:func:`level_bend`) when the 90th percentile of its axle
+forces reached this fraction of the planner's demand: over a window holding one bend whose
+demand rises as a sine, the 90th percentile is 0.99 of the apex's, and the apex demand is the
+planner's share of the handed mu (the car used 0.68-0.72 of it, 95th percentile, on
+`paper_eval_effects`)."""
 MIN_BEND_S = 1.5
 """Least time [s] of samples at force a bend ratio is computed from (half a bend of the paper's
 slalom, which spends ~2.4 s of its 3 s at >= 0.1 g: the level's window must hold most of a
@@ -239,6 +245,29 @@ def bend_ratios(
         lin = f[use] / kk
         out.append(float(np.sum(alpha[use] * lin) / np.sum(lin * lin)))
     return out[0], out[1]
+
+
+def level_bend(
+    t: np.ndarray, states: np.ndarray, vehicle, stiffness_per_rad, min_force: float, demand: float
+) -> float:
+    """The evidence of one probe level of ``vehicle`` (``VehicleParams``): the larger of its axle
+    bend ratios (:func:`bend_ratios`), NaN where there is none or where the level was not tried
+    in a bend: the 90th percentile of the larger axle force per load (at >= 2 m/s) below
+    ``TRIED_FRACTION`` of the planner's ``demand`` (its share of the handed mu). The tail of a
+    bend and the straight after it say nothing about how the tyres take the level's demand (on
+    concrete such a window read as linear and raised 0.61 to 0.77 on the straight at the
+    terrain's end, project's mapping, seed 5)."""
+    x = np.asarray(states, dtype=float)
+    lf, lr, iz_per_m = vehicle.lf, vehicle.lr, vehicle.I_z / vehicle.m
+    rows, f_f, f_r = axle_force_per_load(t, x, lf, lr, iz_per_m)
+    fast = x[rows, V] >= MIN_SPEED_MPS
+    if not fast.any():
+        return math.nan
+    force = np.quantile(np.maximum(np.abs(f_f), np.abs(f_r))[fast], 0.9)
+    if force < TRIED_FRACTION * demand:
+        return math.nan
+    bends = bend_ratios(t, x, lf, lr, iz_per_m, stiffness_per_rad, min_force)
+    return max((b for b in bends if math.isfinite(b)), default=math.nan)
 
 
 def sine_bend_ratio(q: float, shape: float = MF_SHAPE, n: int = 2001) -> float:
