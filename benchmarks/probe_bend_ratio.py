@@ -15,7 +15,10 @@ the ratio the tyres showed where the probe handed about the truth (0.9-1.1) is w
 The log is at its logging rate (20 Hz in the shipped scenarios), not the fitter's 100 Hz, so a
 window has a fifth of the live samples (the probe's 1 s minimum of samples at force still holds).
 
-Usage: python benchmarks/probe_bend_ratio.py RUN_DIR [RUN_DIR ...] [--window 3] [--json-only]
+Usage: python benchmarks/probe_bend_ratio.py [RUN_DIR ...] [--window 3] [--json-only] [--quick]
+           [--scenario S]
+Without run folders it makes one: ``pcvfe simulate SCENARIO --seed 0`` (default
+``paper_eval_effects``; one lap, 1-3 min; ``--quick``: its first 60 s, sand and concrete).
 Prints a table per run and one JSON object as its last line.
 """
 
@@ -24,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import tempfile
 import time
 from pathlib import Path
 
@@ -87,12 +91,31 @@ def windows(run: Path, window_s: float) -> list[dict]:
     return rows
 
 
+def make_run(out: Path, scenario: str, quick: bool) -> Path:
+    """One run of ``scenario``, seed 0, into ``out`` (quick: its first 60 s)."""
+    from pcvfe_drake.cli import main as pcvfe
+
+    cmd = ["simulate", scenario, "--seed", "0", "--no-meshcat", "--out", str(out)]
+    cmd += ["--duration", "60"] if quick else []
+    print("making a run: pcvfe " + " ".join(cmd), flush=True)
+    if pcvfe(cmd) != 0:
+        raise SystemExit("pcvfe simulate failed")
+    return out
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("runs", nargs="+", type=Path)
+    ap.add_argument("runs", nargs="*", type=Path, help="pcvfe simulate run folders")
     ap.add_argument("--window", type=float, default=3.0, help="window length [s]")
     ap.add_argument("--json-only", action="store_true")
+    ap.add_argument("--quick", action="store_true", help="without runs: a 60 s run")
+    ap.add_argument("--scenario", default="paper_eval_effects", help="without runs: this one")
     args = ap.parse_args(argv)
+    if not args.runs:
+        with tempfile.TemporaryDirectory(prefix="bend_ratio_") as tmp:
+            made = make_run(Path(tmp) / "run", args.scenario, args.quick)
+            rest = ["--window", str(args.window)] + (["--json-only"] if args.json_only else [])
+            return main([str(made), *rest])
     start = time.process_time()
     rows = [r for run in args.runs for r in windows(run, args.window)]
     if not args.json_only:
