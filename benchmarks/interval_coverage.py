@@ -19,6 +19,9 @@ becomes ``sqrt(std^2 + (R mu)^2)``) to both stds. ``--calibrate`` chooses R on t
 seeds' two-sided (near-limit) pairs of the first run kind given (``--calibrate-on``, default
 ``effects``): per pair the smallest R whose ``hac`` interval holds the truth, and R = their
 ``--target`` quantile (0.9), rounded up to 0.01; then scores every kind with it.
+``--calibrate-on live`` chooses R on the runs' own final estimates instead (the live fitter's
+mu and its std without the budget the run carried, on the contexts the run flagged near the
+limit): the live fitter reads lower than the offline refits where the data are few.
 
 The log is at its logging rate (20 Hz in the shipped scenarios), not the fitter's 100 Hz, so the
 refits are close to, not equal to, the live ones (``live`` columns: the run's own final estimate).
@@ -131,6 +134,16 @@ def synthetic(n_seeds: int, peak: float = 0.7) -> dict:
     }
 
 
+def live_data_std(entry: dict, fc: dict) -> float | None:
+    """The live fit's own std of mu: the run's reported std without the model-error budget the
+    run carried (``fitter.model_error_rel``); None where the run reported none."""
+    std, mu = entry.get("std"), entry.get("mu_hat")
+    if std is None or mu is None:
+        return None
+    rel = float(fc.get("model_error_rel", 0.0) or 0.0)
+    return math.sqrt(max(float(std) ** 2 - (rel * float(mu)) ** 2, 0.0))
+
+
 def needed_rel(fit: dict, true_mu: float) -> float:
     """The smallest model-error budget whose 95 % interval around ``fit`` holds ``true_mu``."""
     gap = (abs(fit["mu"] - true_mu) / Z95) ** 2 - fit["std_data"] ** 2
@@ -151,7 +164,7 @@ def main() -> None:
     ap.add_argument("--dump", help="write every (context, seed) row to this JSON file")
     ap.add_argument("--model-error-rel", type=float, default=0.0)
     ap.add_argument("--calibrate", action="store_true")
-    ap.add_argument("--calibrate-on", default="effects", choices=("effects", "st"))
+    ap.add_argument("--calibrate-on", default="effects", choices=("effects", "st", "live"))
     ap.add_argument("--target", type=float, default=0.9)
     ap.add_argument(
         "--synthetic",
@@ -220,6 +233,8 @@ def main() -> None:
                 "live_mu": entry["mu_hat"],
                 "live_std": entry["std"],
                 "live_covered": entry["covered_95"],
+                "live_near_limit": bool(entry.get("near_limit")),
+                "live_std_data": live_data_std(entry, fc),
                 "mu_lower_bound": used,
                 "rho": fits["rho"],
             }
@@ -238,11 +253,18 @@ def main() -> None:
         "cpu_s": cpu,
     }
     if args.calibrate:
-        need = sorted(
-            needed_rel(r["hac"], r["true_mu"])
-            for r in rows
-            if r["kind"] == args.calibrate_on and r["seed"] in calib and r["hac"]["near_limit"]
-        )
+        if args.calibrate_on == "live":
+            need = sorted(
+                needed_rel({"mu": r["live_mu"], "std_data": r["live_std_data"]}, r["true_mu"])
+                for r in rows
+                if r["seed"] in calib and r["live_near_limit"] and r["live_std_data"] is not None
+            )
+        else:
+            need = sorted(
+                needed_rel(r["hac"], r["true_mu"])
+                for r in rows
+                if r["kind"] == args.calibrate_on and r["seed"] in calib and r["hac"]["near_limit"]
+            )
         if not need:
             raise SystemExit(f"--calibrate: no near-limit {args.calibrate_on} pairs to calibrate")
         q = need[min(len(need) - 1, math.ceil(args.target * len(need)) - 1)]

@@ -25,8 +25,11 @@ and ``final_error_to_baseline_floor``).
 * ``full_model``: the model with the three effects the study found (``peak_tyre``,
   ``axle_stiffness``, ``rotating_inertia``) added whatever the loop says, fitted on the same
   training blocks: its held-out error over the floor and its mu per terrain.
-* ``last_round``: for the effects in ``WATCH`` (``suspension_lag``), their entry in the loop's
-  last round on top of the final model (of ``--add peak_tyre``): significant or not, the
+* ``with_roll_camber_tyre``: ``roll_camber`` added to the final model of ``--add peak_tyre``
+  with its parameters fixed at the tyre's own constants (``ROLL_CAMBER_TYRE``), the rest
+  refitted: held-out error over the floor, its change against that model, mu per terrain;
+* ``last_round``: for the effects in ``WATCH`` (``suspension_lag``, ``roll_camber``), their
+  entry in the loop's last round on top of the final model: significant or not, the
   likelihood-ratio p-value and the held-out error drop (negative: the held-out error rose).
 
 ``--no-camber-offset`` (a diagnosis of what remains, not the truth the project uses): the
@@ -59,6 +62,10 @@ TERRAINS = {"patchy_grass": 0.30, "sand": 0.45, "concrete": 0.60, "brick": 0.80}
 FULL_MODEL = ("peak_tyre", "axle_stiffness", "rotating_inertia")
 WATCH = ("suspension_lag", "roll_camber")
 """Effects whose last-round entry is reported (added to the library after the study)."""
+ROLL_CAMBER_TYRE = {"f0": -0.037, "f1": 0.0, "s0": 0.0027}
+"""``roll_camber`` at the multi-body tyre's sign-of-camber constants: ``-p_vy1`` (the side force
+opposes the bend: the roll cambers the wheels negatively in a left bend) and ``+p_hy1`` (the slip
+shift adds to the slip; ``benchmarks/mb_camber.py``)."""
 
 
 def _last_round(report: dict) -> dict:
@@ -114,9 +121,17 @@ def study(mapping: str, duration_s: float, seed: int, out: str | None) -> dict:
     final = report["final"]
     final_ratio = final["heldout_error"] / final["noise_floor"]
     # the user's second step: friction is the tyre's peak, so start from the peak tyre
-    added, _ = diagnose(data, add=["peak_tyre"])
+    added, added_wb = diagnose(data, add=["peak_tyre"])
     added_final = added["final"]
     added_mu = _mu(added_final["params"])
+    # roll_camber at the tyre's own constants on top of that model (the loop does not select
+    # it with its parameters free; see the module docstring)
+    ref = added_wb.final_fit
+    fixed = {f"roll_camber.{k}": v for k, v in ROLL_CAMBER_TYRE.items()}
+    cam = added_wb.fit_model(ref.model.with_effects("roll_camber"), warm=ref, fixed=fixed)
+    cam_eval = added_wb.evaluate(cam, with_free_run=False)
+    ref_eval = added_wb.final_eval
+    cam_mu = _mu(cam.params_dict())
     full = wb.fit_model(wb.base_model.with_effects(*FULL_MODEL), warm=wb.baseline)
     full_eval = wb.evaluate(full, with_free_run=False)
     full_mu = _mu(full.params_dict())
@@ -158,6 +173,18 @@ def study(mapping: str, duration_s: float, seed: int, out: str | None) -> dict:
             if not k.startswith("mu")
         },
         "with_peak_tyre_verdict": added["verdict"]["text"],
+        "with_roll_camber_tyre": {
+            "fixed": ROLL_CAMBER_TYRE,
+            "error_to_floor": round(cam_eval["model_error"] / cam_eval["noise_floor"], 3),
+            "heldout_error_change": round(cam_eval["model_error"] / ref_eval["model_error"] - 1, 4),
+            "mu": cam_mu,
+            "mu_error": _errors(cam_mu),
+            "params": {
+                k: round(float(v), 4)
+                for k, v in zip(cam.model.param_names, cam.theta, strict=True)
+                if not k.startswith("mu")
+            },
+        },
         "last_round": _last_round(report),
         "with_peak_tyre_last_round": _last_round(added),
         "full_model": list(FULL_MODEL),
@@ -230,6 +257,10 @@ def main() -> int:
                     default=float("nan"),
                 ),
                 "full_model_error_to_floor": r["full_model_error_to_floor"],
+                "with_roll_camber_tyre": {
+                    k: r["with_roll_camber_tyre"][k]
+                    for k in ("error_to_floor", "heldout_error_change", "mu_error")
+                },
                 "last_round": r["last_round"],
                 "with_peak_tyre_last_round": r["with_peak_tyre_last_round"],
                 "max_abs_full_model_mu_error": max(
