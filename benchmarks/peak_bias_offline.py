@@ -15,6 +15,8 @@ fitter's own fit, here on all of the terrain's 1 s windows, 10 iterations, cold 
 * ``more_effects``: + ``speed_scale`` (k 0.97) + ``rolling_resistance`` (c_rr 0.003), the
   workbench's rich-excitation findings, and the same two fitted;
 * ``shape_1``: the magic-formula shape C = 1.0 instead of ``peak_tyre``'s 1.35 (a flatter law);
+* ``roll_camber_tyre``: + ``roll_camber`` held at the multi-body tyre's sign-of-camber constants
+  (f0 -0.037, f1 0, s0 0.0027 rad); ``roll_camber_fitted``: the same three fitted;
 
 the used friction (95th percentile over the terrain) as ``friction_used`` measures it (total
 and lateral only; measured and true states); and the front axle's lateral force per load
