@@ -360,6 +360,7 @@ def test_probe_step_size_follows_the_bend_ratio():
         **FAST,
     )
     assert slow.mu == pytest.approx(0.4) and slow.steps == 0  # bent within the limit: stays
+    assert slow is s  # and the level's evidence carries on from where the level was set
     from pcvfe_drake.estimation.probe import implied_peak_fraction, sine_bend_ratio
 
     for q in (0.3, 0.57, 0.64, 0.8):

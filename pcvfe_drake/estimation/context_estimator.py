@@ -469,8 +469,8 @@ class ContextEstimator:
         """``unidentified_mu: probe``: one step of the current context's probe (called by
         :meth:`refit`; ``pcvfe_drake.estimation.probe.probe_step``): a fitted, not identifiable
         context raises, holds or backs off its handed mu after checking its newest
-        ``probe_window_s`` for large slip angles and the current level's newest ``probe_hold_s``
-        for the tyres' bend ratio (``probe.level_bend``)."""
+        ``probe_window_s`` for large slip angles and the current level's data for the tyres'
+        bend ratio (``probe.level_bend``)."""
         cfg, vp = self.config, self.params
         slot = self._slots.get(self.current_context)
         if cfg.unidentified_mu != "probe" or slot is None or not slot.estimate.fitted:
@@ -481,9 +481,8 @@ class ContextEstimator:
         mine, times = self._store.labels() == self.current_context, self._store.times()
         recent = mine & (times >= t_now - cfg.probe_window_s)
         _, states, _ = self._store.rows(np.flatnonzero(recent))
-        level = t_now - cfg.probe_hold_s
-        if slot.probe.started:  # the current level's own data
-            level = max(level, slot.probe.last_step_s)
+        # the current level's own data, all of it (the newest probe_hold_s before the first)
+        level = slot.probe.last_step_s if slot.probe.started else t_now - cfg.probe_hold_s
         t_level, s_level, _ = self._store.rows(np.flatnonzero(mine & (times >= level)))
         use = cfg.probe_use_fraction or DEFAULT_PROBE_USE_FRACTION
         handed = self._unidentified(slot, np.array(est.theta))  # what the car drove with

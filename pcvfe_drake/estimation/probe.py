@@ -19,8 +19,10 @@ The rules (:func:`probe_step`), each number a field of ``LiveFitConfig``:
   is a tenth of the friction asked for, so an overshoot past the limit is at most that);
 * **raise to the peak the tyres imply, stop where they bend**: the current level's *bend
   ratio* (:func:`bend_ratios`: the slip the tyres needed for the force they made, over the slip
-  a linear tyre with the fitted small-slip stiffness would need, a least-squares slope over the
-  level's samples at force) says how far along its curve a magic-formula tyre (shape 1.35)
+  a linear tyre with the fitted small-slip stiffness would need, a least-squares slope over all
+  the level's samples at force since it was set: a hold keeps the level and its data, as the
+  1.5 s tail of a bend after a hold read as linear and raised concrete from 0.61 to 0.77 on the
+  straight at its end, project's mapping, seed 5) says how far along its curve a magic-formula tyre (shape 1.35)
   worked: over a bend whose demand rises and falls as a sine to a fraction ``q`` of the peak the
   slope is :func:`sine_bend_ratio` (1.075 at q = 0.5, 1.14 at 0.64, 1.25 at 0.80). The planner's
   demand is ``probe_use_fraction`` (0.64) of the handed mu, so the implied peak is ``0.64 mu /
@@ -373,8 +375,8 @@ def probe_step(
         implied = use_fraction / implied_peak_fraction(bend) - 1.0 if bend <= linear_ratio else 0
         step = min(fast_step_rel, implied)
     raised = min(state.mu * (1.0 + max(step, 0.0)), cap)
-    if raised <= state.mu:
-        return ProbeState(state.mu, state.ceiling, t_now, state.steps, state.backoffs)
+    if raised <= state.mu:  # held or capped: the level and its evidence carry on
+        return state
     return ProbeState(raised, state.ceiling, t_now, state.steps + 1, state.backoffs)
 
 
