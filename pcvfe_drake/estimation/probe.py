@@ -22,8 +22,8 @@ The rules (:func:`probe_step`), each number a field of ``LiveFitConfig``:
   a linear tyre with the fitted small-slip stiffness would need, a least-squares slope over all
   the level's samples at force since it was set: a hold keeps the level and its data, as the
   1.5 s tail of a bend after a hold read as linear and raised concrete from 0.61 to 0.77 on the
-  straight at its end, project's mapping, seed 5) says how far along its curve a magic-formula tyre (shape 1.35)
-  worked: over a bend whose demand rises and falls as a sine to a fraction ``q`` of the peak the
+  straight at its end, project's mapping, seed 5) says how far along its curve a magic-formula
+  tyre (shape 1.35) worked: over a bend whose demand rises and falls as a sine to a fraction ``q`` of the peak the
   slope is :func:`sine_bend_ratio` (1.075 at q = 0.5, 1.14 at 0.64, 1.25 at 0.80). The planner's
   demand is ``probe_use_fraction`` (0.64) of the handed mu, so the implied peak is ``0.64 mu /
   q`` (:func:`implied_peak_fraction`), and the probe raises the handed mu to it, by at most
