@@ -17,32 +17,32 @@ The rules (:func:`probe_step`), each number a field of ``LiveFitConfig``:
   there, so each level is tried in a bend before the next; with ``probe_fast_step_rel: null``
   (the bend ratio not used for the raise) by the factor ``1 + probe_step_rel`` (0.1: the step
   is a tenth of the friction asked for, so an overshoot past the limit is at most that);
-* **raise to the peak the tyres imply, stop where they bend**: the current level's *bend
-  ratio* (:func:`bend_ratios`: the slip the tyres needed for the force they made, over the slip
-  a linear tyre with the fitted small-slip stiffness would need, a least-squares slope over all
-  the level's samples at force since it was set: a hold keeps the level and its data, as the
-  1.5 s tail of a bend after a hold read as linear and raised concrete from 0.61 to 0.77 on the
-  straight at its end, project's mapping, seed 5) says how far along its curve a magic-formula
-  tyre (shape 1.35) worked: over a bend whose demand rises and falls as a sine to a fraction ``q`` of the peak the
+* **raise to the peak the tyres imply, stop where they bend**: the current level's *bend ratio*
+  (:func:`bend_ratios`: the slip the tyres needed for the force they made, over the slip a linear
+  tyre with the fitted small-slip stiffness would need, a least-squares slope over all the level's
+  samples at force since it was set: a hold keeps the level and its data, as the 1.5 s tail of a
+  bend after a hold read as linear and raised concrete from 0.61 to 0.77 on the straight at its
+  end, project's mapping, seed 5) says how far along its curve a magic-formula tyre (shape 1.35)
+  worked: over a bend whose demand rises and falls as a sine to a fraction ``q`` of the peak the
   slope is :func:`sine_bend_ratio` (1.075 at q = 0.5, 1.14 at 0.64, 1.25 at 0.80). The planner's
-  demand is ``probe_use_fraction`` (0.64) of the handed mu, so the implied peak is ``0.64 mu /
-  q`` (:func:`implied_peak_fraction`), and the probe raises the handed mu to it, by at most
+  demand is ``probe_use_fraction`` (0.64) of the handed mu, so the implied peak is ``0.64 mu / q``
+  (:func:`implied_peak_fraction`), and the probe raises the handed mu to it, by at most
   ``probe_fast_step_rel`` (0.25) at a time, while the slope is at most ``probe_linear_ratio``
   (1.14, where the implied peak is the handed mu); above it the level is kept, and so it is
   without the evidence (less than ``MIN_BEND_S`` of samples at ``probe_min_force`` of lateral
-  force, e.g. on a straight: raising the slow step there took concrete from 0.62 to 0.76 on
-  the straight at the terrain's end, seeds 0 and 5). One fast step from a handed mu at most
-  the peak hands at most 1.25 times it, where the slope is 1.25, the back-off limit (the
-  planner then asks for 0.80 of the peak). Under the public simulator's friction mapping the
-  stiffness does not follow mu, so the slope says how far along the curve the tyres work. On
-  the multi-body truth (``python benchmarks/probe_bend_ratio.py RUNS``, 3 s windows of single
-  laps of `paper_eval_effects` and `_project`) the median slope with the handed mu within 10 %
-  of the truth was 1.13 (concrete, public mapping), 1.18 (concrete, project's), 1.23 (grass,
-  project's), but 1.65 on the public mapping's grass (its front axle bends over below 0.30:
-  the fit's low bias, docs/fitting.md); below 0.9 of the truth 0.94-1.07 on brick and
-  concrete. A slope over less than 1 s of force samples was too noisy to act on, and with a
-  fixed 25 % step instead of the implied one the probe passed concrete's 0.60 by a whole step
-  (0.77 on both mappings, seeds 0 and 5);
+  force, e.g. on a straight: raising the slow step there took concrete from 0.62 to 0.76 on the
+  straight at the terrain's end, seeds 0 and 5). One fast step from a handed mu at most the peak
+  hands at most 1.25 times it, where the slope is 1.25, the back-off limit (the planner then asks
+  for 0.80 of the peak). Under the public simulator's friction mapping the stiffness does not
+  follow mu, so the slope says how far along the curve the tyres work. On the multi-body truth
+  (``python benchmarks/probe_bend_ratio.py RUNS``, 3 s windows of single laps of
+  `paper_eval_effects` and `_project`) the median slope with the handed mu within 10 % of the
+  truth was 1.13 (concrete, public mapping), 1.18 (concrete, project's), 1.23 (grass, project's),
+  but 1.65 on the public mapping's grass (its front axle bends over below 0.30: the fit's low
+  bias, docs/fitting.md); below 0.9 of the truth 0.94-1.07 on brick and concrete. A slope over
+  less than 1 s of force samples was too noisy to act on, and with a fixed 25 % step instead of
+  the implied one the probe passed concrete's 0.60 by a whole step (0.77 on both mappings, seeds 0
+  and 5);
 * **never above** a bend ratio of ``probe_bend_limit`` (1.25: q = 0.80, a handed mu 1.25
   times the peak on a magic-formula tyre): above it the level counts as saturated (back-off
   below);
