@@ -245,3 +245,31 @@ def test_shutdown_drops_only_the_nannys_kill_message():
 
     assert not quiet.filter(record("Worker process still alive after 4.0 seconds, killing"))
     assert quiet.filter(record("Restarting worker"))
+
+
+def test_terrain_rows_count_settled_and_covered_pairs_by_hand():
+    from pcvfe_drake.evaluation.tables import terrain_rows
+
+    contexts = pd.DataFrame(
+        {
+            "scenario": ["s"] * 5,
+            "source": ["a", "a", "a", "a", "b"],
+            "majority_terrain": ["sand", "sand", "sand", "grass", "sand"],
+            "true_mu": [0.45, 0.45, 0.45, 0.3, 0.45],
+            "mu_hat": [0.44, 0.30, 0.41, 0.31, 0.5],
+            "abs_error_after_settle_max": [0.01, 0.15, None, 0.05, 0.06],
+            "covered_95": [True, False, True, None, True],
+        }
+    )
+    rows = {(r["source"], r["terrain"]): r for r in terrain_rows(contexts)}
+    sand = rows[("a", "sand")]
+    assert (sand["pairs"], sand["scored"], sand["within"]) == (3, 2, 1)
+    assert (sand["interval_known"], sand["covered"]) == (3, 2)
+    assert (sand["mu_hat_min"], sand["mu_hat_max"]) == (0.30, 0.44)
+    grass = rows[("a", "grass")]
+    assert (grass["within"], grass["scored"], grass["interval_known"]) == (1, 1, 0)
+    assert rows[("b", "sand")]["within"] == 0
+    # Results stored before covered_95 existed: no interval counts, the rest as before.
+    old = terrain_rows(contexts.drop(columns="covered_95"))
+    assert all(r["interval_known"] == 0 for r in old) and len(old) == 3
+    assert terrain_rows(pd.DataFrame()) == []

@@ -7,6 +7,9 @@
   the mean over seeds with its 95 % confidence interval, and the paired difference to the
   reference source (PC-VFE in the shipped experiment) seed by seed, with its interval;
 - the per-seed differences of mean speed and failures;
+- the friction estimates per terrain (from the ``contexts`` table): how many (context, seed)
+  pairs stayed within 0.05 of the truth after their first 20 s, how many 95 % intervals held
+  the truth, and the range of the final estimates;
 - the figures (``figures/``): speed and failure bars with intervals, mu_hat over time of every
   source on one seed, and the map of failures;
 - failed runs with their errors, and the experiment as run with the package versions.
@@ -29,7 +32,7 @@ import yaml
 from pcvfe_drake.evaluation import plots
 from pcvfe_drake.evaluation.stats import LEVEL, mean_ci, paired_differences
 from pcvfe_drake.evaluation.store import ResultStore
-from pcvfe_drake.evaluation.tables import METRICS
+from pcvfe_drake.evaluation.tables import METRICS, MU_TOLERANCE, terrain_rows
 
 
 @dataclass
@@ -162,6 +165,67 @@ def _scenario_maps(store: ResultStore, runs: pd.DataFrame) -> dict:
     return maps
 
 
+def _terrain_table(doc: _Doc, rows: list[dict], sources: list[str]) -> None:
+    """The friction estimates per source and terrain of one scenario (``tables.terrain_rows``)
+    with a total per source."""
+    if not rows:
+        return
+    doc.h(3, "Friction estimates per terrain")
+    doc.p(
+        f"Per (context, seed) pair, by the context's majority terrain: within "
+        f"{MU_TOLERANCE:g} = |mu_hat - mu| stayed <= {MU_TOLERANCE:g} from the context's 20th "
+        "second of driving on (of the pairs driven that long); covered = the run's 95 % "
+        "interval held the truth; final fit = the range of the fitted mu at the run's end (where "
+        "the peak was not identifiable the controller was handed an explored value instead, "
+        "which is what the within column scores)."
+    )
+
+    def share(k: int, n: int) -> str:
+        return f"{k} of {n}" if n else "-"
+
+    order = {s: i for i, s in enumerate(sources)}
+    out = []
+    for src in sorted({r["source"] for r in rows}, key=lambda s: order.get(s, len(order))):
+        mine = [r for r in rows if r["source"] == src]
+        for r in mine:
+            out.append(
+                [
+                    src,
+                    str(r["terrain"]),
+                    _fmt(r["true_mu"]),
+                    str(r["pairs"]),
+                    share(r["within"], r["scored"]),
+                    share(r["covered"], r["interval_known"]),
+                    f"{_fmt(r['mu_hat_min'])}-{_fmt(r['mu_hat_max'])}",
+                ]
+            )
+        total = {k: sum(r[k] for r in mine) for k in ("pairs", "within", "scored")}
+        total |= {k: sum(r[k] for r in mine) for k in ("covered", "interval_known")}
+        out.append(
+            [
+                f"**{src}**",
+                "all",
+                "",
+                str(total["pairs"]),
+                share(total["within"], total["scored"]),
+                share(total["covered"], total["interval_known"]),
+                "",
+            ]
+        )
+    doc.table(
+        [
+            "source",
+            "terrain",
+            "true mu",
+            "contexts",
+            f"within {MU_TOLERANCE:g} after 20 s",
+            "95 % interval covers",
+            "final fit",
+        ],
+        out,
+    )
+
+
 def build_report(root: str | Path) -> tuple[Path, Path]:
     """Write ``report.md``, ``report.html`` and ``figures/`` of the results folder ``root``."""
     store = ResultStore(root)
@@ -194,6 +258,7 @@ def build_report(root: str | Path) -> tuple[Path, Path]:
     )
     if missing:
         doc.p(f"Not in these runs' summary.json (not shown): {', '.join(missing)}.")
+    terrain = terrain_rows(store.table("contexts"))
     for sc in sorted(done["scenario"].unique()):
         here = done[done["scenario"] == sc]
         doc.h(2, f"Scenario {sc}")
@@ -228,6 +293,7 @@ def build_report(root: str | Path) -> tuple[Path, Path]:
                 ["seed", *cols],
                 [[str(seed)] + [_fmt(d.loc[seed, c]) for c in cols] for seed in d.index],
             )
+        _terrain_table(doc, [r for r in terrain if r["scenario"] == sc], sources)
         stopped = here[here["error"].astype(str) != ""]
         if len(stopped):
             doc.p(

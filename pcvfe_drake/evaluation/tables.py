@@ -172,8 +172,55 @@ def context_rows(summary: Mapping[str, Any]) -> list[dict]:
         "abs_error_after_settle_mean",
         "abs_error_after_settle_max",
         "time_in_context_s",
+        "covered_95",
     )
     return [{k: e.get(k) for k in keys} for e in summary.get("mu_estimates") or []]
+
+
+MU_TOLERANCE = 0.05
+"""|mu_hat - mu| a context must stay within after its first 20 s of driving to count as settled
+(``abs_error_after_settle_max``, scored from ``runs.summary.SETTLE_TIME_S`` on)."""
+
+
+def terrain_rows(contexts: pd.DataFrame, tolerance: float = MU_TOLERANCE) -> list[dict]:
+    """Friction estimates per scenario, source and terrain, over the (context, run) pairs of
+    ``contexts`` (the ``contexts`` table: one row per discovered context of every run).
+
+    Per group: ``pairs`` (contexts whose majority terrain it is), ``scored`` (those driven long
+    enough to be scored after their first 20 s), ``within`` (scored ones whose largest error
+    after that stayed <= ``tolerance``), ``interval_known`` / ``covered`` (contexts whose run
+    reported a 95 % interval, and how many held the truth; absent in results written before
+    ``covered_95`` was stored), ``true_mu`` and the final ``mu_hat`` range over the pairs.
+    Contexts without a majority terrain or a true mu are left out.
+    """
+    if contexts.empty or "majority_terrain" not in contexts:
+        return []
+    c = contexts[contexts["majority_terrain"].notna() & contexts["true_mu"].notna()]
+    rows = []
+    for (scenario, source, terrain), g in c.groupby(
+        ["scenario", "source", "majority_terrain"], sort=True
+    ):
+        err = pd.to_numeric(g["abs_error_after_settle_max"], errors="coerce")
+        scored = err.notna()
+        cov = g["covered_95"] if "covered_95" in g else pd.Series(dtype=object)
+        known = cov.notna() & cov.map(lambda x: isinstance(x, (bool, np.bool_)))
+        mu_hat = pd.to_numeric(g["mu_hat"], errors="coerce")
+        rows.append(
+            {
+                "scenario": scenario,
+                "source": source,
+                "terrain": terrain,
+                "true_mu": float(g["true_mu"].iloc[0]),
+                "pairs": len(g),
+                "scored": int(scored.sum()),
+                "within": int((err[scored] <= tolerance).sum()),
+                "interval_known": int(known.sum()),
+                "covered": int(cov[known].astype(bool).sum()),
+                "mu_hat_min": float(mu_hat.min()) if mu_hat.notna().any() else math.nan,
+                "mu_hat_max": float(mu_hat.max()) if mu_hat.notna().any() else math.nan,
+            }
+        )
+    return rows
 
 
 def failure_rows(summary: Mapping[str, Any]) -> list[dict]:
