@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from _own_run import make_run
 
 from pcvfe_drake.estimation.effect_fit import friction_used
 from pcvfe_drake.estimation.probe import bend_ratios
@@ -91,18 +92,6 @@ def windows(run: Path, window_s: float) -> list[dict]:
     return rows
 
 
-def make_run(out: Path, scenario: str, quick: bool) -> Path:
-    """One run of ``scenario``, seed 0, into ``out`` (quick: its first 60 s)."""
-    from pcvfe_drake.cli import main as pcvfe
-
-    cmd = ["simulate", scenario, "--seed", "0", "--no-meshcat", "--out", str(out)]
-    cmd += ["--duration", "60"] if quick else []
-    print("making a run: pcvfe " + " ".join(cmd), flush=True)
-    if pcvfe(cmd) != 0:
-        raise SystemExit("pcvfe simulate failed")
-    return out
-
-
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("runs", nargs="*", type=Path, help="pcvfe simulate run folders")
@@ -113,7 +102,7 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
     if not args.runs:
         with tempfile.TemporaryDirectory(prefix="bend_ratio_") as tmp:
-            made = make_run(Path(tmp) / "run", args.scenario, args.quick)
+            made = make_run(Path(tmp) / "run", args.scenario, 60.0 if args.quick else None)
             rest = ["--window", str(args.window)] + (["--json-only"] if args.json_only else [])
             return main([str(made), *rest])
     start = time.process_time()

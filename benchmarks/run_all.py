@@ -24,7 +24,9 @@ HEADLINE_WORDS = ("speedup", "ratio", "realtime_factor", "per_", "_ms", "rate")
 
 
 def discover(only: list[str] | None) -> list[Path]:
-    scripts = sorted(p for p in HERE.glob("*.py") if p.name != Path(__file__).name)
+    scripts = sorted(
+        p for p in HERE.glob("*.py") if p.name != Path(__file__).name and not p.name.startswith("_")
+    )
     if only:
         known = {p.stem: p for p in scripts}
         unknown = [n for n in only if n not in known]

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import yaml
+from _own_run import make_run
 
 from pcvfe_drake.control.course import load_course
 from pcvfe_drake.runs import drive_metrics
@@ -97,18 +98,6 @@ def per_terrain(runs: list[dict]) -> dict:
     return out
 
 
-def make_run(out: Path, scenario: str, quick: bool) -> Path:
-    """One run of ``scenario``, seed 0, into ``out`` (quick: its first 45 s)."""
-    from pcvfe_drake.cli import main as pcvfe
-
-    cmd = ["simulate", scenario, "--seed", "0", "--no-meshcat", "--out", str(out)]
-    cmd += ["--duration", "45"] if quick else []
-    print("making a run: pcvfe " + " ".join(cmd), flush=True)
-    if pcvfe(cmd) != 0:
-        raise SystemExit("pcvfe simulate failed")
-    return out
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("runs", nargs="*", type=Path, help="run folders with summary.json")
@@ -117,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if not args.runs:
         with tempfile.TemporaryDirectory(prefix="entry_latency_") as tmp:
-            made = make_run(Path(tmp) / "run", args.scenario, args.quick)
+            made = make_run(Path(tmp) / "run", args.scenario, 45.0 if args.quick else None)
             return main([str(made)])
     runs = []
     for folder in args.runs:

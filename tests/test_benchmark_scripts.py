@@ -14,7 +14,7 @@ import pytest
 BENCHMARKS = sorted(
     p
     for p in (Path(__file__).resolve().parents[1] / "benchmarks").glob("*.py")
-    if p.name != "run_all.py"
+    if p.name != "run_all.py" and not p.name.startswith("_")
 )
 
 
