@@ -68,8 +68,10 @@ def test_fixed_input_forms_one_context_after_the_first_reclustering():
     assert system.clusterer(context).n_frames == 103
 
 
-def test_simulation_two_terrains_new_id_and_reidentification():
-    # Terrain A 0-25 s, B 25-45 s, A again from ~45 s (10 Hz frames, 36 numbers each).
+def _two_terrain_ids(params: ClusteringParams):
+    """The published context ids of terrain A 0-25 s, B 25-45 s, A again from ~45 s (10 Hz
+    frames, 36 numbers each) over 52 s: (t, ids, the true terrain label of each id's frame,
+    the clustering system and its context at the end)."""
     stream = synthetic_feature_stream(
         n_laps=2, terrain_durations_s=(25.0, 20.0), outlier_fraction=0.0, seed=5
     )
@@ -78,9 +80,7 @@ def test_simulation_two_terrains_new_id_and_reidentification():
         "features",
         TrajectorySource(PiecewisePolynomial.ZeroOrderHold(stream.t_s, stream.z.T)),
     )
-    clustering = builder.AddNamedSystem(
-        "context_clustering", ContextClustering(36, ClusteringParams(frame_rate_hz=10.0))
-    )
+    clustering = builder.AddNamedSystem("context_clustering", ContextClustering(36, params))
     builder.Connect(source.get_output_port(), clustering.GetInputPort("features"))
     logger = LogVectorOutput(clustering.GetOutputPort("context_id"), builder, 0.1)
     diagram = builder.Build()
@@ -91,6 +91,11 @@ def test_simulation_two_terrains_new_id_and_reidentification():
     t, ids = log.sample_times(), log.data()[0]
     # Frame k's id is published from t = 0.1 k + 0.1 on (zero-order hold).
     truth = stream.label[np.clip(np.round(t * 10).astype(int) - 1, 0, None)]
+    return t, ids, truth, clustering, clustering.GetMyContextFromRoot(simulator.get_context())
+
+
+def test_simulation_two_terrains_new_id_and_reidentification():
+    t, ids, truth, clustering, context = _two_terrain_ids(ClusteringParams(frame_rate_hz=10.0))
     a_start = 0
     b = (truth == 1) & (t < 45.0)
     a_again = (truth == 0) & (t > 45.0)
@@ -105,9 +110,7 @@ def test_simulation_two_terrains_new_id_and_reidentification():
     first_a_again = t[a_again][0]
     hits = t[a_again & (ids == a_start)]
     assert hits[0] - first_a_again <= 0.3
-    table = clustering.GetOutputPort("cluster_table").Eval(
-        clustering.GetMyContextFromRoot(simulator.get_context())
-    )
+    table = clustering.GetOutputPort("cluster_table").Eval(context)
     assert table.active_ids == [0, 1]
     assert table.n_reclusterings == 5
 
@@ -170,26 +173,9 @@ def test_frame_offset_assigns_the_frame_of_the_same_period(offset_s, age_s):
 
 
 def test_novelty_trigger_names_a_new_terrain_without_waiting_for_the_period():
-    # Terrain A 0-25 s, B 25-45 s, A again: the same stream as above, with the novelty trigger.
-    stream = synthetic_feature_stream(
-        n_laps=2, terrain_durations_s=(25.0, 20.0), outlier_fraction=0.0, seed=5
-    )
+    # The same terrains as above, with the novelty trigger.
     params = ClusteringParams(frame_rate_hz=10.0, novelty_window_s=5.0)
-    builder = DiagramBuilder()
-    source = builder.AddNamedSystem(
-        "features",
-        TrajectorySource(PiecewisePolynomial.ZeroOrderHold(stream.t_s, stream.z.T)),
-    )
-    clustering = builder.AddNamedSystem("context_clustering", ContextClustering(36, params))
-    builder.Connect(source.get_output_port(), clustering.GetInputPort("features"))
-    logger = LogVectorOutput(clustering.GetOutputPort("context_id"), builder, 0.1)
-    diagram = builder.Build()
-    simulator = Simulator(diagram)
-    simulator.AdvanceTo(52.0)
-
-    log = logger.FindLog(simulator.get_context())
-    t, ids = log.sample_times(), log.data()[0]
-    truth = stream.label[np.clip(np.round(t * 10).astype(int) - 1, 0, None)]
+    t, ids, truth, clustering, context = _two_terrain_ids(params)
     # A is named once 5 s of it are stored (the periodic re-clustering would wait until 10 s).
     first_a = t[(ids == 0) & (truth == 0)][0]
     assert 4.0 <= first_a <= 7.0
@@ -203,7 +189,6 @@ def test_novelty_trigger_names_a_new_terrain_without_waiting_for_the_period():
     # Back on A: re-identified with its old id (Algorithm 1 across triggered re-clusterings).
     a_again = (truth == 0) & (t > 45.0)
     assert t[a_again & (ids == 0)][0] - t[a_again][0] <= 0.3
-    context = clustering.GetMyContextFromRoot(simulator.get_context())
     table = clustering.GetOutputPort("cluster_table").Eval(context)
     assert table.active_ids == [0, 1]
     # Periodic ones (5 by 52 s) plus the triggered ones, at most one per min interval while noise
