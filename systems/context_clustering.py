@@ -160,10 +160,7 @@ class ContextClustering(LeafSystem):
     def _on_frame(self, context: Context, state: State) -> EventStatus:
         z = np.asarray(self._features_port.Eval(context), dtype=float)
         clusterer = state.get_mutable_abstract_state(self._clusterer_index).get_mutable_value()
-        t = context.get_time()
-        context_id = clusterer.assign(z, t)
-        if context_id == NOISE and clusterer.novelty_due(t) and clusterer.recluster_if_novel(t):
-            context_id = int(clusterer.predict(z)[0])
+        context_id, _ = clusterer.assign_frame(z, context.get_time())
         state.get_mutable_discrete_state(self._id_index).SetAtIndex(0, float(context_id))
         return EventStatus.Succeeded()
 

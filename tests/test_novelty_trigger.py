@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pcvfe_drake.contexts.clustering import NOISE, ClusteringParams, ContextClusterer
+from pcvfe_drake.contexts.clustering import ClusteringParams, ContextClusterer
 from pcvfe_drake.contexts.feature_streams import synthetic_feature_stream
 from pcvfe_drake.contexts.metrics import context_metrics
 
@@ -19,18 +19,15 @@ def run(stream, params, period_s=10.0):
     periodic, triggered = [], []
     next_t = period_s
     for i, (t, z) in enumerate(zip(stream.t_s, stream.z, strict=True)):
-        ids[i] = clusterer.assign(z, float(t))
         if t >= next_t - 1e-9:
+            ids[i] = clusterer.assign(z, float(t))
             clusterer.recluster(float(t))
             periodic.append(float(t))
             next_t += period_s
-        elif (
-            ids[i] == NOISE
-            and clusterer.novelty_due(float(t))
-            and clusterer.recluster_if_novel(float(t))
-        ):
+            continue
+        ids[i], kept = clusterer.assign_frame(z, float(t))
+        if kept:
             triggered.append(float(t))
-            ids[i] = int(clusterer.predict(z)[0])
     return clusterer, ids, np.array(periodic), np.array(triggered)
 
 

@@ -358,6 +358,19 @@ class ContextClusterer:
         self.__dict__.update(trial.__dict__)
         return True
 
+    def assign_frame(self, z: np.ndarray, t_s: float) -> tuple[int, bool]:
+        """A camera frame as the clustering system handles it: :meth:`assign`, and where the
+        frame is noise and the novelty trigger is due (:meth:`novelty_due`), a triggered
+        re-clustering (:meth:`recluster_if_novel`) whose kept result names the frame anew.
+
+        Returns:
+            (the frame's context id, whether a triggered re-clustering was kept).
+        """
+        context_id = self.assign(z, t_s)
+        if context_id == NOISE and self.novelty_due(t_s) and self.recluster_if_novel(t_s):
+            return int(self.predict(z)[0]), True
+        return context_id, False
+
     def recluster(self, t_s: float) -> ClusterTable:
         """Re-cluster the store with HDBSCAN, keep ids by Algorithm 1, rebuild strata and gates.
 
