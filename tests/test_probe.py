@@ -543,3 +543,179 @@ def test_a_level_not_tried_in_a_bend_gives_no_evidence():
     assert max(bend_ratios(t, x, vp.lf, vp.lr, vp.I_z / vp.m, k, 0.1)) < 1.14  # reads linear
     assert np.isnan(level_bend(t, x, vp, k, 0.1, demand=0.35))
     assert np.isfinite(level_bend(t, x, vp, k, 0.1, demand=0.2))
+
+
+def test_probe_takes_its_first_step_at_the_id_on_the_data_driven_at_the_floor():
+    """``start_bend``: the bends the car drove at the stated floor before the context had its
+    id are a level tried; where they read linear the probe starts one step up at once, where
+    they bend (or are missing, or slide) it starts at its base and holds it."""
+    from pcvfe_drake.estimation.probe import sine_bend_ratio
+
+    rules = {**RULES, "max_excess": 0.12, **FAST, "fast_step_rel": 0.4}
+
+    def start(bend, lb=0.2, sat=False, **kw):
+        kw = {**rules, **kw}
+        return probe_step(
+            ProbeState(),
+            10.0,
+            lower_bound=lb,
+            floor_mu=0.3,
+            prior_mu=1.05,
+            is_saturated=sat,
+            start_bend=bend,
+            start_mu=0.3,
+            **kw,
+        )
+
+    s = start(1.0)  # linear: the implied peak is far; one fast step above the floor
+    assert s.mu == pytest.approx(0.42) and s.steps == 1 and s.last_step_s == 10.0
+    held = probe_step(
+        s,
+        12.9,
+        lower_bound=0.2,
+        floor_mu=0.3,
+        prior_mu=1.05,
+        is_saturated=False,
+        bend=1.0,
+        **rules,
+    )
+    assert held is s  # the next raise waits hold_s on the new level's own data
+    # the floor's demand (0.64 x 0.3) was 0.57 of the peak: to that peak
+    assert start(sine_bend_ratio(0.57)).mu == pytest.approx(0.64 * 0.3 / 0.57, rel=5e-3)
+    # bounded by the demonstrated friction: (0.15 + 0.08) / 0.64
+    assert start(1.0, lb=0.15, max_excess=0.08).mu == pytest.approx(0.23 / 0.64)
+    for bend, sat in ((1.2, False), (float("nan"), False), (1.0, True)):
+        s = start(bend, sat=sat)  # bent, no evidence, sliding: the base
+        assert s.mu == pytest.approx(0.3) and s.steps == 0
+    assert start(1.0, fast_step_rel=None).mu == pytest.approx(0.3)  # the bend not in use
+    # once started the start evidence is not read again
+    later = probe_step(
+        ProbeState(mu=0.3, last_step_s=0.0),
+        1.0,
+        lower_bound=0.2,
+        floor_mu=0.3,
+        prior_mu=1.05,
+        is_saturated=False,
+        start_bend=1.0,
+        start_mu=0.3,
+        **rules,
+    )
+    assert later.mu == pytest.approx(0.3) and later.steps == 0
+
+
+def test_estimator_starts_the_probe_on_the_bends_driven_before_the_id():
+    params = ford_escort()
+
+    def first_level(peak, **cfg):
+        est = ContextEstimator(
+            params, LiveFitConfig(unidentified_mu="probe", sample_period_s=0.01, **cfg)
+        )
+        t, x, _ = _mf_slalom(peak, 0.2, seconds=6.0)  # two bends before the first fit
+        for ti, xi in zip(t, x, strict=True):
+            est.add_sample(float(ti), xi, [0, 0], [0])
+        slot = est._slots[0]
+        slot.estimate = replace(
+            slot.estimate,
+            theta=(1.0, params.C_Sf, params.C_Sr),
+            theta_std=(0.5, np.nan, np.nan),
+            fits=1,
+            mu_lower_bound=0.3,
+        )
+        est.update_probe(6.0)
+        return est.theta_for()[0], est.table().get(0).probe.steps
+
+    stated = dict(unknown_floor_stated=True, probe_start_evidence=True)
+    assert first_level(2.0) == (pytest.approx(0.3), 0)  # without it: the base, held
+    assert first_level(2.0, **stated) == (pytest.approx(0.3 * 1.25), 1)  # linear: one step
+    assert first_level(0.25, **stated) == (pytest.approx(0.3), 0)  # bent: the base
+    with pytest.raises(ValueError, match="unknown_floor_stated"):
+        LiveFitConfig(probe_start_evidence=True)
+
+
+def test_unknown_phase_probe_takes_one_step_above_the_floor_and_backs_off():
+    """``probe_unknown``: while the terrain is unknown the bends since the phase began are a
+    level tried at the floor; linear ones raise it once (never twice: the terrain under a noise
+    frame may change), bent ones keep it, a slide takes it back to the floor."""
+    from pcvfe_drake.estimation.probe import unknown_probe_update
+
+    vp = ford_escort()
+    cfg = LiveFitConfig(
+        unidentified_mu="probe",
+        unknown_floor_stated=True,
+        probe_unknown=True,
+        probe_fast_step_rel=0.4,
+        probe_max_excess=0.12,
+    )
+
+    def run(peak, seconds=9.0, beta=0.0):
+        t, x, k = _mf_slalom(peak, 0.2, seconds=seconds)
+        x[:, 6] += beta
+        s, history = ProbeState(), []
+        for now in np.arange(0.0, seconds + 0.01, 1.0):
+
+            def since(t0, now=now):
+                keep = (t >= t0) & (t <= now)
+                return t[keep], x[keep]
+
+            s = unknown_probe_update(s, float(now), cfg, vp, 0.3, k, since, 1.05, 0.64)
+            history.append(s.mu)
+        return s, history
+
+    s, mus = run(2.0)  # linear: one step (0.3 x 1.4) after the 3 s hold, then no more
+    assert mus[0] == pytest.approx(0.3) and s.steps == 1
+    assert max(mus) == pytest.approx(0.42) and mus[-1] == pytest.approx(0.42)
+    s, mus = run(0.45)  # bent (ratio 1.20 at this steering), not past the limit: kept
+    assert s.steps == 0 and s.backoffs == 0 and max(mus) == pytest.approx(0.3)
+    s, mus = run(0.22)  # a peak below the floor: saturated, never above the floor
+    assert s.backoffs >= 1 and max(mus) == pytest.approx(0.3)
+    raised = ProbeState(mu=0.42, last_step_s=0.0, steps=1)
+    t, x, k = _mf_slalom(2.0, 0.2, seconds=3.0)
+    x[:, 6] -= 0.1  # the rear slides
+    back = unknown_probe_update(
+        raised, 3.0, cfg, vp, 0.3, k, lambda t0: (t[t >= t0], x[t >= t0]), 1.05, 0.64
+    )
+    assert back.mu == pytest.approx(0.3) and back.backoffs == 1
+
+
+def test_the_unknown_phase_level_is_carried_into_the_context_it_was_tried_on():
+    from pcvfe_drake.estimation.probe import carried_probe
+
+    level = ProbeState(mu=0.42, last_step_s=4.0, steps=1)
+    assert carried_probe(level, np.array([3] * 9 + [-1]), 3) == level
+    assert carried_probe(level, np.array([3] * 5 + [-1] * 5), 3) is None  # another terrain
+    assert carried_probe(ProbeState(mu=0.3, last_step_s=0.0), np.array([3]), 3) is None
+    # the estimator: the phase's step, then the new context starts from it
+    params = ford_escort()
+    est = ContextEstimator(
+        params,
+        LiveFitConfig(
+            unidentified_mu="probe",
+            sample_period_s=0.01,
+            unknown_floor_stated=True,
+            probe_unknown=True,
+        ),
+    )
+    t, x, _ = _mf_slalom(2.0, 0.2, seconds=8.0)
+    for now in range(9):  # a context named but not fitted yet: the unknown value
+        for ti, xi in zip(t, x, strict=True):
+            if now - 1 < ti <= now:
+                est.add_sample(float(ti), xi, [0, 0], [0])
+        est.update_probe(float(now))
+    assert est.theta_for()[0] == pytest.approx(0.3 * 1.25)  # one step, default fast step
+    step_s = est.unknown_probe.last_step_s
+    slot = est._slots[0]
+    slot.estimate = replace(
+        slot.estimate,
+        theta=(1.0, params.C_Sf, params.C_Sr),
+        theta_std=(0.5, np.nan, np.nan),
+        fits=1,
+        mu_lower_bound=0.3,
+    )
+    # fitted: until its probe's next update it hands the phase's level, no dip to the floor
+    assert est.theta_for()[0] == pytest.approx(0.3 * 1.25)
+    # its fit ends the phase: the context starts at the phase's level, whose data since the
+    # phase's step (over 3 s, linear) give the next step at once
+    est.update_probe(8.5)
+    assert not est.unknown_probe.started and slot.probe.steps == 2
+    assert est.theta_for()[0] == pytest.approx(0.3 * 1.25**2) and slot.probe.last_step_s == 8.5
+    assert 3.0 <= step_s <= 5.0

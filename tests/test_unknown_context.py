@@ -72,3 +72,29 @@ def test_conservative_never_goes_below_the_friction_a_peak_context_used():
     # without the used friction the old rule: the floor of 0.05
     th = unknown_context_theta("conservative", PRIOR, [(0.9, 0.5)], None, floor_mu=0.3)
     assert th[0] == pytest.approx(0.05)
+
+
+def test_a_stated_floor_is_never_undercut_by_a_low_fit():
+    # the public mapping's grass: fitted 0.26 +- 0.02 for 0.30; its lower bound 0.22 is below
+    # the operator's stated lowest friction of the course (0.3)
+    fitted = [(0.26, 0.02, 0.21), (0.6, 0.05, 0.4)]
+    low = unknown_context_theta("conservative", PRIOR, fitted, None, floor_mu=0.3, sigmas=2.0)
+    assert low[0] == pytest.approx(0.22)
+    stated = unknown_context_theta(
+        "conservative", PRIOR, fitted, None, floor_mu=0.3, sigmas=2.0, floor_stated=True
+    )
+    assert stated[0] == pytest.approx(0.3)
+    np.testing.assert_allclose(stated[0] * stated[1:], PRIOR[0] * PRIOR[1:])  # stiffness kept
+    # the estimator: a new context after the low one gets the floor
+    params = ford_escort()
+    for flag, mu in ((False, 0.22), (True, 0.3)):
+        est = ContextEstimator(params, LiveFitConfig(unknown_floor_stated=flag))
+        est.add_sample(0.0, np.array([0, 0, 0, 5.0, 0, 0, 0]), [0, 0], [2])
+        est._slots[2].estimate = replace(
+            est._slots[2].estimate,
+            theta=(0.26, params.C_Sf, params.C_Sr),
+            theta_std=(0.02, 0, 0),
+            fits=1,
+        )
+        est.add_sample(0.1, np.array([0, 0, 0, 5.0, 0, 0, 0]), [0, 0], [4])  # new, no fit
+        assert est.theta_for()[0] == pytest.approx(mu)

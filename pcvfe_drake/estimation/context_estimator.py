@@ -67,11 +67,8 @@ from pcvfe_drake.estimation.probe import (
     ProbeState,
     check_probe_settings,
     controller_theta,
-    level_bend,
-    peak_slip_rad,
-    probe_step,
-    saturated,
 )
+from pcvfe_drake.estimation.probe_updates import update_probes
 from pcvfe_drake.estimation.sample_store import NOISE, SampleStore, labels_from_frames
 from pcvfe_drake.estimation.unknown_context import (
     DEFAULT_FLOOR_MU,
@@ -84,8 +81,6 @@ from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import NU, NX
 
 UNIDENTIFIED_MU = ("estimate", "lower_bound", "probe")
-DEFAULT_PROBE_USE_FRACTION = 0.64
-"""The planner's share of mu when the scenario does not say (the NMPC's default 0.8^2)."""
 
 
 @dataclass
@@ -109,6 +104,10 @@ class LiveFitConfig:
             ``"conservative"`` (``pcvfe_drake.estimation.unknown_context``).
         unknown_floor_mu: ``conservative``'s ceiling on mu (the lowest mu expected).
         unknown_sigmas: ``conservative``'s lower confidence bound, in standard deviations.
+        unknown_floor_stated: ``unknown_floor_mu`` is the operator's stated lowest friction of
+            the course: ``conservative`` never hands less (``unknown_context``), and a probe
+            may take its first step at the id on the data driven at the floor before it
+            (``probe_start_evidence``).
         unknown_keeps_stiffness: ``conservative`` scales C_Sf, C_Sr by ``prior_mu / mu`` so that
             the single-track tyre's small-slip stiffness ``mu * C_S`` stays the prior's (only the
             friction limit is lowered); False: the prior's C_S with the lower mu.
@@ -141,7 +140,8 @@ class LiveFitConfig:
             bound's value and raises it step by step while the tyres show no saturation).
         probe_*: the probe's numbers, each explained in ``probe``'s module docstring
             (``probe_use_fraction`` None: 0.64; the scenario fills it from ``nmpc.speed_margin``;
-            ``probe_fast_step_rel`` None: no fast raise).
+            ``probe_fast_step_rel`` None: no fast raise; ``probe_start_evidence``,
+            ``probe_unknown``: the first step at the id, a step while the terrain is unknown).
     """
 
     horizon_steps: int = DEFAULT_HORIZON
@@ -163,6 +163,7 @@ class LiveFitConfig:
     unknown_floor_mu: float = DEFAULT_FLOOR_MU
     unknown_sigmas: float = DEFAULT_SIGMAS
     unknown_keeps_stiffness: bool = True
+    unknown_floor_stated: bool = False
     relabel: bool = True
     effects: list[FitterEffect] = field(default_factory=list)
     effect_horizon_s: float = 1.0
@@ -183,6 +184,9 @@ class LiveFitConfig:
     probe_linear_ratio: float = 1.14
     probe_bend_limit: float = 1.25
     probe_min_force: float = 0.1
+    probe_start_evidence: bool = False
+    probe_unknown: bool = False
+    probe_bend_margin: float = 0.0
 
     def __post_init__(self) -> None:
         if self.unidentified_mu not in UNIDENTIFIED_MU:
@@ -285,6 +289,10 @@ class ContextEstimator:
     labels_version: int = 0
     relabelled_samples: int = 0
     switch: RiseGuard = field(default_factory=RiseGuard)
+    unknown_probe: ProbeState = field(default_factory=ProbeState)
+    """The unknown phase's probe (``probe_unknown``; not started outside the phase)."""
+    carried: ProbeState = field(default_factory=ProbeState)
+    """The unknown probe at the end of the last phase, for the context that ended it."""
 
     def __post_init__(self) -> None:
         self.switch = RiseGuard(self.config.rise_confirm_s)
@@ -459,52 +467,20 @@ class ContextEstimator:
         return self.theta_for(ident) if slot and slot.estimate.fitted else self.unknown_theta()
 
     def _unidentified(self, slot: _ContextSlot, theta: np.ndarray) -> np.ndarray:
-        """A fitted context's theta for the controller (``probe.controller_theta``)."""
-        c = self.config
-        return controller_theta(
-            slot.estimate, slot.probe, theta, c.unidentified_mu, c.unknown_floor_mu
-        )
+        """A fitted context's theta for the controller (``probe.controller_theta``). The
+        context that ends an unknown phase hands the phase's level until its own probe starts
+        (at the next update: no dip back to the floor meanwhile)."""
+        c, probe = self.config, slot.probe
+        level = self.carried if self.carried.started else self.unknown_probe
+        if not probe.started and level.started and slot.estimate.context_id == self.current_context:
+            probe = level
+        return controller_theta(slot.estimate, probe, theta, c.unidentified_mu, c.unknown_floor_mu)
 
     def update_probe(self, t_now: float) -> None:
-        """``unidentified_mu: probe``: one step of the current context's probe (called by
-        :meth:`refit`; ``pcvfe_drake.estimation.probe.probe_step``): a fitted, not identifiable
-        context raises, holds or backs off its handed mu after checking its newest
-        ``probe_window_s`` for large slip angles and the current level's data for the tyres'
-        bend ratio (``probe.level_bend``)."""
-        cfg, vp = self.config, self.params
-        slot = self._slots.get(self.current_context)
-        if cfg.unidentified_mu != "probe" or slot is None or not slot.estimate.fitted:
-            return
-        est = slot.estimate
-        if est.identifiable:
-            return
-        mine, times = self._store.labels() == self.current_context, self._store.times()
-        recent = mine & (times >= t_now - cfg.probe_window_s)
-        _, states, _ = self._store.rows(np.flatnonzero(recent))
-        # the current level's own data, all of it (the newest probe_hold_s before the first)
-        level = slot.probe.last_step_s if slot.probe.started else t_now - cfg.probe_hold_s
-        t_level, s_level, _ = self._store.rows(np.flatnonzero(mine & (times >= level)))
-        use = cfg.probe_use_fraction or DEFAULT_PROBE_USE_FRACTION
-        handed = self._unidentified(slot, np.array(est.theta))  # what the car drove with
-        stiffness = handed[0] * handed[1:]  # mu * C_S per axle: the fit's small-slip stiffness
-        limit = cfg.probe_slip_fraction * peak_slip_rad(handed[0], stiffness)
-        bend = level_bend(t_level, s_level, vp, stiffness, cfg.probe_min_force, use * handed[0])
-        slot.probe = probe_step(
-            slot.probe,
-            t_now,
-            lower_bound=est.mu_lower_bound,
-            floor_mu=cfg.unknown_floor_mu,
-            prior_mu=self._prior[0],
-            is_saturated=saturated(states, vp.lf, vp.lr, limit),
-            step_rel=cfg.probe_step_rel,
-            hold_s=cfg.probe_hold_s,
-            max_excess=cfg.probe_max_excess,
-            use_fraction=use,
-            bend=bend,
-            fast_step_rel=cfg.probe_fast_step_rel,
-            linear_ratio=cfg.probe_linear_ratio,
-            bend_limit=cfg.probe_bend_limit,
-        )
+        """``unidentified_mu: probe``: one step of the current context's probe and, with
+        ``probe_unknown``, of the unknown phase's (called by :meth:`refit`;
+        ``pcvfe_drake.estimation.probe_updates``)."""
+        update_probes(self, t_now)
 
     def unknown_theta(self) -> np.ndarray:
         """theta the controller gets while the context is unknown (the configured policy)."""
@@ -527,7 +503,11 @@ class ContextEstimator:
             floor_mu=cfg.unknown_floor_mu,
             sigmas=cfg.unknown_sigmas,
             keep_stiffness=cfg.unknown_keeps_stiffness,
+            floor_stated=cfg.unknown_floor_stated,
         )
+        if self.unknown_probe.started and self.unknown_probe.mu > theta[0]:
+            theta[1:] *= theta[0] / self.unknown_probe.mu  # mu * C_S kept
+            theta[0] = self.unknown_probe.mu
         return theta if np.all(np.isfinite(theta)) else np.array(self._prior)
 
     def pending(self) -> list[int]:

@@ -11,7 +11,14 @@ the first sign of it. The estimate takes over as soon as the fit is identifiable
 
 The rules (:func:`probe_step`), each number a field of ``LiveFitConfig``:
 
-* **start** at what ``lower_bound`` hands: ``max(mu_lower_bound, unknown_floor_mu)``;
+* **start** at what ``lower_bound`` hands: ``max(mu_lower_bound, unknown_floor_mu)``; with
+  ``probe_start_evidence`` (which needs ``unknown_floor_stated``) the first step is taken at the
+  start, on the data the context already has: before its id the car drove the new terrain on
+  the unknown-context value, the stated floor, and those samples joined the context when it was
+  named (paper eq. 5d relabelling). Their bends are a level tried at the floor: where their bend
+  ratio is at most ``probe_linear_ratio`` the probe starts at the peak they imply, at most one
+  fast step above the floor (and within the bounds below), instead of holding the floor for
+  ``probe_hold_s`` and a new bend (``start_bend``, ``start_mu`` of :func:`probe_step`);
 * **raise** at most after every ``probe_hold_s`` (3 s) spent on the context without a sign of
   saturation: the paper's slalom has a bend every 18.7 m, about 3 s at the 5-6 m/s driven
   there, so each level is tried in a bend before the next; with ``probe_fast_step_rel: null``
@@ -78,6 +85,8 @@ import numpy as np
 from pcvfe_drake.json_numbers import finite_or_none
 from pcvfe_drake.vehicle.single_track import BETA, DELTA, PSI_DOT, V
 
+DEFAULT_PROBE_USE_FRACTION = 0.64
+"""The planner's share of mu when the scenario does not say (the NMPC's default 0.8^2)."""
 MIN_PROBE_MU = 0.05
 """Smallest mu a back-off hands (keeps the speed profile defined)."""
 MIN_SLIP_LIMIT_RAD = 0.01
@@ -168,6 +177,15 @@ def check_probe_settings(cfg, where: str) -> None:
         raise ValueError(
             f"{where}.probe_linear_ratio ({cfg.probe_linear_ratio!r}) must be below "
             f"probe_bend_limit ({cfg.probe_bend_limit!r}): a level cannot be both linear and bent"
+        )
+    margin = cfg.probe_bend_margin
+    if not (math.isfinite(margin) and margin >= 0):
+        raise ValueError(f"{where}.probe_bend_margin must be >= 0, got {margin!r}")
+    if (cfg.probe_start_evidence or cfg.probe_unknown) and not cfg.unknown_floor_stated:
+        raise ValueError(
+            f"{where}.probe_start_evidence and probe_unknown need unknown_floor_stated: true (the "
+            "data before a context's id count as a level tried at the floor only when the "
+            "unknown-context value is the floor)"
         )
 
 
@@ -341,17 +359,34 @@ def probe_step(
     fast_step_rel: float | None = None,
     linear_ratio: float = 1.1,
     bend_limit: float = math.inf,
+    start_bend: float = math.nan,
+    start_mu: float = math.nan,
+    bend_margin: float = 0.0,
 ) -> ProbeState:
     """The probe after one update at ``t_now`` (see the module docstring). ``bend``: the larger
     of the current level's axle bend ratios (NaN: no evidence); at most ``linear_ratio``: the
     raise is to the implied peak, at most ``fast_step_rel``; above it or without evidence: no
     raise; above ``bend_limit``: a sign of saturation (``fast_step_rel`` None: the bend is not
-    used for the raise, which is ``step_rel`` after every ``hold_s``)."""
+    used for the raise, which is ``step_rel`` after every ``hold_s``). ``start_bend``: the
+    bend ratio of the context's data before the probe started, driven at ``start_mu`` (NaN: no
+    such evidence; the probe starts at its base and holds it ``hold_s``); used only by the
+    first call. ``bend_margin``: the implied peak is read at the bend ratio plus this margin
+    (the ratio's noise: a ratio read low implies a peak too high)."""
     is_saturated = is_saturated or bool(bend > bend_limit)
     lb = lower_bound if math.isfinite(lower_bound) else 0.0
     base = min(max(lb, floor_mu), prior_mu)
     if not state.started:
-        return ProbeState(mu=base, last_step_s=t_now)
+        start = ProbeState(mu=base, last_step_s=t_now)
+        if is_saturated or fast_step_rel is None or not math.isfinite(start_mu):
+            return start
+        if not start_bend <= linear_ratio:  # bent, or no evidence (NaN): hold the base
+            return start
+        implied = use_fraction / implied_peak_fraction(start_bend + bend_margin) * start_mu
+        cap = min(prior_mu, (lb + max_excess) / use_fraction)
+        raised = min(start_mu * (1.0 + fast_step_rel), implied, cap)
+        if raised <= base:
+            return start
+        return ProbeState(mu=raised, last_step_s=t_now, steps=1)
     if is_saturated:
         # never below where it started (what lower_bound hands: the demonstrated friction or
         # the floor), else repeated back-offs would ratchet it down to nothing
@@ -372,12 +407,129 @@ def probe_step(
         # to the peak the bend implies (the planner's demand, use_fraction of the handed mu, at
         # the fraction q of it), at most the fast step; bent beyond linear_ratio, or no
         # evidence (a straight): stay
-        implied = use_fraction / implied_peak_fraction(bend) - 1.0 if bend <= linear_ratio else 0
+        q = implied_peak_fraction(bend + bend_margin)
+        implied = use_fraction / q - 1.0 if bend <= linear_ratio else 0
         step = min(fast_step_rel, implied)
     raised = min(state.mu * (1.0 + max(step, 0.0)), cap)
     if raised <= state.mu:  # held or capped: the level and its evidence carry on
         return state
     return ProbeState(raised, state.ceiling, t_now, state.steps + 1, state.backoffs)
+
+
+def probe_update(
+    state: ProbeState,
+    t_now: float,
+    cfg,
+    vehicle,
+    lower_bound: float,
+    handed: np.ndarray,
+    since,
+    prior_mu: float,
+    use_fraction: float,
+) -> ProbeState:
+    """One step of a fitted, not identifiable context's probe (:func:`probe_step`) with the
+    evidence of its own samples: ``since(t0)`` returns the context's ``(times, states)`` from
+    ``t0`` on; ``cfg`` is the ``LiveFitConfig``, ``vehicle`` the ``VehicleParams``,
+    ``handed`` the theta the car drove with. Saturation is checked on the newest
+    ``probe_window_s``; the bend ratio on the current level's data, all of it (the newest
+    ``probe_hold_s`` before the first step); with ``probe_start_evidence`` the first step also
+    gets the bend ratio of all the context's data, driven at the stated floor."""
+    _, recent = since(t_now - cfg.probe_window_s)
+    level = state.last_step_s if state.started else t_now - cfg.probe_hold_s
+    t_level, s_level = since(level)
+    stiffness = handed[0] * handed[1:]  # mu * C_S per axle: the fit's small-slip stiffness
+    limit = cfg.probe_slip_fraction * peak_slip_rad(handed[0], stiffness)
+    force = cfg.probe_min_force
+    bend = level_bend(t_level, s_level, vehicle, stiffness, force, use_fraction * handed[0])
+    start_bend = start_mu = math.nan
+    if cfg.probe_start_evidence and not state.started:
+        # the data before the start, driven at the floor (the unknown-context value)
+        start_mu = cfg.unknown_floor_mu
+        t_all, s_all = since(-math.inf)
+        start_bend = level_bend(t_all, s_all, vehicle, stiffness, force, use_fraction * start_mu)
+    return probe_step(
+        state,
+        t_now,
+        lower_bound=lower_bound,
+        floor_mu=cfg.unknown_floor_mu,
+        prior_mu=prior_mu,
+        is_saturated=saturated(recent, vehicle.lf, vehicle.lr, limit),
+        step_rel=cfg.probe_step_rel,
+        hold_s=cfg.probe_hold_s,
+        max_excess=cfg.probe_max_excess,
+        use_fraction=use_fraction,
+        bend=bend,
+        fast_step_rel=cfg.probe_fast_step_rel,
+        linear_ratio=cfg.probe_linear_ratio,
+        bend_limit=cfg.probe_bend_limit,
+        start_bend=start_bend,
+        start_mu=start_mu,
+        bend_margin=cfg.probe_bend_margin,
+    )
+
+
+def unknown_probe_update(
+    state: ProbeState,
+    t_now: float,
+    cfg,
+    vehicle,
+    used: float,
+    stiffness_per_rad,
+    since,
+    prior_mu: float,
+    use_fraction: float,
+) -> ProbeState:
+    """One step of the unknown phase's probe (``probe_unknown``): while the controller gets the
+    unknown-context value (the stated floor), the bends driven since the phase began are read as
+    a level tried at the floor, and where they read linear the value is raised once, to at most
+    one fast step above the floor (:func:`probe_step`'s rules; ``used``: the lateral friction
+    used in the level's data, ``stiffness_per_rad``: the small-slip stiffness the unknown value
+    hands, ``since(t0)``: all samples' ``(times, states)`` from ``t0`` on, whatever their
+    label). One step and no more: the terrain under a noise frame is unknown and may change
+    under it, and a level one fast step (at most ``1 / 0.72``, the largest share of the handed mu
+    the car used) above the stated floor asks the car for at most the floor, the least friction
+    any terrain of the course has. A sign of saturation backs it off to the floor, where it stays
+    for the rest of the phase."""
+    floor = cfg.unknown_floor_mu
+    if not state.started:
+        return ProbeState(mu=floor, last_step_s=t_now)
+    _, recent = since(t_now - cfg.probe_window_s)
+    t_level, s_level = since(state.last_step_s)
+    force = cfg.probe_min_force
+    bend = level_bend(t_level, s_level, vehicle, stiffness_per_rad, force, use_fraction * state.mu)
+    limit = cfg.probe_slip_fraction * peak_slip_rad(state.mu, stiffness_per_rad)
+    new = probe_step(
+        state,
+        t_now,
+        lower_bound=used,
+        floor_mu=floor,
+        prior_mu=prior_mu,
+        is_saturated=saturated(recent, vehicle.lf, vehicle.lr, limit),
+        step_rel=cfg.probe_step_rel,
+        hold_s=cfg.probe_hold_s,
+        max_excess=cfg.probe_max_excess,
+        use_fraction=use_fraction,
+        bend=bend,
+        fast_step_rel=cfg.probe_fast_step_rel,
+        linear_ratio=cfg.probe_linear_ratio,
+        bend_limit=cfg.probe_bend_limit,
+        bend_margin=cfg.probe_bend_margin,
+    )
+    if new.backoffs > state.backoffs:  # back to the floor for the rest of the phase
+        return ProbeState(floor, floor, t_now, max(new.steps, 1), new.backoffs)
+    return state if new.steps > 1 else new
+
+
+def carried_probe(carried: ProbeState, labels: np.ndarray, ident: int) -> ProbeState | None:
+    """The unknown phase's probe ``carried`` as context ``ident``'s first level, or None: only
+    when most (80 %) of the level's samples (``labels`` of the samples since its last step) now
+    belong to that context (relabelled into it when it was named), i.e. the level was tried on
+    this terrain, not on the one before it."""
+    if not carried.started or carried.steps < 1 or labels.size == 0:
+        return None
+    if float(np.mean(labels == ident)) < 0.8:
+        return None
+    return ProbeState(mu=carried.mu, last_step_s=carried.last_step_s, steps=carried.steps)
 
 
 def controller_theta(

@@ -14,7 +14,15 @@ context has no fit yet (too little data). The policy decides the friction used m
   "no grip" about a terrain the car has just driven on), and never above ``floor_mu`` (the
   lowest friction the operator expects on the course; 0.3 by default, the paper map's patchy
   grass). Safe by construction: slower on
-  a new terrain until it has its own fit.
+  a new terrain until it has its own fit. With ``floor_stated`` the floor is the operator's
+  stated lowest friction of the course (a scenario setting, not something learned from the
+  map): no terrain is expected below it, so the value never goes below it either and is the
+  floor itself. This is what ``unidentified_mu: probe`` already assumes of every fitted
+  context: an identifiable estimate is never handed below the floor, and the probe starts there
+  (``pcvfe_drake.estimation.probe.controller_theta``). Without it, a context fitted low (the
+  public mapping's grass, 0.26 +- 0.03 for 0.30 on `paper_eval_effects`) sets a value (0.22)
+  below anything handed on any terrain, and a new terrain after it (brick, 0.80) was driven
+  5.5 s at 0.22 before its id (seed 0).
 
 ``prior`` and ``last_known`` hand over a whole theta. ``conservative`` lowers the friction limit
 only: in the single-track model the tyre's small-slip stiffness is ``mu * C_S``, so its C_Sf,
@@ -56,6 +64,7 @@ def unknown_context_theta(
     floor_mu: float = DEFAULT_FLOOR_MU,
     sigmas: float = DEFAULT_SIGMAS,
     keep_stiffness: bool = True,
+    floor_stated: bool = False,
 ) -> np.ndarray:
     """theta [mu, C_Sf, C_Sr] to use while the context is unknown.
 
@@ -68,6 +77,8 @@ def unknown_context_theta(
         last_known_theta: theta of the last context with an estimate (None: none yet).
         floor_mu: ``conservative``'s upper limit on mu.
         sigmas: ``conservative``'s confidence multiplier.
+        floor_stated: ``floor_mu`` is the operator's stated lowest friction: ``conservative``
+            never goes below it (it hands the floor).
         keep_stiffness: ``conservative`` keeps the prior's small-slip stiffness ``mu * C_S``
             (C_S scaled by ``prior_mu / mu``); False: the prior's C_Sf, C_Sr as they are (the
             behaviour before; the NMPC then believes softer tyres).
@@ -90,7 +101,7 @@ def unknown_context_theta(
             if math.isfinite(used):
                 lcb = max(lcb, used)
             mu = min(mu, lcb)
-    mu = max(mu, 0.05)
+    mu = max(mu, float(floor_mu) if floor_stated else 0.05)
     # The single-track tyre's small-slip stiffness is mu * C_S: keep the prior's, so that only
     # the friction limit is lowered (a lower mu alone would also tell the controller that the
     # tyres are softer than they are; it then steers too much: docs/friction_sources.md).
