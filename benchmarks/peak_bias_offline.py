@@ -17,6 +17,8 @@ fitter's own fit, here on all of the terrain's 1 s windows, 10 iterations, cold 
 * ``shape_1``: the magic-formula shape C = 1.0 instead of ``peak_tyre``'s 1.35 (a flatter law);
 * ``roll_camber_tyre``: + ``roll_camber`` held at the multi-body tyre's sign-of-camber constants
   (f0 -0.037, f1 0, s0 0.0027 rad); ``roll_camber_fitted``: the same three fitted;
+* ``track_slip_car``: ``roll_camber_tyre`` + ``track_slip`` at the car's track widths (1.39 m,
+  1.42 m); ``track_slip_fitted``: the two widths fitted;
 
 the used friction (95th percentile over the terrain) as ``friction_used`` measures it (total
 and lateral only; measured and true states); and the front axle's lateral force per load
@@ -53,6 +55,10 @@ PEAK = {"name": "peak_tyre", "fixed": {"k_s": 0.0}}
 AXLE = {"name": "axle_stiffness", "fixed": {"k_f": 1.01, "k_r": 1.24}}
 ROLL_CAMBER_TYRE = {"f0": -0.037, "f1": 0.0, "s0": 0.0027}
 """``roll_camber`` at the multi-body tyre's own sign-of-camber offsets (``p_vy1``, ``p_hy1``)."""
+TRACK = {"name": "track_slip", "fixed": {"t": 1.39, "k_lt": -0.85}}
+"""``track_slip`` at the multi-body Ford Escort's track widths (``T_f``, ``T_r``) and the load
+transfer its front wheels show (``benchmarks/front_axle_gap.py``: the inner wheel loaded)."""
+TRACK_EFFECTIVE = {"name": "track_slip", "fixed": {"t": 1.1, "k_lt": -0.85}}
 MODELS = {
     "as_run": [PEAK, AXLE],
     "stiffness_free": [PEAK, {"name": "axle_stiffness"}],
@@ -66,6 +72,19 @@ MODELS = {
     "more_effects_fitted": [PEAK, AXLE, {"name": "speed_scale"}, {"name": "rolling_resistance"}],
     "roll_camber_tyre": [PEAK, AXLE, {"name": "roll_camber", "fixed": ROLL_CAMBER_TYRE}],
     "roll_camber_fitted": [PEAK, AXLE, {"name": "roll_camber"}],
+    "track_slip_car": [PEAK, AXLE, {"name": "roll_camber", "fixed": ROLL_CAMBER_TYRE}, TRACK],
+    "track_slip_effective": [
+        PEAK,
+        AXLE,
+        {"name": "roll_camber", "fixed": ROLL_CAMBER_TYRE},
+        TRACK_EFFECTIVE,
+    ],
+    "track_slip_fitted": [
+        PEAK,
+        AXLE,
+        {"name": "roll_camber", "fixed": ROLL_CAMBER_TYRE},
+        {"name": "track_slip", "fixed": {"k_lt": -0.85}},
+    ],
 }
 
 

@@ -14,6 +14,12 @@ ranks the whole library with the forward selection and backward check of ``pcvfe
   over ``--planted-seeds``. A case passes when the selected effects are exactly the planted
   ones, every planted parameter is within 15 %, the final held-out multi-step error is
   within 1.2 x the noise floor and the verdict is "explained".
+* ``slow``: effects that only slow, tight bends show (``track_slip``: the two wheels' slips
+  differ by about ``t r V / U^2``, nothing at the program's usual 7-23 m/s), on a
+  magic-formula car (peak 0.7) driven by the program at 0.35 of its speeds (2-8 m/s), over
+  ``--planted-seeds``: the planted log passes as a planted case (the peak tyre added first,
+  as ``pcvfe diagnose --add peak_tyre``); the same car without the effect is a clean log
+  (a false discovery: any effect selected on top of the peak tyre).
 * ``outside``: each original effect planted alone and taken out of the library (with its
   aliases: ``tire_saturation`` with ``peak_tyre``); passes when
   the verdict is "outside the library" and names no library effect as the cause.
@@ -25,7 +31,8 @@ ranks the whole library with the forward selection and backward check of ``pcvfe
   planted effects), ``verdict_stand_in_rate`` the share of logs whose verdict lists any.
 
 Usage: python benchmarks/workbench_proof_sweep.py [--quick] [--clean-seeds N]
-       [--planted-seeds 0 1 ...] [--outside-seeds 0 1 ...] [--only clean|planted|outside]
+       [--planted-seeds 0 1 ...] [--outside-seeds 0 1 ...]
+       [--only clean|planted|slow|outside]
 (--quick: 4 clean seeds, planted seed 0, singles and the issue's three combinations only).
 Last stdout line: one JSON object.
 """
@@ -63,6 +70,10 @@ QUICK_COMBOS = [
     ("steering_lag", "tire_saturation"),
     ("drag", "steering_lag", "input_delay"),
 ]
+SLOW = ["track_slip"]
+SLOW_SPEED_FACTOR = 0.35
+SLOW_CAR = {"mf_peak": 0.7}
+"""The ``slow`` cases' car and program (module docstring)."""
 ALPHA = 0.01
 ALIASES = {"tire_saturation": ("peak_tyre",)}
 """Library effects that describe the same phenomenon (a saturating lateral tyre, brush or
@@ -143,7 +154,7 @@ def main() -> int:
     parser.add_argument("--clean-seeds", type=int, default=None)
     parser.add_argument("--planted-seeds", type=int, nargs="*", default=None)
     parser.add_argument("--outside-seeds", type=int, nargs="*", default=None)
-    parser.add_argument("--only", choices=("clean", "planted", "outside"), default=None)
+    parser.add_argument("--only", choices=("clean", "planted", "slow", "outside"), default=None)
     args = parser.parse_args()
     n_clean = args.clean_seeds or (4 if args.quick else 20)
     seeds = args.planted_seeds if args.planted_seeds else [0]
@@ -215,6 +226,28 @@ def main() -> int:
             **stand_in_rates(planted),
         }
 
+    if args.only in (None, "slow"):
+        slow = []
+        for seed in seeds:
+            truths = [synth.Truth(**SLOW_CAR)]
+            for name in SLOW:
+                fields = dict(synth.PLANTED[name][0].__dict__) | SLOW_CAR
+                truths.append(synth.Truth(**fields))
+            logs = synth.simulate_truths(
+                truths, duration_s=90.0, seed=seed, substeps=2, v_ref_factor=SLOW_SPEED_FACTOR
+            )
+            report, _ = diagnose(prepare(logs[0], f"slow clean {seed}"), add=["peak_tyre"])
+            selected = [s["name"] for s in report["selected"]]
+            slow.append({"seed": seed, "planted": [], "selected": selected, "pass": not selected})
+            for name, df in zip(SLOW, logs[1:], strict=True):
+                report, _ = diagnose(prepare(df, f"slow {name}"), add=["peak_tyre"])
+                slow.append({"seed": seed, **planted_case(report, (name,))})
+        out["slow"] = {
+            "cases": slow,
+            "passed": sum(c["pass"] for c in slow),
+            "total": len(slow),
+        }
+
     if args.only in (None, "outside"):
         outside = []
         for seed in args.outside_seeds if args.outside_seeds else [0]:
@@ -248,7 +281,7 @@ def main() -> int:
 
     out["wall_s"] = round(time.perf_counter() - t0, 1)
     summary = {k: v for k, v in out.items() if not isinstance(v, dict)}
-    for key in ("clean", "planted", "outside"):
+    for key in ("clean", "planted", "slow", "outside"):
         if key in out:
             summary[key] = {k: v for k, v in out[key].items() if k != "cases"}
             print(json.dumps({key: out[key]["cases"]}))

@@ -15,6 +15,9 @@ multi-body model (``pcvfe_drake.vehicle.mb_truth``) with the workbench (docs/wor
   braking), part of which spins the wheels up: the car accelerates by
   ``a m / (m + m_rot)`` with the rotating mass equivalent ``m_rot = sum I_w / R_w^2`` (four
   wheels of 1.7 kg m^2 on 0.344 m: 57 kg, 4.7 % of the Ford Escort's mass).
+* ``track_slip``: an axle's two wheels run at different slips in a bend (the track width;
+  one steering angle for both front wheels): where the tyre saturates the axle makes less
+  side force than the law at the single-track slip.
 * ``suspension_lag``: the axle loads follow the longitudinal acceleration through the body's
   pitch mode (a damped second-order mode), not instantly: in CommonRoad's multi-body model the
   tyre loads come from the deflection of the tyres under the unsprung masses, which the
@@ -121,6 +124,91 @@ class WheelForceSteer(Effect):
 
     def signature_regressors(self, data):
         return (data.u[:, 1] * data.x[:, 2])[:, None]
+
+
+def wheel_slip_offsets(x, lever, track):
+    """Slips [rad] of an axle's left and right wheels relative to the single-track slip:
+    ``atan(V / U) - atan(V / (U +- track r / 2))`` with ``U = v cos(beta)`` and ``V = v
+    sin(beta) + lever r`` the axle's velocities (``lever``: lf front, -lr rear) and ``r`` the
+    yaw rate, for states ``x`` (N, 7) and a track width ``track`` [m] (N,)."""
+    v, r, beta = x[:, 3], x[:, 5], x[:, 6]
+    u = np.maximum(v * np.cos(beta), 0.5)
+    w = v * np.sin(beta) + lever * r
+    half = 0.5 * track * r
+    centre = np.arctan2(w, u)
+    left = centre - np.arctan2(w, np.maximum(u + half, 0.1 * u))
+    right = centre - np.arctan2(w, np.maximum(u - half, 0.1 * u))
+    return left, right
+
+
+MAX_LOAD_SHIFT = 0.9
+"""Largest share of an axle's load ``track_slip`` moves to one wheel [-] (keeps both loaded)."""
+
+
+class TrackSlip(Effect):
+    """The two wheels of an axle run at different slips and loads (track width).
+
+    A single-track model puts an axle's wheels at one point; on a car they are ``t`` apart
+    and in a bend the inner wheel moves slower along the car than the outer one, at the same
+    lateral velocity ``V``: the left and right wheels see the slips ``delta - atan(V / (U +-
+    t r / 2))`` (``U = v cos(beta)``, ``V = v sin(beta) + lf r`` at the front, ``v sin(beta)
+    - lr r`` at the rear), which differ by about ``t r V / U^2``, largest in slow tight bends
+    (``V / U`` is about the steering angle at the front). With one steering angle for both
+    front wheels (parallel steering, as CommonRoad's multi-body model) the inner wheel works
+    at the larger slip; Ackermann geometry steers it more and takes much of the difference
+    away (``t`` is then an effective track, smaller than the real one). The lateral load
+    transfer weights the two: the outer wheel carries ``(1 + k_lt a / g) / 2`` of the axle's
+    load, the inner one the rest (``a = v r``; on a real car ``k_lt`` is about ``2 h_roll /
+    t``, positive; CommonRoad's multi-body Ford Escort loads the inner wheel, ``k_lt`` about
+    -0.8, ``benchmarks/front_axle_gap.py``). Where the tyre saturates, the mean of the
+    concave law over the two slips is less than the law at the mean slip, so the axle makes
+    less side force than the single-track model at its own slip (``wheel_slips`` hook).
+
+    Measured on the multi-body Ford Escort (``benchmarks/front_axle_gap.py``, the closed
+    loop's commands replayed): in the slalom's slow bends (4.7 m/s, delta 0.21 rad, r 0.40
+    rad/s) the two front wheels work at 0.026 and 0.004 rad for a single-track slip of 0.0145
+    rad, and on grass (mu 0.30) the front axle makes 0.04 of its load less than the law at
+    the single-track slip, 0.03 with the inner wheel's extra load.
+
+    With a linear tyre the effect is null (the load-weighted mean of a linear law over two
+    slips whose shares balance is the law at the single-track slip, up to the load term
+    times the slip difference). It shows with a saturating tyre (``peak_tyre``,
+    ``tire_saturation``) near the limit. Null: ``t = 0`` (``k_lt`` then does nothing). One
+    width for both axles: the rear wheels' slips differ little (``V`` is small at the rear:
+    in a slow steady bend ``v sin(beta)`` is near ``lr r``), so a separate rear width is not
+    identifiable; the Ford Escort's tracks are 1.39 and 1.42 m.
+    Residual signature: the yaw-rate residual follows ``(r V_f / U^2)^2`` signed by
+    the cornering direction (the front axle's shortfall grows with the square of the slip
+    difference).
+    """
+
+    name = "track_slip"
+    description = (
+        "track width: the wheels at slips alpha + atan(V / U) - atan(V / (U +- t r / 2)), the "
+        "outer one with (1 + k_lt v r / g) / 2 of the load; the axle force the weighted mean"
+    )
+    params = (
+        EffectParam("t", "m", 0.0, 2.5, 1.4, 0.1, 0.0, "(effective) track width, both axles"),
+        EffectParam("k_lt", "-", -1.5, 1.5, 0.0, 0.1, 0.0, "outer wheel's load share per g"),
+    )
+    signature_state = "psi_dot"
+    signature_label = "(r V_f / U^2)^2 x cornering direction"
+
+    def wheel_slips(self, ctx, p):
+        vp = ctx.vehicle
+        lever = vp.lf if ctx.axle == "front" else -vp.lr
+        left, right = wheel_slip_offsets(ctx.x, lever, p["t"])
+        shift = np.clip(
+            p["k_lt"] * ctx.x[:, 3] * ctx.x[:, 5] / vp.g, -MAX_LOAD_SHIFT, MAX_LOAD_SHIFT
+        )
+        return left, right, 0.5 * (1.0 - shift)  # a left bend (a > 0): the left wheel is inner
+
+    def signature_regressors(self, data):
+        x = data.x
+        u = np.maximum(x[:, 3] * np.cos(x[:, 6]), 1.0)
+        w = x[:, 3] * np.sin(x[:, 6]) + 1.0 * x[:, 5]
+        spread = x[:, 5] * w / u**2
+        return (spread**2 * np.sign(x[:, 5]))[:, None]
 
 
 TAU_MIN_S = 0.04
@@ -265,5 +353,5 @@ class SuspensionLag(Effect):
         return (jerk * data.x[:, 3] * data.x[:, 5])[:, None]
 
 
-for _cls in (AxleStiffness, RotatingInertia, WheelForceSteer, SuspensionLag):
+for _cls in (AxleStiffness, RotatingInertia, WheelForceSteer, SuspensionLag, TrackSlip):
     register_effect(_cls)

@@ -15,6 +15,8 @@ hook                what it changes
 ``cornering_stiffness`` the axle's normalised cornering stiffness (not its peak)
 ``tire_offsets``    a slip shift inside the tyre law and a side force added to it, per axle
                     (roll camber)
+``wheel_slips``     the two wheels of an axle at different slips and loads: the law is
+                    evaluated at each and the axle gets the load-weighted mean (track width)
 ``body_forces``     extra axle lateral forces and longitudinal acceleration after the tyres
 ``tire``            the lateral tire force law (saturation); sees the state too
 ``longitudinal``    extra longitudinal acceleration [m/s^2] (drag, rolling, grade)
@@ -186,6 +188,15 @@ class Effect:
         ``(slip shift [rad], side force [N])``, each (N,) or 0; the law is evaluated at
         ``alpha + shift`` and the force added to its result (positive: toward +y, the left).
         None for none."""
+        return None
+
+    def wheel_slips(self, ctx: StepContext, p: dict):
+        """The two wheels of the axle ``ctx.axle``: ``(d_left [rad], d_right [rad], share)``,
+        each (N,): their slips relative to the axle's single-track slip and the left wheel's
+        share of the axle load (0.5: equal); the tyre law (offsets included) is evaluated at
+        ``alpha + d_left`` and ``alpha + d_right`` with the axle's load and the axle gets
+        ``share F_left + (1 - share) F_right`` (the laws are linear in the load). None for
+        none."""
         return None
 
     def tire(self, alpha, fz, c_alpha, p: dict, ctx: StepContext | None = None):

@@ -17,7 +17,10 @@ followed by the effects' own states)::
                               change C_S), or a tire hook
                               (tire_saturation, peak_tyre; it sees the state, the friction
                               factor and the base mu); tire_offsets hooks shift the slip
-                              the law sees and add a side force to it (roll_camber)
+                              the law sees and add a side force to it (roll_camber);
+                              wheel_slips hooks put the axle's two wheels at different
+                              slips and loads, the axle's force the load-weighted mean
+                              of the law at each (track_slip)
     9. body_forces hooks      extra lateral force per axle and longitudinal acceleration
                               (wheel_force_steer: the wheels' forces turned by the steering)
        yaw and slip           r' = (lf F_yf - lr F_yr) / I_z,  beta' = (F_yf + F_yr) / (m v) - r
@@ -261,14 +264,19 @@ class WorkbenchModel:
                 out = e.tire_offsets(fz, ctx, eff[e.name])
                 if out is not None:
                     alpha, side = alpha + out[0], side + out[1]
-            fy = c_alpha * alpha
+            spread = None
             for e in self.effects:
-                if self._tire_takes_ctx[e.name]:
-                    out = e.tire(alpha, fz, c_alpha, eff[e.name], ctx)
-                else:
-                    out = e.tire(alpha, fz, c_alpha, eff[e.name])
-                if out is not None:
-                    fy = out
+                out = e.wheel_slips(ctx, eff[e.name])
+                if out is not None and spread is None:
+                    spread = out
+                elif out is not None:
+                    spread = (spread[0] + out[0], spread[1] + out[1], spread[2] + out[2] - 0.5)
+            if spread is None:
+                fy = self._tire_law(alpha, fz, c_alpha, ctx, eff)
+            else:
+                fy = spread[2] * self._tire_law(alpha + spread[0], fz, c_alpha, ctx, eff) + (
+                    1.0 - spread[2]
+                ) * self._tire_law(alpha + spread[1], fz, c_alpha, ctx, eff)
             forces.append(fy + side)
         fyf, fyr = forces
         ctx.delta_wheel = delta_w
@@ -291,6 +299,18 @@ class WorkbenchModel:
             elif e.n_states:
                 zdot[:, sl] = 0.0
         return zdot
+
+    def _tire_law(self, alpha, fz, c_alpha, ctx: StepContext, eff: dict):
+        """Step 8's law at slip ``alpha``: linear, or the last ``tire`` hook's."""
+        fy = c_alpha * alpha
+        for e in self.effects:
+            if self._tire_takes_ctx[e.name]:
+                out = e.tire(alpha, fz, c_alpha, eff[e.name], ctx)
+            else:
+                out = e.tire(alpha, fz, c_alpha, eff[e.name])
+            if out is not None:
+                fy = out
+        return fy
 
     def stable_step(self, base: dict, speeds: np.ndarray, eff: dict | None = None) -> float:
         """Largest RK4 step [s] for the lateral dynamics at the lowest speed in ``speeds``.

@@ -76,6 +76,9 @@ class Truth:
             steady lateral acceleration ``a = v r`` and the cornering direction
             ``c = tanh(a / 0.5 m/s^2)`` every tyre sees the slip ``alpha + s0 c`` and gets
             the side force ``Fz (f0 c + f1 a / g)`` on top of its law.
+        track: (t_f [m], t_r [m], k_lt [-]): the front and rear axles' two wheels ``t``
+            apart, each at its own slip (the axle's velocities at the wheels), the outer one
+            with ``(1 + k_lt v r / g) / 2`` of the axle's load; the axle's force is their sum.
     """
 
     mu: float | None = None
@@ -99,6 +102,7 @@ class Truth:
     front_forces: tuple[float, float, float] = (0.0, 0.0, 0.0)
     pitch_mode: tuple[float, float] = (0.0, 0.3)
     roll_camber: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    track: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 PLANTED: dict[str, tuple[Truth, str, float]] = {
@@ -120,6 +124,7 @@ PLANTED: dict[str, tuple[Truth, str, float]] = {
     "wheel_force_steer": (Truth(front_forces=(1.0, 0.76, 1.0)), "k_drag", 1.0),
     "suspension_lag": (Truth(pitch_mode=(0.125, 0.2)), "tau", 0.125),
     "roll_camber": (Truth(roll_camber=(-0.037, -0.08, 0.0)), "f1", -0.08),
+    "track_slip": (Truth(track=(1.39, 1.42, 0.0)), "t", 1.39),
 }
 """Realistic planted magnitudes per effect: (truth, the parameter's name, its planted value).
 Ford Escort class car: CdA 0.75 m^2 (Cd 0.36 x 2.1 m^2), c_rr 0.015, steering lag 0.15 s,
@@ -165,9 +170,10 @@ class Excitation:
 
 
 def design_excitation(
-    vehicle: VehicleParams, duration_s: float, dt: float, seed: int = 0
+    vehicle: VehicleParams, duration_s: float, dt: float, seed: int = 0, v_ref_factor: float = 1.0
 ) -> Excitation:
-    """The driving program described in the module docstring (deterministic in ``seed``)."""
+    """The driving program described in the module docstring (deterministic in ``seed``);
+    ``v_ref_factor`` scales its speed targets (below 1: slow, tight bends)."""
     rng = np.random.default_rng(seed)
     n = int(round(duration_s / dt)) + 1
     t = np.arange(n) * dt
@@ -197,7 +203,7 @@ def design_excitation(
     freq = np.interp(t, knots_t, freq_knots)
     lat = np.interp(t, knots_t, lat_knots)
     phase = 2.0 * np.pi * np.cumsum(freq) * dt
-    return Excitation(v_ref, coast, phase, freq, lat)
+    return Excitation(v_ref * v_ref_factor, coast, phase, freq, lat)
 
 
 def driver_commands(
@@ -320,28 +326,39 @@ def _truth_rates(vp, tr, s, steer_cmd, acc_cmd):
     peak_r = tr["mu_peak"] * mu_r / tr["mu"]
     csf = vp.C_Sf * tr["k_f"]
     csr = vp.C_Sr * tr["k_r"]
-    fyf = _brush(alpha_f, fzf, mu_f * csf * fzf, peak_f)
-    fyr = _brush(alpha_r, fzr, mu_r * csr * fzr, peak_r)
-    if np.any(np.isfinite(tr["mf_peak"])):
-        with np.errstate(invalid="ignore", divide="ignore"):
-            follow = (tr["mf_peak"] / tr["mu"]) ** tr["mf_exp"]
-        follow = np.where(np.isfinite(tr["mf_peak"]), follow, 1.0)
-        mf_f = _magic(
-            alpha_f,
-            fzf,
-            follow * mu_f * csf * fzf,
-            tr["mf_peak"] * mu_f / tr["mu"],
-            tr["mf_shape"],
-        )
-        mf_r = _magic(
-            alpha_r,
-            fzr,
-            follow * mu_r * csr * fzr,
-            tr["mf_peak"] * mu_r / tr["mu"],
-            tr["mf_shape"],
-        )
-        fyf = np.where(np.isfinite(tr["mf_peak"]), mf_f, fyf)
-        fyr = np.where(np.isfinite(tr["mf_peak"]), mf_r, fyr)
+
+    def forces(a_f, a_r):
+        fyf = _brush(a_f, fzf, mu_f * csf * fzf, peak_f)
+        fyr = _brush(a_r, fzr, mu_r * csr * fzr, peak_r)
+        if np.any(np.isfinite(tr["mf_peak"])):
+            with np.errstate(invalid="ignore", divide="ignore"):
+                follow = (tr["mf_peak"] / tr["mu"]) ** tr["mf_exp"]
+            follow = np.where(np.isfinite(tr["mf_peak"]), follow, 1.0)
+            peak = tr["mf_peak"] / tr["mu"]
+            mf_f = _magic(a_f, fzf, follow * mu_f * csf * fzf, peak * mu_f, tr["mf_shape"])
+            mf_r = _magic(a_r, fzr, follow * mu_r * csr * fzr, peak * mu_r, tr["mf_shape"])
+            fyf = np.where(np.isfinite(tr["mf_peak"]), mf_f, fyf)
+            fyr = np.where(np.isfinite(tr["mf_peak"]), mf_r, fyr)
+        return fyf, fyr
+
+    track_f, track_r = tr.get("track_f", zeros), tr.get("track_r", zeros)
+    if np.any(track_f > 0) or np.any(track_r > 0):
+        # two wheels per axle, t apart: each at its own slip, the outer one more loaded
+        u_x = np.maximum(v * np.cos(beta), 0.5)
+        left, right = [], []
+        for lever, t_w in ((vp.lf, track_f), (-vp.lr, track_r)):
+            w = v * np.sin(beta) + lever * r
+            h = 0.5 * t_w * r
+            left.append(np.arctan(w * h / (u_x * (u_x + h) + w * w)))
+            right.append(np.arctan(-w * h / (u_x * (u_x - h) + w * w)))
+        out_share = np.clip(tr.get("track_k_lt", zeros) * a_lat / vp.g, -0.9, 0.9)
+        inner_left = 0.5 * (1.0 - out_share)  # a left bend: the left wheel inside
+        fl = forces(alpha_f + left[0], alpha_r + left[1])
+        fr = forces(alpha_f + right[0], alpha_r + right[1])
+        fyf = inner_left * fl[0] + (1.0 - inner_left) * fr[0]
+        fyr = inner_left * fl[1] + (1.0 - inner_left) * fr[1]
+    else:
+        fyf, fyr = forces(alpha_f, alpha_r)
     fyf = fyf + cam_side * fzf
     fyr = fyr + cam_side * fzr
     sin_w = np.sin(wheel)
@@ -401,6 +418,9 @@ def truth_columns(vp: VehicleParams, truths: list[Truth]) -> dict[str, np.ndarra
         "cam_f0": col(lambda t: t.roll_camber[0]),
         "cam_f1": col(lambda t: t.roll_camber[1]),
         "cam_s0": col(lambda t: t.roll_camber[2]),
+        "track_f": col(lambda t: t.track[0]),
+        "track_r": col(lambda t: t.track[1]),
+        "track_k_lt": col(lambda t: t.track[2]),
     }
 
 
@@ -413,16 +433,18 @@ def simulate_truths(
     noise: MeasurementNoise | None = SURVEY_INS_NOISE,
     substeps: int = 5,
     v0_mps: float = 10.0,
+    v_ref_factor: float = 1.0,
 ) -> list[pd.DataFrame]:
     """Drive logs (drive-log DataFrames) of several truths at once, same driving program.
 
     The commands are computed at the log rate by the speed controller and steering tracker
     from each plant's true state and held until the next sample; the plant is integrated with
     RK4 at ``substeps`` steps per sample. Noise seeds differ per log (``seed + 1 + i``).
+    ``v_ref_factor`` scales the program's speed targets (``design_excitation``).
     """
     vp = vehicle if isinstance(vehicle, VehicleParams) else load_vehicle(vehicle)
     dt = 1.0 / rate_hz
-    ex = design_excitation(vp, duration_s, dt, seed)
+    ex = design_excitation(vp, duration_s, dt, seed, v_ref_factor)
     n = ex.v_ref.size
     b = len(truths)
 
