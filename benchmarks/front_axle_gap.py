@@ -47,9 +47,10 @@ the peak mu a force-level fit of ``fitter_law`` to each step's force finds (the 
 error, step by step: the last step's fit is what a fit of the data would give).
 
 Sources: ``drive`` (the workbench's rich-excitation program on the MB model, the driver at
-0.85 mu g; ``--cases``) and ``replay`` (saved closed-loop runs: each terrain visit's logged
-commands replayed on the MB model in 8 s pieces from the logged true state, the first 1.5 s
-of each piece dropped while the suspension settles; ``--runs``).
+0.85 mu g) and ``replay`` (saved closed-loop runs: each terrain visit's logged commands
+replayed on the MB model in 8 s pieces from the logged true state, the first 1.5 s of each
+piece dropped while the suspension settles; ``--runs``; ``yaw_rate_rms_vs_log_radps``: how far
+the replayed yaw rate strays from the logged one).
 
 Usage: python benchmarks/front_axle_gap.py [--seconds S] [--runs DIR --seeds 0,1]
        [--terrains patchy_grass,sand] [--quick]
@@ -339,7 +340,7 @@ def replay(truth, vp, log, terrain: str, piece_s: float = 8.0, settle_s: float =
     xs_all = rows_all[true_cols].to_numpy()
     u_all = rows_all[["steer_rate", "accel"]].to_numpy()
     dt = float(np.median(np.diff(t_all)))
-    parts = []
+    parts, yaw_err = [], []
     start = 0
     while start < t_all.size - int(piece_s / dt) // 2:
         stop = min(start + int(round(piece_s / dt)), t_all.size - 1)
@@ -355,13 +356,16 @@ def replay(truth, vp, log, terrain: str, piece_s: float = 8.0, settle_s: float =
                 rows.append(sample_steps(x, truth.rhs(list(x), u, p), p, vp, mu))
                 sts.append(st_state(x))
                 ts.append(t_all[k])
+                yaw_err.append(sts[-1][5] - xs_all[k, 5])
             x = truth.integrate(x, u, mu, dt)
         if len(rows) > 10:
             parts.append(fold_and_infer(rows, np.array(sts), np.array(ts), vp))
         start = stop
     if not parts:
         return {}
-    return {k: np.concatenate([q[k] for q in parts]) for k in parts[0]}
+    out = {k: np.concatenate([q[k] for q in parts]) for k in parts[0]}
+    out["yaw_rate_rms_vs_log"] = float(np.sqrt(np.mean(np.square(yaw_err))))
+    return out
 
 
 def main() -> int:
@@ -397,6 +401,7 @@ def main() -> int:
                     continue
                 mu = TRUE_MU[terrain]
                 row = {"source": "replay", "seed": seed, "terrain": terrain, "mu": mu}
+                row["yaw_rate_rms_vs_log_radps"] = round(data.pop("yaw_rate_rms_vs_log"), 4)
                 row |= summarise(data, vp, mu)
                 print(json.dumps(row), flush=True)
                 results.append(row)
