@@ -684,6 +684,8 @@ def test_the_unknown_phase_level_is_carried_into_the_context_it_was_tried_on():
     assert carried_probe(level, np.array([3] * 9 + [-1]), 3) == level
     assert carried_probe(level, np.array([3] * 5 + [-1] * 5), 3) is None  # another terrain
     assert carried_probe(ProbeState(mu=0.3, last_step_s=0.0), np.array([3]), 3) is None
+    backed = ProbeState(mu=0.3, ceiling=0.3, last_step_s=4.0, steps=1, backoffs=1)
+    assert carried_probe(backed, np.array([3] * 10), 3) is None  # backed off: not carried
     # the estimator: the phase's step, then the new context starts from it
     params = ford_escort()
     est = ContextEstimator(
@@ -719,3 +721,30 @@ def test_the_unknown_phase_level_is_carried_into_the_context_it_was_tried_on():
     assert not est.unknown_probe.started and slot.probe.steps == 2
     assert est.theta_for()[0] == pytest.approx(0.3 * 1.25**2) and slot.probe.last_step_s == 8.5
     assert 3.0 <= step_s <= 5.0
+
+
+def test_a_bend_margin_reads_the_implied_peak_lower():
+    from pcvfe_drake.estimation.probe import implied_peak_fraction, sine_bend_ratio
+
+    s, bend = ProbeState(mu=0.6, last_step_s=0.0), sine_bend_ratio(0.55)
+
+    def step(margin):
+        return probe_step(
+            s,
+            3.0,
+            lower_bound=0.6,
+            floor_mu=0.3,
+            prior_mu=1.05,
+            is_saturated=False,
+            bend=bend,
+            bend_margin=margin,
+            **{**RULES, "max_excess": 0.5},
+            **FAST,
+        ).mu
+
+    assert step(0.0) == pytest.approx(0.64 * 0.6 / 0.55, rel=5e-3)  # to the implied peak
+    q = implied_peak_fraction(bend + 0.02)
+    assert q > 0.57 and step(0.02) == pytest.approx(0.64 * 0.6 / q, rel=1e-6)
+    assert step(0.2) == pytest.approx(0.6)  # read past probe_linear_ratio: no raise
+    with pytest.raises(ValueError, match="probe_bend_margin"):
+        LiveFitConfig(probe_bend_margin=-0.1)

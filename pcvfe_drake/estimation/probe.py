@@ -19,6 +19,12 @@ The rules (:func:`probe_step`), each number a field of ``LiveFitConfig``:
   ratio is at most ``probe_linear_ratio`` the probe starts at the peak they imply, at most one
   fast step above the floor (and within the bounds below), instead of holding the floor for
   ``probe_hold_s`` and a new bend (``start_bend``, ``start_mu`` of :func:`probe_step`);
+* **before the id** (``probe_unknown``, which needs ``unknown_floor_stated`` too): while the
+  terrain is unknown the unknown-context value itself is probed, one step above the floor at
+  most (:func:`unknown_probe_update`: a terrain under noise frames may change, and one step
+  above the stated floor asks the car for at most the floor), and the level is carried into the
+  context that ends the phase where most of its data now belong to that context
+  (:func:`carried_probe`);
 * **raise** at most after every ``probe_hold_s`` (3 s) spent on the context without a sign of
   saturation: the paper's slalom has a bend every 18.7 m, about 3 s at the 5-6 m/s driven
   there, so each level is tried in a bend before the next; with ``probe_fast_step_rel: null``
@@ -35,7 +41,9 @@ The rules (:func:`probe_step`), each number a field of ``LiveFitConfig``:
   demand is ``probe_use_fraction`` (0.64) of the handed mu, so the implied peak is ``0.64 mu / q``
   (:func:`implied_peak_fraction`), and the probe raises the handed mu to it, by at most
   ``probe_fast_step_rel`` (0.25) at a time, while the slope is at most ``probe_linear_ratio``
-  (1.14, where the implied peak is the handed mu); above it the level is kept, and so it is
+  (1.14, where the implied peak is the handed mu; read at the ratio plus ``probe_bend_margin``,
+  0 by default, the ratio's noise: a ratio read low implies too high a peak); above it the
+  level is kept, and so it is
   without the evidence (less than ``MIN_BEND_S`` of samples at ``probe_min_force`` of lateral
   force, e.g. on a straight: raising the slow step there took concrete from 0.62 to 0.76 on the
   straight at the terrain's end, seeds 0 and 5). One fast step from a handed mu at most the peak
@@ -524,8 +532,10 @@ def carried_probe(carried: ProbeState, labels: np.ndarray, ident: int) -> ProbeS
     """The unknown phase's probe ``carried`` as context ``ident``'s first level, or None: only
     when most (80 %) of the level's samples (``labels`` of the samples since its last step) now
     belong to that context (relabelled into it when it was named), i.e. the level was tried on
-    this terrain, not on the one before it."""
-    if not carried.started or carried.steps < 1 or labels.size == 0:
+    this terrain, not on the one before it. A phase's probe that backed off (to the floor) is
+    not carried: its back-off says nothing of the new terrain, and carried it would stand for
+    a level just set, delaying the context's first step by a hold."""
+    if not carried.started or carried.steps < 1 or carried.backoffs or labels.size == 0:
         return None
     if float(np.mean(labels == ident)) < 0.8:
         return None

@@ -24,16 +24,17 @@ def update_probes(est, t_now: float) -> None:
     """One step of ``est``'s (a ``ContextEstimator``) probes at ``t_now``: a fitted, not
     identifiable current context raises, holds or backs off its handed mu after checking its
     newest ``probe_window_s`` for large slip angles and the current level's data for the tyres'
-    bend ratio (``probe.level_bend``); while the unknown phase goes on (``probe_unknown``) the
-    context's probe waits, and the context that ends it starts from the phase's level where
-    that level was tried on it."""
+    bend ratio (``probe.level_bend``); with ``probe_unknown`` a context's probe starts from the
+    unknown phase's level where that level was tried on it (the phase goes on while a switch to
+    the context waits for its confirmation: the controller gets the lower of the two)."""
     cfg = est.config
     if cfg.unidentified_mu != "probe":
         return
-    if cfg.probe_unknown and _update_unknown_probe(est, t_now):
-        return  # the unknown phase goes on: the context's probe waits for its end
+    phase = cfg.probe_unknown and _update_unknown_probe(est, t_now)
     slot = est._slots.get(est.current_context)
     carried, est.carried = est.carried, ProbeState()
+    if phase:  # a fitted context not confirmed yet starts from the phase's level as it is now
+        carried = est.unknown_probe
     if slot is None or not slot.estimate.fitted or slot.estimate.identifiable:
         return
     labels, times = est._store.labels(), est._store.times()
