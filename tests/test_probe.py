@@ -106,21 +106,26 @@ def test_saturation_signs_from_slip_angles():
     assert not saturated(one, vp.lf, vp.lr, 0.035)
 
 
-def _fitted_estimator(**cfg):
-    params = ford_escort()
-    est = ContextEstimator(
-        params, LiveFitConfig(unidentified_mu="probe", sample_period_s=0.02, **cfg)
-    )
-    est.add_sample(0.0, np.array([0, 0, 0, 8.0, 0, 0, 0]), [0, 0], [0])
+def _first_fit(est, mu: float, mu_lower_bound: float):
+    """Context 0's first fit, not identifiable: ``mu`` (std 0.5) with the car's stiffness and
+    the used-friction bound ``mu_lower_bound``; returns the context's slot."""
     slot = est._slots[0]
     slot.estimate = replace(
         slot.estimate,
-        theta=(1.5, params.C_Sf, params.C_Sr),
+        theta=(mu, est.params.C_Sf, est.params.C_Sr),
         theta_std=(0.5, np.nan, np.nan),
         fits=1,
-        mu_lower_bound=0.2,
+        mu_lower_bound=mu_lower_bound,
     )
-    return est, slot
+    return slot
+
+
+def _fitted_estimator(**cfg):
+    est = ContextEstimator(
+        ford_escort(), LiveFitConfig(unidentified_mu="probe", sample_period_s=0.02, **cfg)
+    )
+    est.add_sample(0.0, np.array([0, 0, 0, 8.0, 0, 0, 0]), [0, 0], [0])
+    return est, _first_fit(est, 1.5, 0.2)
 
 
 def _feed(est, t0, t1, beta=0.0):
@@ -481,14 +486,7 @@ def test_estimator_reads_the_bend_ratio_of_the_current_level():
     params = ford_escort()
     est = ContextEstimator(params, LiveFitConfig(unidentified_mu="probe", sample_period_s=0.01))
     est.add_sample(0.0, np.array([0, 0, 0, 6.0, 0, 0, 0]), [0, 0], [0])
-    slot = est._slots[0]
-    slot.estimate = replace(
-        slot.estimate,
-        theta=(1.0, params.C_Sf, params.C_Sr),  # handed stiffness mu * C_S = C_S: _mf_slalom's
-        theta_std=(0.5, np.nan, np.nan),
-        fits=1,
-        mu_lower_bound=0.3,
-    )
+    _first_fit(est, 1.0, 0.3)  # handed stiffness mu * C_S = C_S: _mf_slalom's
 
     def drive(t0, peak, seconds=3.0):
         t, x, _ = _mf_slalom(peak, 0.2, seconds=seconds)
@@ -613,14 +611,7 @@ def test_estimator_starts_the_probe_on_the_bends_driven_before_the_id():
         t, x, _ = _mf_slalom(peak, 0.2, seconds=6.0)  # two bends before the first fit
         for ti, xi in zip(t, x, strict=True):
             est.add_sample(float(ti), xi, [0, 0], [0])
-        slot = est._slots[0]
-        slot.estimate = replace(
-            slot.estimate,
-            theta=(1.0, params.C_Sf, params.C_Sr),
-            theta_std=(0.5, np.nan, np.nan),
-            fits=1,
-            mu_lower_bound=0.3,
-        )
+        _first_fit(est, 1.0, 0.3)
         est.update_probe(6.0)
         return est.theta_for()[0], est.table().get(0).probe.steps
 
@@ -705,14 +696,7 @@ def test_the_unknown_phase_level_is_carried_into_the_context_it_was_tried_on():
         est.update_probe(float(now))
     assert est.theta_for()[0] == pytest.approx(0.3 * 1.25)  # one step, default fast step
     step_s = est.unknown_probe.last_step_s
-    slot = est._slots[0]
-    slot.estimate = replace(
-        slot.estimate,
-        theta=(1.0, params.C_Sf, params.C_Sr),
-        theta_std=(0.5, np.nan, np.nan),
-        fits=1,
-        mu_lower_bound=0.3,
-    )
+    slot = _first_fit(est, 1.0, 0.3)
     # fitted: until its probe's next update it hands the phase's level, no dip to the floor
     assert est.theta_for()[0] == pytest.approx(0.3 * 1.25)
     # its fit ends the phase: the context starts at the phase's level, whose data since the

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from workbench_states import random_states, truth_columns
+from workbench_states import TYRE_LAWS, random_states, truth_columns
 
 from pcvfe_drake.vehicle.params import ford_escort
 from pcvfe_drake.workbench import synth
@@ -21,11 +21,7 @@ CAMBER = (-0.037, 0.03, 0.0027)
 
 @pytest.mark.parametrize(
     "effects, theta, truth",
-    [
-        ((), [ford_escort().mu], {}),
-        (("peak_tyre",), [0.45, 0.0], {"mf_peak": 0.45, "mf_exp": 0.0}),
-        (("tire_saturation",), [1.0, 0.6], {"mu_peak": 0.6, "mu": 1.0}),
-    ],
+    TYRE_LAWS,
 )
 def test_rates_match_the_separately_written_truth(effects, theta, truth):
     vp = ford_escort()

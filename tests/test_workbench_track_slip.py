@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from workbench_states import random_states, truth_columns
+from workbench_states import TYRE_LAWS, random_states, truth_columns
 
 from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
 from pcvfe_drake.vehicle.params import ford_escort
@@ -33,11 +33,7 @@ def slow_states(n: int = 12, seed: int = 0):
 
 @pytest.mark.parametrize(
     "effects, theta, truth",
-    [
-        ((), [ford_escort().mu], {}),
-        (("peak_tyre",), [0.45, 0.0], {"mf_peak": 0.45, "mf_exp": 0.0}),
-        (("tire_saturation",), [1.0, 0.6], {"mu_peak": 0.6, "mu": 1.0}),
-    ],
+    TYRE_LAWS,
 )
 def test_rates_match_the_separately_written_truth(effects, theta, truth):
     vp = ford_escort()

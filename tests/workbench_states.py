@@ -1,5 +1,6 @@
 """Shared inputs of the effect tests that compare the workbench's equations with the separately
-written truth (``synth._truth_rates``): random states and the truth's parameter columns."""
+written truth (``synth._truth_rates``): random states, the tyre laws and the truth's parameter
+columns."""
 
 from __future__ import annotations
 
@@ -7,6 +8,14 @@ import numpy as np
 
 from pcvfe_drake.vehicle.params import ford_escort
 from pcvfe_drake.workbench import synth
+
+TYRE_LAWS = [
+    ((), [ford_escort().mu], {}),
+    (("peak_tyre",), [0.45, 0.0], {"mf_peak": 0.45, "mf_exp": 0.0}),
+    (("tire_saturation",), [1.0, 0.6], {"mu_peak": 0.6, "mu": 1.0}),
+]
+"""The tyre laws a tyre-hook effect is checked on: (base effects, their theta, the truth's
+columns): the linear tyre, the magic formula and the brush tyre, each at a peak the states reach."""
 
 
 def random_states(n: int = 9, seed: int = 0, pitch: bool = False):

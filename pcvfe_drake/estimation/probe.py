@@ -424,6 +424,19 @@ def probe_step(
     return ProbeState(raised, state.ceiling, t_now, state.steps + 1, state.backoffs)
 
 
+def _step_settings(cfg) -> dict:
+    """:func:`probe_step`'s step, hold and limit settings from a ``LiveFitConfig``."""
+    return {
+        "step_rel": cfg.probe_step_rel,
+        "hold_s": cfg.probe_hold_s,
+        "max_excess": cfg.probe_max_excess,
+        "fast_step_rel": cfg.probe_fast_step_rel,
+        "linear_ratio": cfg.probe_linear_ratio,
+        "bend_limit": cfg.probe_bend_limit,
+        "bend_margin": cfg.probe_bend_margin,
+    }
+
+
 def probe_update(
     state: ProbeState,
     t_now: float,
@@ -462,17 +475,11 @@ def probe_update(
         floor_mu=cfg.unknown_floor_mu,
         prior_mu=prior_mu,
         is_saturated=saturated(recent, vehicle.lf, vehicle.lr, limit),
-        step_rel=cfg.probe_step_rel,
-        hold_s=cfg.probe_hold_s,
-        max_excess=cfg.probe_max_excess,
         use_fraction=use_fraction,
         bend=bend,
-        fast_step_rel=cfg.probe_fast_step_rel,
-        linear_ratio=cfg.probe_linear_ratio,
-        bend_limit=cfg.probe_bend_limit,
+        **_step_settings(cfg),
         start_bend=start_bend,
         start_mu=start_mu,
-        bend_margin=cfg.probe_bend_margin,
     )
 
 
@@ -513,15 +520,9 @@ def unknown_probe_update(
         floor_mu=floor,
         prior_mu=prior_mu,
         is_saturated=saturated(recent, vehicle.lf, vehicle.lr, limit),
-        step_rel=cfg.probe_step_rel,
-        hold_s=cfg.probe_hold_s,
-        max_excess=cfg.probe_max_excess,
         use_fraction=use_fraction,
         bend=bend,
-        fast_step_rel=cfg.probe_fast_step_rel,
-        linear_ratio=cfg.probe_linear_ratio,
-        bend_limit=cfg.probe_bend_limit,
-        bend_margin=cfg.probe_bend_margin,
+        **_step_settings(cfg),
     )
     if new.backoffs > state.backoffs:  # back to the floor for the rest of the phase
         return ProbeState(floor, floor, t_now, max(new.steps, 1), new.backoffs)
