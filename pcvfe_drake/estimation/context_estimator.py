@@ -67,6 +67,7 @@ from pcvfe_drake.estimation.probe import (
     ProbeState,
     check_probe_settings,
     controller_theta,
+    wheel_peak_share,
 )
 from pcvfe_drake.estimation.probe_updates import update_probes
 from pcvfe_drake.estimation.sample_store import NOISE, SampleStore, labels_from_frames
@@ -626,6 +627,13 @@ class ContextEstimator:
             slot.estimate = _discarded(old, samples, t_now, "diverged")
             return
         peak = result.mu_is_peak
+        track = dict(zip(result.param_names, result.model_theta, strict=True)).get(
+            "track_slip.t", 0
+        )
+        share = math.nan  # with the track in the model, how near each wheel came to its peak
+        if peak and track > 0:
+            th = np.asarray(result.theta, dtype=float)
+            share = wheel_peak_share(t, states, self.params, th[0], th[0] * th[1:], track)
         slot.estimate = ContextEstimate(
             context_id=old.context_id,
             theta=tuple(float(v) for v in result.theta),
@@ -646,14 +654,26 @@ class ContextEstimator:
                     result.param_names, result.model_theta, result.model_std, strict=True
                 )
             ),
-            **self._identifiability(old, t, states, result.theta[0], result.std[0], peak),
+            **self._identifiability(old, t, states, result.theta[0], result.std[0], peak, share),
         )
 
-    def _identifiability(self, old: ContextEstimate, t, states, mu, std, peak: bool) -> dict:
+    def _identifiability(
+        self, old: ContextEstimate, t, states, mu, std, peak: bool, share: float = math.nan
+    ) -> dict:
         cfg = self.config
         lower = old.mu_lower_bound
+        rel = cfg.model_error_rel * abs(mu)
+        data_std = math.sqrt(max(std**2 - rel**2, 0.0)) if math.isfinite(std) else std
         return identifiability(
-            t, states, mu, std, peak, lower, cfg.near_limit_fraction, cfg.identifiable_std
+            t,
+            states,
+            mu,
+            data_std,
+            peak,
+            lower,
+            cfg.near_limit_fraction,
+            cfg.identifiable_std,
+            share,
         )
 
     def table(self, time_s: float = float("nan")) -> EstimateTable:

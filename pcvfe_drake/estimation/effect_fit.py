@@ -174,6 +174,7 @@ def identifiability(
     lower_bound: float,
     near_limit_fraction: float,
     identifiable_std: float,
+    wheel_share: float = float("nan"),
 ) -> dict:
     """A context estimate's identifiability fields after a fit with ``mu +- std`` on its buffer
     (``t``, ``states``); ``lower_bound``: the previous estimate's ``mu_lower_bound`` (NaN:
@@ -183,12 +184,15 @@ def identifiability(
     lower bound is then the lateral friction used (``friction_used(lateral_only=True)``; braking
     and driving say nothing about a lateral peak), and a fitted peak below it is impossible
     (``below_used``: not identifiable, whatever its std). Near the limit: the used friction
-    reached ``near_limit_fraction`` of mu; identifiable: near it, not below it, and ``std <=
-    identifiable_std``."""
+    reached ``near_limit_fraction`` of mu, or ``wheel_share`` (``probe.wheel_peak_share``: how
+    near the most-used wheel came to its peak; NaN: not judged) reached ``near_limit_fraction``;
+    identifiable: near it, not below it, and ``std <= identifiable_std``."""
     used = friction_used(t, states, lateral_only=peak)
     if math.isfinite(lower_bound):
         used = lower_bound if not math.isfinite(used) else max(used, lower_bound)
-    near = bool(math.isfinite(used) and used >= near_limit_fraction * mu)
+    near = bool(math.isfinite(used) and used >= near_limit_fraction * mu) or bool(
+        peak and math.isfinite(wheel_share) and wheel_share >= near_limit_fraction
+    )
     below = bool(peak and math.isfinite(used) and mu < used)
     ident = bool(near and not below and math.isfinite(std) and std <= identifiable_std)
     return {

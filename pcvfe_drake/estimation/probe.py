@@ -209,6 +209,63 @@ def axle_slip_angles(states: np.ndarray, lf: float, lr: float) -> tuple[np.ndarr
     return alpha_f, alpha_r
 
 
+WHEEL_SHARE_SMOOTH_S = 0.2
+"""Width [s] of the moving mean over the wheel slips in :func:`wheel_peak_share` (averages the
+INS side-slip and yaw-rate noise, 0.005 rad and 0.01 rad/s, which a steep low-friction curve
+would otherwise read as use)."""
+
+
+def wheel_peak_share(
+    t: np.ndarray,
+    states: np.ndarray,
+    vehicle,
+    mu: float,
+    stiffness_per_rad,
+    track_m: float,
+    quantile: float = 0.95,
+    shape: float = MF_SHAPE,
+) -> float:
+    """How near the tyres came to their peak, per wheel: the ``quantile`` over the samples
+    (``t`` [s], ``states`` (N, 7), at least ``MIN_SPEED_MPS``) of the largest share of its peak
+    any wheel worked at, on a magic-formula tyre (shape ``shape``) with the peak ``mu`` and the
+    small-slip stiffness ``stiffness_per_rad`` per axle (``mu * C_S``, per load), each wheel of
+    an axle at its own slip for the track ``track_m`` [m] (``track_slip``'s
+    ``wheel_slip_offsets``; 0: the single-track slip). Past its peak slip a wheel counts as at
+    the peak (share 1). The slips are a moving mean over ``WHEEL_SHARE_SMOOTH_S``. NaN with
+    fewer than 20 samples.
+
+    The car's lateral acceleration says how much friction the car used, on average over its
+    wheels; in a slow tight bend the inner front wheel works at a much larger slip than the
+    axle's mean (the track: 0.026 against 0.004 rad for a single-track 0.0145 on the
+    multi-body Ford Escort, ``benchmarks/front_axle_gap.py``), so the tyres can be near their
+    peak while the car's mean use is not. The share depends on the fitted ``mu`` and errs
+    safe: a peak fitted too high reads a smaller share."""
+    from pcvfe_drake.workbench.chassis_effects import wheel_slip_offsets
+
+    x = np.asarray(states, dtype=float)
+    tt = np.asarray(t, dtype=float)
+    fast = x[:, V] >= MIN_SPEED_MPS
+    if fast.sum() < 20 or not (math.isfinite(mu) and mu > 0):
+        return float("nan")
+    x, tt = x[fast], tt[fast]
+    dt = float(np.median(np.diff(tt)))
+    width = max(1, int(round(WHEEL_SHARE_SMOOTH_S / dt))) if dt > 0 else 1
+    kernel = np.ones(width) / width
+    stiffness = np.broadcast_to(np.asarray(stiffness_per_rad, dtype=float), (2,))
+    track = np.full(x.shape[0], float(track_m))
+    levers = (vehicle.lf, -vehicle.lr)
+    shares = []
+    for alpha, lever, k in zip(
+        axle_slip_angles(x, vehicle.lf, vehicle.lr), levers, stiffness, strict=True
+    ):
+        left, right = wheel_slip_offsets(x, lever, track)
+        b = k / (shape * mu)
+        for wheel in (alpha + left, alpha + right):
+            slip = np.convolve(wheel, kernel, mode="same")
+            shares.append(np.sin(np.minimum(shape * np.arctan(b * np.abs(slip)), 0.5 * math.pi)))
+    return float(np.quantile(np.max(shares, axis=0), quantile))
+
+
 def axle_force_per_load(t: np.ndarray, states: np.ndarray, lf: float, lr: float, iz_per_m: float):
     """Lateral force per static axle load [g] of each axle from measured states (N, 7) at times
     ``t``, from the single-track model's force and moment balance ``F_f + F_r = m a_y``, ``lf
