@@ -98,3 +98,12 @@ def test_the_estimator_judges_the_std_without_the_model_error_budget():
     assert not est._identifiability(empty, t, x, mu, math.hypot(0.06, 0.11 * mu), True)[
         "identifiable"
     ]  # the data alone leave 0.06
+
+
+def test_without_model_error_inverts_with_model_error():
+    from pcvfe_drake.estimation.fit_options import with_model_error, without_model_error
+
+    for mu, std, rel in [(0.45, 0.01, 0.11), (0.8, 0.03, 0.26), (0.3, 0.02, 0.0)]:
+        assert without_model_error(mu, with_model_error(mu, std, rel), rel) == pytest.approx(std)
+    assert without_model_error(0.45, 0.01, 0.5) == 0.0  # the budget is all of it
+    assert math.isinf(without_model_error(0.45, math.inf, 0.11))

@@ -61,6 +61,7 @@ from pcvfe_drake.estimation.fit_options import (
     FitOptions,
     FitResult,
     joint_options,
+    without_model_error,
 )
 from pcvfe_drake.estimation.fitting import fit_gauss_newton
 from pcvfe_drake.estimation.probe import (
@@ -662,8 +663,7 @@ class ContextEstimator:
     ) -> dict:
         cfg = self.config
         lower = old.mu_lower_bound
-        rel = cfg.model_error_rel * abs(mu)
-        data_std = math.sqrt(max(std**2 - rel**2, 0.0)) if math.isfinite(std) else std
+        data_std = without_model_error(mu, std, cfg.model_error_rel)
         return identifiability(
             t,
             states,

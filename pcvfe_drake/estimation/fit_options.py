@@ -50,6 +50,14 @@ def with_model_error(mu: float, std: float, model_error_rel: float) -> float:
     return math.hypot(std, model_error_rel * abs(mu))
 
 
+def without_model_error(mu: float, std: float, model_error_rel: float) -> float:
+    """The std the data leave, from one that carries the model-error budget (the inverse of
+    :func:`with_model_error`; 0 where the budget is all of it)."""
+    if model_error_rel <= 0 or not math.isfinite(std):
+        return std
+    return math.sqrt(max(std**2 - (model_error_rel * mu) ** 2, 0.0))
+
+
 STATUS_CONVERGED = "converged"
 STATUS_MAX_ITERATIONS = "max_iterations"
 STATUS_DIVERGED = "diverged"
