@@ -68,6 +68,15 @@ opposes the bend: the roll cambers the wheels negatively in a left bend) and ``+
 shift adds to the slip; ``benchmarks/mb_camber.py``)."""
 
 
+def _effect_params(fit) -> dict:
+    """A fit's effect parameters (not the per-context mu), rounded for the JSON line."""
+    return {
+        k: round(float(v), 4)
+        for k, v in zip(fit.model.param_names, fit.theta, strict=True)
+        if not k.startswith("mu")
+    }
+
+
 def _last_round(report: dict) -> dict:
     return {
         r["name"]: {
@@ -179,11 +188,7 @@ def study(mapping: str, duration_s: float, seed: int, out: str | None) -> dict:
             "heldout_error_change": round(cam_eval["model_error"] / ref_eval["model_error"] - 1, 4),
             "mu": cam_mu,
             "mu_error": _errors(cam_mu),
-            "params": {
-                k: round(float(v), 4)
-                for k, v in zip(cam.model.param_names, cam.theta, strict=True)
-                if not k.startswith("mu")
-            },
+            "params": _effect_params(cam),
         },
         "last_round": _last_round(report),
         "with_peak_tyre_last_round": _last_round(added),
@@ -194,11 +199,7 @@ def study(mapping: str, duration_s: float, seed: int, out: str | None) -> dict:
         ),
         "full_model_mu": full_mu,
         "full_model_mu_error": _errors(full_mu),
-        "full_model_params": {
-            k: round(float(v), 4)
-            for k, v in zip(full.model.param_names, full.theta, strict=True)
-            if not k.startswith("mu")
-        },
+        "full_model_params": _effect_params(full),
     }
 
 
