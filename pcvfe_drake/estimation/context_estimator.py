@@ -78,6 +78,7 @@ from pcvfe_drake.estimation.unknown_context import (
     DEFAULT_SIGMAS,
     check_policy,
     unknown_context_theta,
+    with_friction,
 )
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import NU, NX
@@ -508,8 +509,7 @@ class ContextEstimator:
             floor_stated=cfg.unknown_floor_stated,
         )
         if self.unknown_probe.started and self.unknown_probe.mu > theta[0]:
-            theta[1:] *= theta[0] / self.unknown_probe.mu  # mu * C_S kept
-            theta[0] = self.unknown_probe.mu
+            theta = with_friction(theta, self.unknown_probe.mu)
         return theta if np.all(np.isfinite(theta)) else np.array(self._prior)
 
     def pending(self) -> list[int]:

@@ -90,6 +90,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pcvfe_drake.estimation.unknown_context import with_friction
 from pcvfe_drake.json_numbers import finite_or_none
 from pcvfe_drake.vehicle.single_track import BETA, DELTA, PSI_DOT, V
 
@@ -636,4 +637,4 @@ def controller_theta(
         mu = max(mu, floor_mu)
     if mu == theta[0]:
         return theta
-    return np.array([mu, theta[1] * theta[0] / mu, theta[2] * theta[0] / mu])
+    return with_friction(theta, mu)

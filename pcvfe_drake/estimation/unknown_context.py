@@ -106,6 +106,16 @@ def unknown_context_theta(
     # the friction limit is lowered (a lower mu alone would also tell the controller that the
     # tyres are softer than they are; it then steers too much: docs/friction_sources.md).
     if keep_stiffness:
-        theta[1:] *= theta[0] / mu
+        return with_friction(theta, mu)
+    theta[0] = mu
+    return theta
+
+
+def with_friction(theta, mu: float) -> np.ndarray:
+    """``theta = [mu, C_Sf, C_Sr]`` with the friction ``mu`` and the single-track tyre's
+    small-slip stiffness ``mu * C_S`` kept (C_Sf, C_Sr scaled by ``theta[0] / mu``): only the
+    friction limit moves. A new array."""
+    theta = np.array(theta, dtype=float)
+    theta[1:] *= theta[0] / mu
     theta[0] = mu
     return theta
