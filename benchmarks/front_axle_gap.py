@@ -7,10 +7,12 @@ Per sample of a multi-body (MB) drive, the front axle's lateral force per static
 is positive) is taken through these steps, each a number per sample; the differences of
 consecutive steps sum to the whole gap exactly:
 
-1. ``fitter_law``: ``peak_tyre`` (C 1.35, stiffness ``k_f C_Sf mu_nom``, k_f 1.01, peak mu)
-   at the single-track slip ``alpha_f = delta - beta - lf r / v`` of the MB state, on the
-   fitter's axle load ``m (g lr - a_x h) / L`` (what ``paper_eval_effects`` predicts without
-   ``roll_camber``);
+1. ``fitter_law``: ``peak_tyre`` (C 1.35, stiffness ``k_f C_Sf mu_nom (mu / mu_nom)^k_s``,
+   peak mu; ``k_f`` and ``k_s`` as ``--scenario``'s fitter holds them: 1.01 and 0 in
+   ``paper_eval_effects``, 0.96 and 1.19 in ``paper_eval_effects_project``) at the
+   single-track slip ``alpha_f = delta - beta - lf r / v`` of the MB state, on the fitter's
+   axle load ``m (g lr - a_x h) / L`` (what the scenario predicts without ``roll_camber`` and
+   ``track_slip``);
 2. ``package_law``: the MB tyre's own pure lateral law (``tire_model.formula_lateral``, no
    camber, no offsets) at the same slip and load (1 - 2: the fitter's law against the
    package's: shape, curvature, stiffness);
@@ -49,11 +51,13 @@ error, step by step: the last step's fit is what a fit of the data would give).
 Sources: ``drive`` (the workbench's rich-excitation program on the MB model, the driver at
 0.85 mu g) and ``replay`` (saved closed-loop runs: each terrain visit's logged commands
 replayed on the MB model in 8 s pieces from the logged true state, the first 1.5 s of each
-piece dropped while the suspension settles; ``--runs``; ``yaw_rate_rms_vs_log_radps``: how far
-the replayed yaw rate strays from the logged one).
+piece dropped while the suspension settles; ``--runs``; the MB model with ``--scenario``'s
+``friction_mapping``; ``yaw_rate_rms_vs_log_radps``: how far the replayed yaw rate strays from
+the logged one; ``--no-drive``: the replays only).
 
 Usage: python benchmarks/front_axle_gap.py [--seconds S] [--runs DIR --seeds 0,1]
-       [--terrains patchy_grass,sand] [--quick]
+       [--scenario paper_eval_effects] [--law K_F,K_S] [--terrains patchy_grass,sand]
+       [--no-drive] [--quick]
 Last stdout line: one JSON object.
 """
 
@@ -64,6 +68,7 @@ import json
 import math
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -103,20 +108,48 @@ SHARES = {
     "inference_dynamics": ("body", "inferred_exact"),
     "inference_differences": ("inferred_exact", "inferred"),
 }
-K_F = 1.01
-"""``axle_stiffness``'s front factor held in ``paper_eval_effects``."""
+
+
+@dataclass(frozen=True)
+class FitterLaw:
+    """The context fitter's front-axle law: ``peak_tyre`` with exponent ``k_s`` and
+    ``axle_stiffness``'s front factor ``k_f`` (small-slip stiffness ``k_f C_Sf mu_nom (mu /
+    mu_nom)^k_s`` per load)."""
+
+    k_f: float = 1.01
+    k_s: float = 0.0
+
+    def stiffness(self, mu, vp):
+        return self.k_f * vp.C_Sf * vp.mu * (np.asarray(mu, dtype=float) / vp.mu) ** self.k_s
+
+    def __call__(self, alpha, mu, vp):
+        """Force per load at slip ``alpha`` [rad] for the peak ``mu``."""
+        k = self.stiffness(mu, vp)
+        return mu * np.sin(MF_SHAPE * np.arctan(k * alpha / (MF_SHAPE * mu)))
+
+
+def scenario_law(name: str) -> tuple[FitterLaw, str]:
+    """The law a scenario's fitter holds (``peak_tyre``'s k_s and ``axle_stiffness``'s k_f,
+    as fixed in its ``fitter.effects``) and its ``friction_mapping`` (the replay's truth)."""
+    import yaml
+
+    from pcvfe_drake.runs.scenario_files import resolve_scenario_path
+
+    spec = yaml.safe_load(resolve_scenario_path(name).read_text())
+    fixed = {e["name"]: e.get("fixed", {}) for e in spec.get("fitter", {}).get("effects", [])}
+    law = FitterLaw(
+        k_f=float(fixed.get("axle_stiffness", {}).get("k_f", 1.0)),
+        k_s=float(fixed.get("peak_tyre", {}).get("k_s", 1.0)),
+    )
+    return law, spec.get("friction_mapping", "peak_and_stiffness")
+
+
 REFERENCE_SLIP_RAD = 0.0129
 """The grass slip at which the closed loop measured 0.156 per load (docs/fitting.md)."""
 CASES = (("lateral_peak", 0.30), ("lateral_peak", 0.45), ("peak_and_stiffness", 0.45))
 TRUE_MU = {"patchy_grass": 0.30, "sand": 0.45, "concrete": 0.60, "brick": 0.80}
 SMOOTH_S = 0.1
 MIN_SPEED_MPS = 2.0
-
-
-def fitter_law(alpha, mu, vp):
-    """``peak_tyre`` per load at slip ``alpha`` (k_s 0, k_f 1.01)."""
-    k = K_F * vp.C_Sf * vp.mu
-    return mu * np.sin(MF_SHAPE * np.arctan(k * alpha / (MF_SHAPE * mu)))
 
 
 def kappa_per_wheel(x, p):
@@ -133,7 +166,7 @@ def kappa_per_wheel(x, p):
     return tuple(1.0 - p.R_w * x[23 + i] / max(u[i], 1e-6) for i in range(4))
 
 
-def sample_steps(x, xdot, p, vp, mu) -> dict:
+def sample_steps(x, xdot, p, vp, mu, law: FitterLaw) -> dict:
     """Steps 1-8 (module docstring) for one MB state and its derivative; forces per Fz0,
     not yet sign-folded; plus the slip and the wheels' longitudinal slips."""
     t = p.tire
@@ -153,7 +186,7 @@ def sample_steps(x, xdot, p, vp, mu) -> dict:
     out = {"alpha": alpha_st, "kappa_front": 0.5 * (kap[0] + kap[1])}
     out |= {"st_v": v, "st_r": r, "st_beta": beta, "load_ratio": fz_fit / fz0}
     out["left_share"] = fz_w[0] / (fz_w[0] + fz_w[1])
-    out["fitter_law"] = float(fitter_law(alpha_st, mu, vp)) * fz_fit / fz0
+    out["fitter_law"] = float(law(alpha_st, mu, vp)) * fz_fit / fz0
     out["package_law"] = pure(-alpha_st, 0.0, fz_fit) / fz0
     centre = math.atan((x[10] + p.a * x[5]) / x[3]) - x[2]  # the package's sign
     out["centre_slip"] = pure(centre, 0.0, fz_fit) / fz0
@@ -215,11 +248,11 @@ def fold_and_infer(rows: list[dict], st: np.ndarray, t: np.ndarray, vp) -> dict:
     return out
 
 
-def fitted_mu(alpha: np.ndarray, force: np.ndarray, vp, mu_true: float) -> float:
+def fitted_mu(alpha: np.ndarray, force: np.ndarray, vp, mu_true: float, law: FitterLaw) -> float:
     """The peak mu with which ``fitter_law`` matches ``force`` in least squares over the
     samples whose slip is past a quarter of the law's peak slip at the true mu (where the
     peak shows); the fit's normal equation solved by bracketing."""
-    k = K_F * vp.C_Sf * vp.mu
+    k = law.stiffness(mu_true, vp)
     peak_slip = math.tan(math.pi / (2 * MF_SHAPE)) * MF_SHAPE * mu_true / k
     use = alpha >= 0.25 * peak_slip
     if use.sum() < 20:
@@ -228,8 +261,8 @@ def fitted_mu(alpha: np.ndarray, force: np.ndarray, vp, mu_true: float) -> float
 
     def grad(mu):
         h = 1e-6
-        e0 = fitter_law(a, mu, vp) - f
-        d = (fitter_law(a, mu + h, vp) - fitter_law(a, mu - h, vp)) / (2 * h)
+        e0 = law(a, mu, vp) - f
+        d = (law(a, mu + h, vp) - law(a, mu - h, vp)) / (2 * h)
         return float(np.sum(e0 * d))
 
     lo, hi = 0.05, 2.0
@@ -246,7 +279,9 @@ def load_transfer_per_g(data: dict, vp) -> float:
     return float(np.sum(a * y) / max(np.sum(a * a), 1e-12))
 
 
-def effective_track(data: dict, vp, mu: float, target: np.ndarray, k_lt: float) -> float:
+def effective_track(
+    data: dict, vp, mu: float, target: np.ndarray, k_lt: float, law: FitterLaw
+) -> float:
     """The front track width [m] with which ``track_slip``'s two-wheel law (``fitter_law`` at
     the wheels' slips, the outer one with ``(1 + k_lt v r / g) / 2`` of the load) matches
     ``target`` (sign-folded force per Fz0, the law-shape share removed) in least squares."""
@@ -257,14 +292,13 @@ def effective_track(data: dict, vp, mu: float, target: np.ndarray, k_lt: float) 
 
     def cost(track):
         left, right = wheel_slip_offsets(x, vp.lf, np.full(alpha.size, track))
-        law = share * fitter_law(alpha + left, mu, vp)
-        law = law + (1.0 - share) * fitter_law(alpha + right, mu, vp)
-        return float(np.sum((law * data["sign"] * data["load_ratio"] - target) ** 2))
+        two = share * law(alpha + left, mu, vp) + (1.0 - share) * law(alpha + right, mu, vp)
+        return float(np.sum((two * data["sign"] * data["load_ratio"] - target) ** 2))
 
     return float(minimize_scalar(cost, bounds=(0.0, 2.5), method="bounded").x)
 
 
-def summarise(data: dict, vp, mu_true: float) -> dict:
+def summarise(data: dict, vp, mu_true: float, law: FitterLaw) -> dict:
     a = data["alpha"]
     out = {"samples": int(a.size)}
     shape = data["fitter_law"] - data["package_law"]
@@ -272,13 +306,13 @@ def summarise(data: dict, vp, mu_true: float) -> dict:
     out["front_k_lt"] = round(k_lt, 3)
     out["effective_track_f_m"] = {
         "equal_loads": round(
-            effective_track(data, vp, mu_true, data["wheel_slip"] + shape, 0.0), 3
+            effective_track(data, vp, mu_true, data["wheel_slip"] + shape, 0.0, law), 3
         ),
         "wheel_loads_k_lt": round(
-            effective_track(data, vp, mu_true, data["wheel_load"] + shape, k_lt), 3
+            effective_track(data, vp, mu_true, data["wheel_load"] + shape, k_lt, law), 3
         ),
         "wheel_loads_equal_shares": round(
-            effective_track(data, vp, mu_true, data["wheel_load"] + shape, 0.0), 3
+            effective_track(data, vp, mu_true, data["wheel_load"] + shape, 0.0, law), 3
         ),
     }
     edges = np.quantile(a, [0.0, 0.5, 0.75, 0.9, 1.0]) if a.size else []
@@ -299,7 +333,7 @@ def summarise(data: dict, vp, mu_true: float) -> dict:
         out["at_reference_shares"] = {
             name: round(ref[s0] - ref[s1], 4) for name, (s0, s1) in SHARES.items()
         }
-    mus = {k: fitted_mu(a, data[k], vp, mu_true) for k in STEPS}
+    mus = {k: fitted_mu(a, data[k], vp, mu_true, law) for k in STEPS}
     out["fitted_mu"] = {k: round(v, 4) for k, v in mus.items()}
     out["mu_shares"] = {name: round(mus[s0] - mus[s1], 4) for name, (s0, s1) in SHARES.items()}
     out["kappa_front_p5_p50_p95"] = [
@@ -308,7 +342,7 @@ def summarise(data: dict, vp, mu_true: float) -> dict:
     return out
 
 
-def drive(truth, vp, mu: float, seconds: float, dt: float = 0.05) -> dict:
+def drive(truth, vp, mu: float, seconds: float, law: FitterLaw, dt: float = 0.05) -> dict:
     """The workbench's rich-excitation drive on the MB model (as ``mb_camber.drive``)."""
     p = truth.parameters_for_mu(mu)
     ex = synth.design_excitation(vp, seconds, dt, 0)
@@ -320,14 +354,16 @@ def drive(truth, vp, mu: float, seconds: float, dt: float = 0.05) -> dict:
         steer, acc = synth.driver_commands(vp, ex, k, st[None, :], grip)
         u = [float(steer[0]), float(acc[0])]
         if k * dt >= 5.0:  # the first 5 s settle the initial state
-            rows.append(sample_steps(x, truth.rhs(list(x), u, p), p, vp, mu))
+            rows.append(sample_steps(x, truth.rhs(list(x), u, p), p, vp, mu, law))
             sts.append(st)
             ts.append(k * dt)
         x = truth.integrate(x, u, mu, dt)
     return fold_and_infer(rows, np.array(sts), np.array(ts), vp)
 
 
-def replay(truth, vp, log, terrain: str, piece_s: float = 8.0, settle_s: float = 1.5) -> dict:
+def replay(
+    truth, vp, log, terrain: str, law: FitterLaw, piece_s: float = 8.0, settle_s: float = 1.5
+) -> dict:
     """A terrain's logged commands replayed on the MB model in pieces from the logged true
     states (module docstring); the pieces' samples concatenated with their own times."""
     import pandas as pd  # noqa: F401  (the log is a DataFrame)
@@ -353,7 +389,7 @@ def replay(truth, vp, log, terrain: str, piece_s: float = 8.0, settle_s: float =
         for k in range(start, stop):
             u = [float(u_all[k, 0]), float(u_all[k, 1])]
             if t_all[k] - t_all[start] >= settle_s:
-                rows.append(sample_steps(x, truth.rhs(list(x), u, p), p, vp, mu))
+                rows.append(sample_steps(x, truth.rhs(list(x), u, p), p, vp, mu, law))
                 sts.append(st_state(x))
                 ts.append(t_all[k])
                 yaw_err.append(sts[-1][5] - xs_all[k, 5])
@@ -377,38 +413,55 @@ def main() -> int:
     ap.add_argument("--seeds", default="0,1")
     ap.add_argument("--terrains", default="patchy_grass,sand")
     ap.add_argument("--quick", action="store_true", help="one 20 s drive at mu 0.30, no replay")
+    ap.add_argument("--no-drive", action="store_true", help="the replays of --runs only")
+    ap.add_argument(
+        "--law",
+        default=None,
+        metavar="K_F,K_S",
+        help="the fitter's law instead of the scenario's (e.g. 0.96,1.19)",
+    )
     args = ap.parse_args()
     t0 = time.perf_counter()
     vp = load_vehicle("ford_escort")
-    cases = CASES[:1] if args.quick else CASES
+    cases = () if args.no_drive else CASES[:1] if args.quick else CASES
     seconds = 20.0 if args.quick else args.seconds
+    law, replay_mapping = scenario_law(args.scenario)
+    if args.law:
+        try:
+            k_f, k_s = (float(v) for v in args.law.split(","))
+        except ValueError:
+            ap.error(f"--law takes K_F,K_S (two numbers), got {args.law!r}")
+        law = FitterLaw(k_f, k_s)
     results = []
     for mapping, mu in cases:
-        data = drive(MbTruth("ford_escort", mapping), vp, mu, seconds)
-        row = {"source": "drive", "mapping": mapping, "mu": mu} | summarise(data, vp, mu)
+        data = drive(MbTruth("ford_escort", mapping), vp, mu, seconds, law)
+        row = {"source": "drive", "mapping": mapping, "mu": mu} | summarise(data, vp, mu, law)
         print(json.dumps(row), flush=True)
         results.append(row)
     if args.runs and not args.quick:
         import pandas as pd
 
-        truth = MbTruth("ford_escort", "lateral_peak")
+        truth = MbTruth("ford_escort", replay_mapping)
         for seed in [int(s) for s in args.seeds.split(",")]:
             folder = Path(args.runs) / "runs" / f"{args.scenario}__{args.source}__s{seed:03d}"
             log = pd.read_parquet(folder / "drive_log.parquet")
             for terrain in args.terrains.split(","):
-                data = replay(truth, vp, log, terrain)
+                data = replay(truth, vp, log, terrain, law)
                 if not data:
                     continue
                 mu = TRUE_MU[terrain]
                 row = {"source": "replay", "seed": seed, "terrain": terrain, "mu": mu}
                 row["yaw_rate_rms_vs_log_radps"] = round(data.pop("yaw_rate_rms_vs_log"), 4)
-                row |= summarise(data, vp, mu)
+                row |= summarise(data, vp, mu, law)
                 print(json.dumps(row), flush=True)
                 results.append(row)
     print(
         json.dumps(
             {
                 "benchmark": "front_axle_gap",
+                "scenario": args.scenario,
+                "fitter_law": {"k_f": law.k_f, "k_s": law.k_s},
+                "replay_mapping": replay_mapping,
                 "results": results,
                 "wall_s": round(time.perf_counter() - t0, 1),
             }

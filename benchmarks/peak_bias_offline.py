@@ -29,8 +29,12 @@ lr F_yr = I_z r_dot``; central differences at 20 Hz), in quartile bins of the sl
 Without ``--runs`` the runs are made first: ``pcvfe evaluate pcvfe_effects --seeds N`` into a
 temporary folder (``--quick``: one seed of the experiment's quick 30 s, sand only).
 
+``--models project`` (with ``--scenario paper_eval_effects_project`` and that scenario's runs):
+the rows of ``PROJECT_MODELS`` instead, for the project's mapping (``peak_and_stiffness``).
+
 Usage: python benchmarks/peak_bias_offline.py [--runs DIR] [--quick] [--source pcvfe_effects]
        [--scenario paper_eval_effects] [--seeds 0,1,2] [--terrains patchy_grass,sand,brick]
+       [--models public|project]
 Each fit takes about a second. Last stdout line: one JSON object.
 """
 
@@ -86,6 +90,33 @@ MODELS = {
         {"name": "track_slip", "fixed": {"k_lt": -0.85}},
     ],
 }
+
+PROJECT_FOUND = [
+    {"name": "peak_tyre", "fixed": {"k_s": 1.19}},
+    {"name": "axle_stiffness", "fixed": {"k_f": 0.96, "k_r": 1.08}},
+]
+"""The model the workbench's loop found on the rich-excitation multi-body log of the project's
+mapping before ``roll_camber`` and ``track_slip`` were held (``paper_eval_effects_project``
+until then)."""
+ROLL_CAMBER = {"name": "roll_camber", "fixed": ROLL_CAMBER_TYRE}
+OWN_TYRE = {"name": "peak_tyre", "fixed": {"k_s": 1.0}}
+"""``peak_and_stiffness``: the multi-body tyre's small-slip stiffness is ``C_S mu`` per load at
+every load and mu (its peak ``mu`` at 0.149 rad for every mu: the magic formula with C 1.35,
+E -0.007), i.e. ``peak_tyre`` with k_s 1 and axle factors 1."""
+PROJECT_MODELS = {
+    "found_before": PROJECT_FOUND,
+    "found_before_track": [*PROJECT_FOUND, TRACK],
+    "found_before_track_camber": [*PROJECT_FOUND, TRACK, ROLL_CAMBER],
+    "tyre_law": [OWN_TYRE, ROLL_CAMBER, TRACK],
+    "tyre_law_no_camber": [OWN_TYRE, TRACK],
+    "car_model": [OWN_TYRE, AXLE, ROLL_CAMBER, TRACK],
+    "car_model_axle_fitted": [OWN_TYRE, {"name": "axle_stiffness"}, ROLL_CAMBER, TRACK],
+}
+"""``--models project`` (the project's mapping, ``paper_eval_effects_project`` runs): the model
+found before, with the chassis effects held; the multi-body tyre's own law (k_s 1, no axle
+factors) with them; ``car_model``: ``paper_eval_effects``' chassis (axle 1.01 / 1.24,
+``roll_camber``, ``track_slip``) with k_s 1 as the mapping says (the scenario's model now)."""
+MODEL_SETS = {"public": MODELS, "project": PROJECT_MODELS}
 
 
 def fit(vp, effects, t, x, u, shape=MF_SHAPE) -> dict:
@@ -147,6 +178,12 @@ def main() -> None:
     ap.add_argument("--source", default="pcvfe_effects")
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--terrains", default="patchy_grass,sand,brick")
+    ap.add_argument(
+        "--models",
+        default="public",
+        choices=sorted(MODEL_SETS),
+        help="the rows: the public mapping's study (default) or the project's (PROJECT_MODELS)",
+    )
     args = ap.parse_args()
     if args.quick:
         args.seeds, args.terrains = "0", "sand"
@@ -157,11 +194,13 @@ def main() -> None:
 
 
 def make_runs(args, out: Path) -> Path:
-    """``pcvfe evaluate pcvfe_effects`` for seeds 0 .. the largest asked (quick: its 30 s)."""
+    """``pcvfe evaluate pcvfe_effects`` (``--models project``: ``pcvfe_effects_project``) for
+    seeds 0 .. the largest asked (quick: its 30 s)."""
     from pcvfe_drake.cli import main as pcvfe
 
     n = max(int(s) for s in args.seeds.split(",")) + 1
-    cmd = ["evaluate", "pcvfe_effects", "--out", str(out), "--workers", "2", "--seeds", str(n)]
+    experiment = "pcvfe_effects_project" if args.models == "project" else "pcvfe_effects"
+    cmd = ["evaluate", experiment, "--out", str(out), "--workers", "2", "--seeds", str(n)]
     cmd += ["--quick"] if args.quick else []
     print("making the runs: pcvfe " + " ".join(cmd), flush=True)
     if pcvfe(cmd) != 0:
@@ -184,9 +223,11 @@ def study(args) -> None:
             xm = rows[STATES].to_numpy()
             xt = rows[["true_" + c for c in STATES]].to_numpy()
             entry = {"seed": seed, "terrain": terrain, "true_mu": TRUE_MU.get(terrain)}
-            entry["fits"] = {name: fit(vp, eff, t, xm, u) for name, eff in MODELS.items()}
-            entry["fits"]["as_run_true_states"] = fit(vp, MODELS["as_run"], t, xt, u)
-            entry["fits"]["shape_1"] = fit(vp, MODELS["as_run"], t, xm, u, shape=1.0)
+            models = MODEL_SETS[args.models]
+            entry["fits"] = {name: fit(vp, eff, t, xm, u) for name, eff in models.items()}
+            if args.models == "public":
+                entry["fits"]["as_run_true_states"] = fit(vp, MODELS["as_run"], t, xt, u)
+                entry["fits"]["shape_1"] = fit(vp, MODELS["as_run"], t, xm, u, shape=1.0)
             entry["used"] = {
                 "measured_total": friction_used(t, xm),
                 "measured_lateral": friction_used(t, xm, lateral_only=True),
@@ -194,7 +235,10 @@ def study(args) -> None:
                 "true_lateral": friction_used(t, xt, lateral_only=True),
             }
             entry["front_axle"] = front_axle_curve(vp, t, xt, TRUE_MU.get(terrain, vp.mu))
-            fits = "  ".join(f"{k} {v['mu']:.3f}+-{v['std']:.3f}" for k, v in entry["fits"].items())
+            fits = "  ".join(
+                f"{k} {v['mu']:.3f}+-{v['std']:.3f} (cost {v['cost']:.4g})"
+                for k, v in entry["fits"].items()
+            )
             used = entry["used"]
             print(
                 f"seed {seed} {terrain:13s} (mu {entry['true_mu']}): {fits}\n"

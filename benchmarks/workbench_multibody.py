@@ -28,6 +28,10 @@ and ``final_error_to_baseline_floor``).
 * ``with_roll_camber_tyre``: ``roll_camber`` added to the final model of ``--add peak_tyre``
   with its parameters fixed at the tyre's own constants (``ROLL_CAMBER_TYRE``), the rest
   refitted: held-out error over the floor, its change against that model, mu per terrain;
+* ``with_track_slip_car``: ``track_slip`` added to that model held at ``TRACK_CAR``, the rest
+  refitted (as a user holds a drawing's number): error, mu, the other effects' parameters;
+  ``with_track_and_camber_car``: both chassis effects held;
+* ``scenario_models`` (``peak_and_stiffness``): the held-out error and mu of ``SCENARIO_MODELS``;
 * ``last_round``: for the effects in ``WATCH`` (``suspension_lag``, ``roll_camber``), their
   entry in the loop's last round on top of the final model: significant or not, the
   likelihood-ratio p-value and the held-out error drop (negative: the held-out error rose).
@@ -62,6 +66,21 @@ TERRAINS = {"patchy_grass": 0.30, "sand": 0.45, "concrete": 0.60, "brick": 0.80}
 FULL_MODEL = ("peak_tyre", "axle_stiffness", "rotating_inertia")
 WATCH = ("suspension_lag", "roll_camber")
 """Effects whose last-round entry is reported (added to the library after the study)."""
+TRACK_CAR = {"t": 1.39, "k_lt": -0.85}
+"""``track_slip`` at the multi-body Ford Escort's front track and its front wheels' measured load
+transfer (``benchmarks/front_axle_gap.py``)."""
+SCENARIO_MODELS = {
+    "found_before": {"peak_tyre": {"k_s": 1.19}, "axle_stiffness": {"k_f": 0.96, "k_r": 1.08}},
+    "car_model": {
+        "peak_tyre": {"k_s": 1.0},
+        "axle_stiffness": {"k_f": 1.01, "k_r": 1.24},
+        "roll_camber": {"f0": -0.037, "f1": 0.0, "s0": 0.0027},
+        "track_slip": {"t": 1.39, "k_lt": -0.85},
+    },
+}
+"""``peak_and_stiffness`` only: ``paper_eval_effects_project``'s model before (what this
+benchmark's loop found, without the two chassis effects) and now (``paper_eval_effects``' car
+with k_s 1), every parameter held, mu per terrain fitted."""
 ROLL_CAMBER_TYRE = {"f0": -0.037, "f1": 0.0, "s0": 0.0027}
 """``roll_camber`` at the multi-body tyre's sign-of-camber constants: ``-p_vy1`` (the side force
 opposes the bend: the roll cambers the wheels negatively in a left bend) and ``+p_hy1`` (the slip
@@ -74,6 +93,28 @@ def _effect_params(fit) -> dict:
         k: round(float(v), 4)
         for k, v in zip(fit.model.param_names, fit.theta, strict=True)
         if not k.startswith("mu")
+    }
+
+
+def _held_row(wb, ref, ref_eval, effects, values, base=False) -> dict:
+    """A model with ``effects`` held at ``values`` ({effect: {param: value}}) fitted on the
+    training blocks: on top of ``ref`` (its other parameters refitted), or (``base``) the bare
+    model with only these effects; its held-out error over the floor, the change against
+    ``ref_eval``, mu per terrain and the fitted parameters."""
+    fixed = {f"{e}.{k}": v for e, ps in values.items() for k, v in ps.items()}
+    if base:
+        fit = wb.fit_model(wb.base_model.with_effects(*effects), warm=wb.baseline, fixed=fixed)
+    else:
+        fit = wb.fit_model(ref.model.with_effects(*effects), warm=ref, fixed=fixed)
+    ev = wb.evaluate(fit, with_free_run=False)
+    mu = _mu(fit.params_dict())
+    return {
+        "held": values,
+        "error_to_floor": round(ev["model_error"] / ev["noise_floor"], 3),
+        "heldout_error_change": round(ev["model_error"] / ref_eval["model_error"] - 1, 4),
+        "mu": mu,
+        "mu_error": _errors(mu),
+        "params": _effect_params(fit),
     }
 
 
@@ -141,6 +182,25 @@ def study(mapping: str, duration_s: float, seed: int, out: str | None) -> dict:
     cam_eval = added_wb.evaluate(cam, with_free_run=False)
     ref_eval = added_wb.final_eval
     cam_mu = _mu(cam.params_dict())
+    held = {
+        "with_track_slip_car": (("track_slip",), {"track_slip": TRACK_CAR}),
+        "with_track_and_camber_car": (
+            ("track_slip", "roll_camber"),
+            {"track_slip": TRACK_CAR, "roll_camber": ROLL_CAMBER_TYRE},
+        ),
+    }
+    held_rows = {
+        name: _held_row(added_wb, ref, ref_eval, effects, values)
+        for name, (effects, values) in held.items()
+    }
+    scenario_rows = (
+        {
+            name: _held_row(added_wb, None, ref_eval, tuple(values), values, base=True)
+            for name, values in SCENARIO_MODELS.items()
+        }
+        if mapping == "peak_and_stiffness"
+        else {}
+    )
     full = wb.fit_model(wb.base_model.with_effects(*FULL_MODEL), warm=wb.baseline)
     full_eval = wb.evaluate(full, with_free_run=False)
     full_mu = _mu(full.params_dict())
@@ -190,6 +250,8 @@ def study(mapping: str, duration_s: float, seed: int, out: str | None) -> dict:
             "mu_error": _errors(cam_mu),
             "params": _effect_params(cam),
         },
+        **held_rows,
+        "scenario_models": scenario_rows,
         "last_round": _last_round(report),
         "with_peak_tyre_last_round": _last_round(added),
         "full_model": list(FULL_MODEL),
@@ -261,6 +323,14 @@ def main() -> int:
                 "with_roll_camber_tyre": {
                     k: r["with_roll_camber_tyre"][k]
                     for k in ("error_to_floor", "heldout_error_change", "mu_error")
+                },
+                **{
+                    name: {k: r[name][k] for k in ("error_to_floor", "mu_error", "params")}
+                    for name in ("with_track_slip_car", "with_track_and_camber_car")
+                },
+                "scenario_models": {
+                    name: {k: row[k] for k in ("error_to_floor", "heldout_error_change", "mu")}
+                    for name, row in r["scenario_models"].items()
                 },
                 "last_round": r["last_round"],
                 "with_peak_tyre_last_round": r["with_peak_tyre_last_round"],
