@@ -8,8 +8,15 @@ until the visit's context is first reported (``drive_metrics.transition_response
 ``context_id_s``), frames on a terrain reported as a context whose majority terrain is another
 (wrong) and frames of the transition strips reported as any context, the triggered attempts and
 the kept ones, and the wall time of every HDBSCAN re-clustering (mean, max) on the stored set.
+A third setting is the clustering a scenario ships (``--scenario``, default
+``paper_eval_effects``). Two measures of what the controller would be handed, with the
+estimator's 1 s noise hold (``LiveFitConfig.noise_hold_s``): ``unknown_on_known_s``, seconds on
+a terrain after its context was first reported with no context handed (the unknown-context
+value), and ``handed_higher_s``, seconds handed a context whose terrain's friction is more than
+0.05 above the friction under the car (transition strips, the hold onto a new terrain).
 
-Usage: python benchmarks/novelty_trigger_replay.py [RUN_DIR ...] [--window 6] [--quick]
+Usage: python benchmarks/novelty_trigger_replay.py [RUN_DIR ...] [--window 6] [--scenario NAME]
+[--quick]
 Without run folders it makes one (``terrain_entry_latency.make_run``: ``pcvfe simulate
 paper_eval_effects --seed 0``, one lap; ``--quick``: its first 45 s).
 Prints one JSON object as its last line.
@@ -33,6 +40,8 @@ from pcvfe_drake.runs import drive_metrics
 
 STRIPS = ("gravel", "dry_soil")
 PERIOD_S = 10.0
+NOISE_HOLD_S = 1.0
+HIGHER_TOL = 0.05
 
 
 def read_log(folder: Path) -> pd.DataFrame:
@@ -91,6 +100,36 @@ def score(log: pd.DataFrame, ids: np.ndarray) -> dict:
         "context_id_s": {e["terrain"]: e["context_id_s"] for e in entries},
         "wrong_frames": round(wrong / frame_rows, 1),
         "strip_frames": round(int(np.sum((ids >= 0) & ~on_terrain)) / frame_rows, 1),
+        **handed_times(log, ids),
+    }
+
+
+def handed_times(log: pd.DataFrame, ids: np.ndarray) -> dict:
+    """``unknown_on_known_s`` and ``handed_higher_s`` (module docstring) of per-row ids."""
+    t = log["t"].to_numpy(float)
+    mu = log["mu_true"].to_numpy(float)
+    terrain = log["terrain"].astype(str).to_numpy()
+    handed = np.full(ids.size, NOISE)
+    last, t_last = NOISE, -np.inf
+    for i, k in enumerate(ids):
+        if k >= 0:
+            last, t_last = k, t[i]
+        if t[i] - t_last <= NOISE_HOLD_S + 1e-9:
+            handed[i] = last
+    dt = np.gradient(t)
+    home, home_mu = {}, {}
+    for k in np.unique(ids[ids >= 0]):
+        names, counts = np.unique(terrain[ids == k], return_counts=True)
+        home[int(k)] = names[counts.argmax()]
+        home_mu[int(k)] = float(np.median(mu[(ids == k) & (terrain == home[int(k)])]))
+    handed_mu = np.array([home_mu[int(k)] if k >= 0 else -np.inf for k in handed])
+    unknown = 0.0
+    for k, name in home.items():
+        after = np.arange(ids.size) > np.flatnonzero(ids == k)[0]
+        unknown += float(dt[(terrain == name) & (handed < 0) & after].sum())
+    return {
+        "unknown_on_known_s": round(unknown, 2),
+        "handed_higher_s": round(float(dt[handed_mu > mu + HIGHER_TOL].sum()), 2),
     }
 
 
@@ -98,15 +137,21 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("runs", nargs="*", type=Path, help="run folders with a drive log")
     ap.add_argument("--window", type=float, default=6.0, help="novelty_window_s [s]")
+    ap.add_argument(
+        "--scenario", default="paper_eval_effects", help="the third setting: its clustering"
+    )
     ap.add_argument("--quick", action="store_true", help="without runs: a 45 s run")
     args = ap.parse_args(argv)
     if not args.runs:
         with tempfile.TemporaryDirectory(prefix="novelty_replay_") as tmp:
             made = make_run(Path(tmp) / "run", "paper_eval_effects", 45.0 if args.quick else None)
-            return main([str(made), "--window", str(args.window)])
+            return main([str(made), "--window", str(args.window), "--scenario", args.scenario])
+    from pcvfe_drake.diagrams.scenario_io import load_scenario
+
     settings = {
         "period": ClusteringParams(),
         "trigger": ClusteringParams(novelty_window_s=args.window),
+        "scenario": load_scenario(args.scenario).clustering_params(),
     }
     out = {name: [] for name in settings}
     durations = {name: [] for name in settings}
@@ -121,7 +166,8 @@ def main(argv: list[str] | None = None) -> int:
             lat = {k: None if v is None else round(v, 2) for k, v in row["context_id_s"].items()}
             print(
                 f"{folder.name} {name:8s} id after entry {lat} wrong {row['wrong_frames']} "
-                f"strip {row['strip_frames']} triggered {r['kept']}/{r['tries']}"
+                f"strip {row['strip_frames']} triggered {r['kept']}/{r['tries']} unknown on "
+                f"known {row['unknown_on_known_s']} s, higher {row['handed_higher_s']} s"
             )
     summary = {}
     for name, rows in out.items():
@@ -139,6 +185,8 @@ def main(argv: list[str] | None = None) -> int:
             "context_id_after_entry": per,
             "wrong_frames": [r["wrong_frames"] for r in rows],
             "strip_frames": [r["strip_frames"] for r in rows],
+            "unknown_on_known_s": [r["unknown_on_known_s"] for r in rows],
+            "handed_higher_s": [r["handed_higher_s"] for r in rows],
             "kept_per_run": [r["kept"] for r in rows],
             "tries_per_run": [r["tries"] for r in rows],
             "hdbscan_ms_mean": round(float(d.mean()), 1) if d.size else None,
@@ -148,7 +196,8 @@ def main(argv: list[str] | None = None) -> int:
             f"{name}: id after entry {per}; HDBSCAN {summary[name]['hdbscan_ms_mean']} ms "
             f"per call (max {summary[name]['hdbscan_ms_max']})"
         )
-    print(json.dumps({"benchmark": "novelty_trigger_replay", "window_s": args.window, **summary}))
+    head = {"benchmark": "novelty_trigger_replay", "window_s": args.window}
+    print(json.dumps({**head, "scenario": args.scenario, **summary}))
     return 0
 
 

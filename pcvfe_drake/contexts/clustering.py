@@ -116,6 +116,9 @@ class ContextClusterer:
         self._n_frames = 0
         self._n_rejected = 0
         self._warned_scale = False
+        # Context reported for the latest frame (the visit a rejected frame may continue).
+        self._visit = NOISE
+        self._visit_frames = 0
         # Assignment index: stored members of the active contexts and their gates.
         self._index = GateIndex(np.zeros((0, 1)), np.zeros(0, dtype=int), self.params)
 
@@ -249,6 +252,11 @@ class ContextClusterer:
             self._x = np.zeros((self.params.max_stored, self._dim))
         self._n_frames += 1
         context_id = int(self._index.labels(z[None, :])[0])
+        if context_id == NOISE and self._continues_visit(z):
+            self._visit_frames += 1
+            self._store_noise(z, t_s)
+            return self._visit
+        self._visit = context_id
         if context_id >= 0:
             rec = self._records[context_id]
             rec.size += 1.0
@@ -257,6 +265,21 @@ class ContextClusterer:
         else:
             self._store_noise(z, t_s)
         return context_id
+
+    def _continues_visit(self, z: np.ndarray) -> bool:
+        """A frame the gate rejects continues the visit of the previous frame's context when it
+        passes that context's gate widened ``params.continuation_gate_scale`` times (None:
+        never)."""
+        scale = self.params.continuation_gate_scale
+        if scale is None or self._visit < 0:
+            return False
+        return self._index.within(z, self._visit, scale)
+
+    @property
+    def continued_frames(self) -> int:
+        """Frames reported as the previous frame's context by the widened gate
+        (``continuation_gate_scale``) so far."""
+        return self._visit_frames
 
     def _free_slot(self) -> int:
         free = np.flatnonzero(~self._used)
@@ -368,7 +391,8 @@ class ContextClusterer:
         """
         context_id = self.assign(z, t_s)
         if context_id == NOISE and self.novelty_due(t_s) and self.recluster_if_novel(t_s):
-            return int(self.predict(z)[0]), True
+            self._visit = int(self.predict(z)[0])
+            return self._visit, True
         return context_id, False
 
     def recluster(self, t_s: float) -> ClusterTable:
@@ -402,7 +426,7 @@ class ContextClusterer:
                 w[members] = count / members.sum()
 
         raw = hdbscan_labels(x, p.min_cluster_size, p.min_samples)
-        if raw.max(initial=NOISE) < 0 and slots.size >= p.min_cluster_size:
+        if raw.max(initial=NOISE) < 0 and slots.size >= max(p.min_cluster_size, p.min_samples + 1):
             raw = self._one_terrain_labels(x)
         raw = detach_small_groups(x, raw, w, p)
 

@@ -52,6 +52,13 @@ class ClusteringParams:
         novelty_fraction: share of noise frames in the window that triggers, in (0, 1].
         novelty_min_interval_s: at most one triggered re-clustering per this many seconds after
             any re-clustering (bounds the cost while a terrain stays noise).
+        continuation_gate_scale: None (default, the paper's design: off) or a factor >= 1. A
+            frame the outlier gate rejects is still reported as the context of the frame before
+            it (the visit continues) when its k-th nearest member of that context is within this
+            many times that context's gate; it is stored as noise (re-clustering decides as
+            always). The frame must also be nearest to a member of that context. A terrain not
+            seen before, far from every context, stays noise; only a frame near the context the
+            car was just on continues the visit (docs/clustering.md, "Continuing a visit").
     """
 
     frame_rate_hz: float = 10.0
@@ -69,6 +76,7 @@ class ClusteringParams:
     novelty_window_s: float | None = None
     novelty_fraction: float = 0.8
     novelty_min_interval_s: float = 1.0
+    continuation_gate_scale: float | None = None
 
     def __post_init__(self) -> None:
         positive = (
@@ -127,6 +135,14 @@ class ClusteringParams:
             raise ValueError(
                 "ClusteringParams.novelty_min_interval_s must be a positive number of seconds, "
                 f"got {self.novelty_min_interval_s!r}"
+            )
+        scale = self.continuation_gate_scale
+        if scale is not None and not (
+            isinstance(scale, int | float) and math.isfinite(scale) and scale >= 1.0
+        ):
+            raise ValueError(
+                "ClusteringParams.continuation_gate_scale must be None (off) or a number >= 1 "
+                f"(a multiple of the outlier gate), got {scale!r}"
             )
         if self.min_cluster_size < 2:
             raise ValueError(

@@ -145,6 +145,20 @@ class GateIndex:
             out[rows] = np.where(kth <= self.gate_sq[int(cid)], cid, NOISE)
         return out
 
+    def within(self, z: np.ndarray, cid: int, scale: float) -> bool:
+        """True if vector ``z`` (d,) is nearest to a member of context ``cid`` and passes its
+        gate widened ``scale`` times (its k-th nearest member of ``cid`` within ``scale`` times
+        the gate). False for a context without members here."""
+        if int(cid) not in self.bounds:
+            return False
+        d2 = self.sq - 2.0 * (self.x @ z) + float(z @ z)
+        if self.ids[d2.argmin()] != cid:
+            return False
+        s, e = self.bounds[int(cid)]
+        kk = min(self.k, e - s)
+        kth = np.partition(d2[s:e], kk - 1)[kk - 1]
+        return bool(kth <= scale * scale * self.gate_sq[int(cid)])
+
 
 def full_hdbscan_labels(x: np.ndarray, params: ClusteringParams | None = None) -> np.ndarray:
     """Reference labels: HDBSCAN over all of ``x`` with the clusterer's parameters.
