@@ -19,6 +19,16 @@ wheel ``S_hy = sign(gamma) (p_hy1 + p_hy3 |gamma|)`` to the slip and ``S_vy = si
   (``a = v psi_dot`` of the single-track state, ``c = tanh(a / 0.5 m/s^2)``, law = the axle's
   magic formula, alpha = the mean slip of its wheels) fitted to it by least squares: the
   parameters and the RMS left.
+* ``wheel_signs`` (per drive): when each wheel's camber sign switches. Per wheel (LF, RF, LR,
+  RR; left = the package's ``+T/2`` wheel) the share of time its sign is predicted right by
+  ``-sign(v psi_dot)`` (``roll_camber``'s per-axle direction) and by ``wheel_camber``'s
+  form ``-sign(a_roll +- k_x a_x)`` (``a_roll`` the model's lateral acceleration
+  ``v_y' + v_x psi_dot`` lagged by ``tau``, ``a_x`` the command), ``k_x`` and an offset
+  fitted per wheel by least squares on the camber, for the lags in ``ROLL_TAUS``; the
+  roll angle's correlation with each lag; the static cambers (the initial state); and per
+  axle the RMS of the load-weighted mean of its wheels' signs (the sign-of-camber offsets'
+  force over ``p_vy1`` Fz) left by ``roll_camber``'s ``tanh(v psi_dot / 0.5)`` and by
+  ``wheel_camber``'s mean sign at ``WHEEL_CAMBER_FORM`` for the widths in ``SIGN_WIDTHS``.
 
 Usage: python benchmarks/mb_camber.py [--seconds S] [--quick]
 Last stdout line: one JSON object.
@@ -34,6 +44,7 @@ import time
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.signal import lfilter
 from vehiclemodels.utils import tire_model
 
 from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
@@ -42,6 +53,12 @@ from pcvfe_drake.workbench import synth
 from pcvfe_drake.workbench.tyre_effects import ROLL_SIGN_WIDTH_MPS2
 
 CASES = (("lateral_peak", 0.30), ("lateral_peak", 0.45), ("peak_and_stiffness", 0.45))
+ROLL_TAUS = (0.0, 0.03, 0.05, 0.08, 0.1, 0.15)
+"""Roll lags tried in ``wheel_signs`` [s] (0: the lateral acceleration itself)."""
+SIGN_WIDTHS = (0.1, 0.3, 0.5)
+"""Widths of the smooth sign tried in ``wheel_signs`` [m/s^2]."""
+WHEEL_CAMBER_FORM = {"k_xf": 0.39, "k_xr": -0.095, "tau": 0.08}
+"""``wheel_camber``'s geometry as held in ``benchmarks/workbench_multibody.py``."""
 
 
 def wheel_terms(x, p):
@@ -111,9 +128,14 @@ def drive(truth, vp, mapping: str, mu: float, seconds: float) -> dict:
     grip = synth.MB_GRIP_FRACTION * mu * vp.g / (float(np.max(synth.LATERAL_PATTERN_MPS2)) + 0.5)
     x = truth.initial_state(np.array([0.0, 0.0, 0.0, 10.0, 0.0, 0.0, 0.0]))
     rows = []
+    signs = []
     for k in range(ex.v_ref.size):
         st = st_state(x)
         alpha, gamma, fz = wheel_terms(x, p)
+        steer, acc = synth.driver_commands(vp, ex, k, st[None, :], grip)
+        u = [float(steer[0]), float(acc[0])]
+        a_lat = float(truth.derivatives(x, u, mu)[10] + x[3] * x[5])
+        signs.append([*gamma, *fz, a_lat, u[1], st[3] * st[5], x[6]])
         forces = []
         for law_tyre, cambered in ((tyre, True), (no_offsets, True), (tyre, False)):
             f = [
@@ -125,8 +147,7 @@ def drive(truth, vp, mapping: str, mu: float, seconds: float) -> dict:
             [st[3] * st[5], *forces, fz[0] + fz[1], fz[2] + fz[3]]
             + [-0.5 * (alpha[0] + alpha[1]), -0.5 * (alpha[2] + alpha[3])]
         )
-        steer, acc = synth.driver_commands(vp, ex, k, st[None, :], grip)
-        x = truth.integrate(x, [float(steer[0]), float(acc[0])], mu, dt)
+        x = truth.integrate(x, u, mu, dt)
     r = np.array(rows)[int(5.0 / dt) :]  # the first 5 s settle the initial state
     a = r[:, 0]
     c, d, k_y = tyre.p_cy1, tyre.p_dy1, -tyre.p_ky1
@@ -155,6 +176,65 @@ def drive(truth, vp, mapping: str, mu: float, seconds: float) -> dict:
                 "roll_camber_f0_f1_s0": [round(float(v), 4) for v in fit.x],
                 "rms_left": round(float(np.sqrt(np.mean(fit.fun**2))), 4),
             }
+        out[axle] = entry
+    out["wheel_signs"] = wheel_signs(np.array(signs), dt, int(5.0 / dt))
+    return out
+
+
+def _lag(a: np.ndarray, tau: float, dt: float) -> np.ndarray:
+    """``a`` through a first-order lag ``tau`` (held over each step, from its first value)."""
+    if tau <= 0.0:
+        return a
+    e = math.exp(-dt / tau)
+    return lfilter([0.0, 1.0 - e], [1.0, -e], a - a[0]) + a[0]
+
+
+def wheel_signs(rec: np.ndarray, dt: float, skip: int) -> dict:
+    """The ``wheel_signs`` entry (module docstring) of a drive's per-step records ``rec``
+    (gamma x4, F_z x4, lateral acceleration, acceleration command, v psi_dot, roll)."""
+    gamma, fz = rec[:, 0:4], rec[:, 4:8]
+    a_lat, a_x, v_r, roll = rec[:, 8], rec[:, 9], rec[:, 10], rec[:, 11]
+    s = slice(skip, None)
+    truth_sign = np.sign(gamma[s])
+    out = {
+        "static_camber_rad": [round(float(g), 4) for g in gamma[0]],
+        "sign_right_roll_camber": [
+            round(float(np.mean(truth_sign[:, w] == -np.sign(v_r[s]))), 3) for w in range(4)
+        ],
+    }
+    per_tau = {}
+    for tau in ROLL_TAUS:
+        a = _lag(a_lat, tau, dt)
+        right, k_x = [], []
+        for w in range(4):
+            m = np.column_stack([np.ones(a.size), a, a_x])[s]
+            c, *_ = np.linalg.lstsq(m, gamma[s, w], rcond=None)
+            right.append(round(float(np.mean(np.sign(m @ c) == truth_sign[:, w])), 3))
+            k_x.append(round(float(c[2] / c[1]), 3))
+        per_tau[str(tau)] = {
+            "sign_right": right,
+            "k_x": k_x,
+            "roll_corr": round(float(np.corrcoef(a[s], roll[s])[0, 1]), 4),
+        }
+    out["wheel_camber_form"] = per_tau
+    a = _lag(a_lat, WHEEL_CAMBER_FORM["tau"], dt)
+    for i, (axle, key) in enumerate((("front", "k_xf"), ("rear", "k_xr"))):
+        left, right = 2 * i, 2 * i + 1
+        net = (np.sign(gamma[:, left]) * fz[:, left] + np.sign(gamma[:, right]) * fz[:, right]) / (
+            fz[:, left] + fz[:, right]
+        )
+        k_x = WHEEL_CAMBER_FORM[key]
+        entry = {
+            "rms": round(float(np.sqrt(np.mean(net[s] ** 2))), 3),
+            "rms_left_roll_camber": round(
+                float(np.sqrt(np.mean((net + np.tanh(v_r / ROLL_SIGN_WIDTH_MPS2))[s] ** 2))), 3
+            ),
+        }
+        for width in SIGN_WIDTHS:
+            mean = 0.5 * (np.tanh((a + k_x * a_x) / width) + np.tanh((a - k_x * a_x) / width))
+            entry[f"rms_left_wheel_camber_w{width}"] = round(
+                float(np.sqrt(np.mean((net + mean)[s] ** 2))), 3
+            )
         out[axle] = entry
     return out
 

@@ -32,7 +32,13 @@ and ``final_error_to_baseline_floor``).
   refitted (as a user holds a drawing's number): error, mu, the other effects' parameters;
   ``with_track_and_camber_car``: both chassis effects held;
 * ``scenario_models`` (``peak_and_stiffness``): the held-out error and mu of ``SCENARIO_MODELS``;
-* ``last_round``: for the effects in ``WATCH`` (``suspension_lag``, ``roll_camber``), their
+* ``with_wheel_camber_tyre``: ``wheel_camber`` (each wheel's camber sign from the roll and the
+  longitudinal acceleration) on that model with its parameters held at the tyre's constants
+  and the Ford Escort's measured camber geometry (``WHEEL_CAMBER_TYRE``), the rest refitted
+  (where the loop selected it, free, its parameters are held instead): held-out error over
+  the floor, its change against that model, mu per terrain;
+* ``last_round``: for the effects in ``WATCH`` (``suspension_lag``, ``roll_camber``,
+  ``wheel_camber``), their
   entry in the loop's last round on top of the final model: significant or not, the
   likelihood-ratio p-value and the held-out error drop (negative: the held-out error rose).
 
@@ -64,7 +70,7 @@ from pcvfe_drake.workbench.report import diagnose, write_report
 TERRAINS = {"patchy_grass": 0.30, "sand": 0.45, "concrete": 0.60, "brick": 0.80}
 """The paper map's quadrant terrains and their friction (pcvfe_drake.perception.terrain)."""
 FULL_MODEL = ("peak_tyre", "axle_stiffness", "rotating_inertia")
-WATCH = ("suspension_lag", "roll_camber")
+WATCH = ("suspension_lag", "roll_camber", "wheel_camber")
 """Effects whose last-round entry is reported (added to the library after the study)."""
 TRACK_CAR = {"t": 1.39, "k_lt": -0.85}
 """``track_slip`` at the multi-body Ford Escort's front track and its front wheels' measured load
@@ -85,6 +91,10 @@ ROLL_CAMBER_TYRE = {"f0": -0.037, "f1": 0.0, "s0": 0.0027}
 """``roll_camber`` at the multi-body tyre's sign-of-camber constants: ``-p_vy1`` (the side force
 opposes the bend: the roll cambers the wheels negatively in a left bend) and ``+p_hy1`` (the slip
 shift adds to the slip; ``benchmarks/mb_camber.py``)."""
+WHEEL_CAMBER_TYRE = {"f0": -0.037, "s0": 0.0027, "k_xf": 0.39, "k_xr": -0.095, "tau": 0.08}
+"""``wheel_camber`` at the same tyre constants, with the camber geometry measured on the
+multi-body Ford Escort (``benchmarks/mb_camber.py``, ``wheel_signs``: the pitch and heave's
+share ``k_xf``, ``k_xr`` and the roll's lag ``tau``)."""
 
 
 def _effect_params(fit) -> dict:
@@ -98,14 +108,16 @@ def _effect_params(fit) -> dict:
 
 def _held_row(wb, ref, ref_eval, effects, values, base=False) -> dict:
     """A model with ``effects`` held at ``values`` ({effect: {param: value}}) fitted on the
-    training blocks: on top of ``ref`` (its other parameters refitted), or (``base``) the bare
-    model with only these effects; its held-out error over the floor, the change against
-    ``ref_eval``, mu per terrain and the fitted parameters."""
+    training blocks: on top of ``ref`` (its other parameters refitted; an effect the loop
+    selected there, free, is held instead), or (``base``) the bare model with only these
+    effects; its held-out error over the floor, the change against ``ref_eval``, mu per
+    terrain and the fitted parameters."""
     fixed = {f"{e}.{k}": v for e, ps in values.items() for k, v in ps.items()}
     if base:
         fit = wb.fit_model(wb.base_model.with_effects(*effects), warm=wb.baseline, fixed=fixed)
     else:
-        fit = wb.fit_model(ref.model.with_effects(*effects), warm=ref, fixed=fixed)
+        new = [e for e in effects if e not in ref.model.effect_names]
+        fit = wb.fit_model(ref.model.with_effects(*new), warm=ref, fixed=fixed)
     ev = wb.evaluate(fit, with_free_run=False)
     mu = _mu(fit.params_dict())
     return {
@@ -188,6 +200,7 @@ def study(mapping: str, duration_s: float, seed: int, out: str | None) -> dict:
             ("track_slip", "roll_camber"),
             {"track_slip": TRACK_CAR, "roll_camber": ROLL_CAMBER_TYRE},
         ),
+        "with_wheel_camber_tyre": (("wheel_camber",), {"wheel_camber": WHEEL_CAMBER_TYRE}),
     }
     held_rows = {
         name: _held_row(added_wb, ref, ref_eval, effects, values)
@@ -326,7 +339,11 @@ def main() -> int:
                 },
                 **{
                     name: {k: r[name][k] for k in ("error_to_floor", "mu_error", "params")}
-                    for name in ("with_track_slip_car", "with_track_and_camber_car")
+                    for name in (
+                        "with_track_slip_car",
+                        "with_track_and_camber_car",
+                        "with_wheel_camber_tyre",
+                    )
                 },
                 "scenario_models": {
                     name: {k: row[k] for k in ("error_to_floor", "heldout_error_change", "mu")}

@@ -62,6 +62,7 @@ LATER = [
     "wheel_force_steer",
     "suspension_lag",
     "roll_camber",
+    "wheel_camber",
 ]
 """Effects added after the sweep's cases were fixed: appended at the end, so that the noise
 draws of the earlier cases (seed + 1 + their index) stay as they were."""

@@ -101,6 +101,8 @@ class StepContext:
         mu: the row's base friction coefficient ``mu`` (N,) (of its context); with a
             ``friction_is_peak`` tyre it is the friction peak.
         delta_wheel: the road-wheel angle [rad] (N,) (in ``body_forces``).
+        a_lat: the lateral acceleration [m/s^2] (N,) the axles' forces give the car,
+            ``(F_yf + F_yr) / m`` after the ``body_forces`` hooks (in ``state_rates``).
     """
 
     x: np.ndarray
@@ -114,6 +116,7 @@ class StepContext:
     mu_scale: np.ndarray | float = 1.0
     mu: np.ndarray | float = 1.0
     delta_wheel: np.ndarray | float = 0.0
+    a_lat: np.ndarray | float = 0.0
 
 
 class Effect:

@@ -20,12 +20,13 @@ followed by the effects' own states)::
                               the law sees and add a side force to it (roll_camber);
                               wheel_slips hooks put the axle's two wheels at different
                               slips and loads, the axle's force the load-weighted mean
-                              of the law at each (track_slip)
+                              of the law at each (track_slip, wheel_camber)
     9. body_forces hooks      extra lateral force per axle and longitudinal acceleration
                               (wheel_force_steer: the wheels' forces turned by the steering)
        yaw and slip           r' = (lf F_yf - lr F_yr) / I_z,  beta' = (F_yf + F_yr) / (m v) - r
                               (r = psi_dot);  v' = a_x
-   10. state_rates hooks      the effects' own states (steering_lag)
+   10. state_rates hooks      the effects' own states (steering_lag; they see the lateral
+                              acceleration (F_yf + F_yr) / m: wheel_camber's roll)
 
 Measurement hooks (gyro_bias, speed_scale, steering_offset) map the true state to what the
 sensors report: rollouts start from the *un*-measured state of the measured sample and are
@@ -260,12 +261,14 @@ class WorkbenchModel:
                     c_s = stiff
             c_alpha = base["mu"] * scale * c_s * fz
             side = 0.0
-            for e in self.effects:
+            for e, sl in zip(self.effects, self._state_slices, strict=True):
+                ctx.states = z[:, sl]
                 out = e.tire_offsets(fz, ctx, eff[e.name])
                 if out is not None:
                     alpha, side = alpha + out[0], side + out[1]
             spread = None
-            for e in self.effects:
+            for e, sl in zip(self.effects, self._state_slices, strict=True):
+                ctx.states = z[:, sl]
                 out = e.wheel_slips(ctx, eff[e.name])
                 if out is not None and spread is None:
                     spread = out
@@ -284,6 +287,7 @@ class WorkbenchModel:
             out = e.body_forces(fyf, fyr, ctx, eff[e.name])
             if out is not None:
                 fyf, fyr, a_long = fyf + out[0], fyr + out[1], a_long + out[2]
+        ctx.a_lat = (fyf + fyr) / vp.m
         zdot = np.empty_like(z)
         zdot[:, 0] = v * np.cos(x[:, PSI] + beta)
         zdot[:, 1] = v * np.sin(x[:, PSI] + beta)

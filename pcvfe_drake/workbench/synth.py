@@ -79,6 +79,11 @@ class Truth:
         track: (t_f [m], t_r [m], k_lt [-]): the front and rear axles' two wheels ``t``
             apart, each at its own slip (the axle's velocities at the wheels), the outer one
             with ``(1 + k_lt v r / g) / 2`` of the axle's load; the axle's force is their sum.
+        wheel_camber: (f0 [-], s0 [rad], k_xf [-], k_xr [-], tau [s]): each wheel's camber
+            sign ``tanh((a_roll +- k_x a_x) / 0.1 m/s^2)`` (left +, right -; ``a_roll`` the
+            lateral acceleration ``(F_yf + F_yr) / m`` lagged by ``tau``, ``a_x`` the
+            longitudinal one): the wheel sees the slip ``alpha + s0 sign`` and the axle gets
+            ``Fz f0`` times the mean of its wheels' signs on top (f0 = s0 = 0: none).
     """
 
     mu: float | None = None
@@ -103,6 +108,7 @@ class Truth:
     pitch_mode: tuple[float, float] = (0.0, 0.3)
     roll_camber: tuple[float, float, float] = (0.0, 0.0, 0.0)
     track: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    wheel_camber: tuple[float, float, float, float, float] = (0.0, 0.0, 0.39, -0.095, 0.08)
 
 
 PLANTED: dict[str, tuple[Truth, str, float]] = {
@@ -125,6 +131,7 @@ PLANTED: dict[str, tuple[Truth, str, float]] = {
     "suspension_lag": (Truth(pitch_mode=(0.125, 0.2)), "tau", 0.125),
     "roll_camber": (Truth(roll_camber=(-0.037, -0.08, 0.0)), "f1", -0.08),
     "track_slip": (Truth(track=(1.39, 1.42, 0.0)), "t", 1.39),
+    "wheel_camber": (Truth(wheel_camber=(-0.037, 0.0, 0.39, -0.095, 0.08)), "k_xf", 0.39),
 }
 """Realistic planted magnitudes per effect: (truth, the parameter's name, its planted value).
 Ford Escort class car: CdA 0.75 m^2 (Cd 0.36 x 2.1 m^2), c_rr 0.015, steering lag 0.15 s,
@@ -143,7 +150,10 @@ the load per g of lateral acceleration (wheels leaning out with the body's roll,
 g, on a tyre with a camber stiffness of ~0.8 Fz per rad; checked: ``f1``) and a step side
 force of -3.7 % of the load switching with the cornering direction (CommonRoad's multi-body
 tyre: ``p_vy1`` by the camber's sign); its slip shift is not planted: on the linear tyre it is
-the same as a force)."""
+the same as a force), and that step per wheel (``wheel_camber``: -3.7 % of the load by each
+wheel's camber sign, the camber geometry of the multi-body Ford Escort, ``k_xf`` 0.39, ``k_xr``
+-0.095, roll lag 0.08 s; checked: ``k_xf``, as ``f0`` and the unplanted slip shift are one force
+on the linear tyre)."""
 
 
 LATERAL_PATTERN_MPS2 = np.array([1.0, 5.5, 2.5, 6.0, 3.5, 5.0])
@@ -287,9 +297,10 @@ def _magic(alpha, fz, stiffness, peak_mu, shape):
 
 
 def _truth_rates(vp, tr, s, steer_cmd, acc_cmd):
-    """Truth plant derivative; s = (B, 10) [sx, sy, delta, v, psi, r, beta, delta_w, q, q']
-    (q: the acceleration the axle loads follow through the pitch mode; rows without a pitch
-    mode use a_x itself)."""
+    """Truth plant derivative; s = (B, 11) [sx, sy, delta, v, psi, r, beta, delta_w, q, q',
+    a_roll] (q: the acceleration the axle loads follow through the pitch mode; rows without a
+    pitch mode use a_x itself; a_roll: the lagged lateral acceleration the wheels' cambers
+    follow; s may stop after 8 or 10 columns: no pitch mode, no wheel camber)."""
     delta, v, psi, r, beta, delta_w = s[:, 2], s[:, 3], s[:, 4], s[:, 5], s[:, 6], s[:, 7]
     pitch_tau = tr.get("pitch_tau", np.zeros(s.shape[0]))
     pitched = pitch_tau > 0
@@ -342,15 +353,26 @@ def _truth_rates(vp, tr, s, steer_cmd, acc_cmd):
         return fyf, fyr
 
     track_f, track_r = tr.get("track_f", zeros), tr.get("track_r", zeros)
-    if np.any(track_f > 0) or np.any(track_r > 0):
+    # each wheel's camber sign from the lagged lateral and the longitudinal acceleration
+    a_roll = s[:, 10] if s.shape[1] > 10 else zeros
+    wcam_f0, wcam_s0 = tr.get("wcam_f0", zeros), tr.get("wcam_s0", zeros)
+    wheel_signs = []
+    for k_x in (tr.get("wcam_kf", zeros), tr.get("wcam_kr", zeros)):
+        wheel_signs.append(
+            (np.tanh((a_roll + k_x * a_x) / 0.1), np.tanh((a_roll - k_x * a_x) / 0.1))
+        )
+    cambered = np.any(wcam_f0 != 0) or np.any(wcam_s0 != 0)
+    if np.any(track_f > 0) or np.any(track_r > 0) or cambered:
         # two wheels per axle, t apart: each at its own slip, the outer one more loaded
         u_x = np.maximum(v * np.cos(beta), 0.5)
         left, right = [], []
-        for lever, t_w in ((vp.lf, track_f), (-vp.lr, track_r)):
+        for (lever, t_w), (s_left, s_right) in zip(
+            ((vp.lf, track_f), (-vp.lr, track_r)), wheel_signs, strict=True
+        ):
             w = v * np.sin(beta) + lever * r
             h = 0.5 * t_w * r
-            left.append(np.arctan(w * h / (u_x * (u_x + h) + w * w)))
-            right.append(np.arctan(-w * h / (u_x * (u_x - h) + w * w)))
+            left.append(np.arctan(w * h / (u_x * (u_x + h) + w * w)) + wcam_s0 * s_left)
+            right.append(np.arctan(-w * h / (u_x * (u_x - h) + w * w)) + wcam_s0 * s_right)
         out_share = np.clip(tr.get("track_k_lt", zeros) * a_lat / vp.g, -0.9, 0.9)
         inner_left = 0.5 * (1.0 - out_share)  # a left bend: the left wheel inside
         fl = forces(alpha_f + left[0], alpha_r + left[1])
@@ -359,8 +381,8 @@ def _truth_rates(vp, tr, s, steer_cmd, acc_cmd):
         fyr = inner_left * fl[1] + (1.0 - inner_left) * fr[1]
     else:
         fyf, fyr = forces(alpha_f, alpha_r)
-    fyf = fyf + cam_side * fzf
-    fyr = fyr + cam_side * fzr
+    fyf = fyf + (cam_side + 0.5 * wcam_f0 * (wheel_signs[0][0] + wheel_signs[0][1])) * fzf
+    fyr = fyr + (cam_side + 0.5 * wcam_f0 * (wheel_signs[1][0] + wheel_signs[1][1])) * fzr
     sin_w = np.sin(wheel)
     fxf = vp.m * acc * np.where(acc > 0, tr["ff_drive"], tr["ff_brake"])
     a_x = a_x - tr["ff_drag"] * fyf * sin_w / vp.m
@@ -383,6 +405,10 @@ def _truth_rates(vp, tr, s, steer_cmd, acc_cmd):
         q, q_rate = s[:, 8], s[:, 9]
         out[:, 8] = np.where(pitched, q_rate, 0.0)
         out[:, 9] = np.where(pitched, (a_pitch - q) / tau**2 - 2.0 * zeta * q_rate / tau, 0.0)
+    if s.shape[1] > 10:
+        # the roll's lag of the lateral acceleration the axles' forces give
+        tau = np.maximum(tr.get("wcam_tau", np.full(s.shape[0], 0.08)), 1e-6)
+        out[:, 10] = ((fyf + fyr) / vp.m - a_roll) / tau
     return out
 
 
@@ -421,6 +447,11 @@ def truth_columns(vp: VehicleParams, truths: list[Truth]) -> dict[str, np.ndarra
         "track_f": col(lambda t: t.track[0]),
         "track_r": col(lambda t: t.track[1]),
         "track_k_lt": col(lambda t: t.track[2]),
+        "wcam_f0": col(lambda t: t.wheel_camber[0]),
+        "wcam_s0": col(lambda t: t.wheel_camber[1]),
+        "wcam_kf": col(lambda t: t.wheel_camber[2]),
+        "wcam_kr": col(lambda t: t.wheel_camber[3]),
+        "wcam_tau": col(lambda t: t.wheel_camber[4]),
     }
 
 
@@ -450,7 +481,7 @@ def simulate_truths(
 
     tr = truth_columns(vp, truths)
     delay = np.array([t.accel_delay for t in truths], dtype=float)
-    s = np.zeros((b, 10))
+    s = np.zeros((b, 11))
     s[:, 3] = v0_mps
     states = np.empty((n, b, 7))
     steer_log = np.empty((n, b))

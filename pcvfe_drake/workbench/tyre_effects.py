@@ -22,11 +22,20 @@ And one that uses the ``tire_offsets`` hook (a slip shift and a side force, Pace
 * ``roll_camber``: the side force and slip shift of wheels cambered by the body's roll, with
   a part that switches with the cornering direction and a part that grows with the lateral
   acceleration (see :class:`RollCamber`).
+
+And one that puts each wheel of an axle at its own camber sign (``tire_offsets`` for the side
+force, ``wheel_slips`` for the slip shift per wheel, an own state for the roll's lag):
+
+* ``wheel_camber``: the step offsets of a tyre that switch with the sign of each wheel's
+  camber, the camber following the body's roll (a lag of the lateral acceleration) and its
+  pitch and heave (the longitudinal acceleration, opposite on the left and right wheels; see
+  :class:`WheelCamber`).
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.signal import lfilter
 
 from pcvfe_drake.workbench.effects import Effect, EffectParam, register_effect
 
@@ -208,5 +217,122 @@ class RollCamber(Effect):
         return self.direction(data.x)[1][:, None]
 
 
-for _cls in (FrictionSpeed, FrictionLoad, PeakTyre, RollCamber):
+WHEEL_SIGN_WIDTH_MPS2 = 0.1
+"""Width of ``wheel_camber``'s smooth sign of each wheel's camber, ``tanh(c / width)`` with
+``c`` its camber in lateral-acceleration units [m/s^2]: narrower than roll_camber's (the per-wheel
+camber crosses 0 quickly); on CommonRoad's multi-body Ford Escort the axles' sign-of-camber
+forces are described best with 0.1 of the widths 0.1, 0.3 and 0.5 m/s^2
+(``benchmarks/mb_camber.py``, ``wheel_signs``)."""
+ROLL_TAU_MIN_S = 0.02
+"""Smallest roll lag of ``wheel_camber`` [s] (its state's rate is ``1 / tau``; the model's RK4
+takes substeps below ``RK4_STABLE_HLAMBDA tau``)."""
+RK4_STABLE_HLAMBDA = 2.5
+"""Largest integration step x |eigenvalue| the roll lag asks for (the model's RK4 rule)."""
+
+
+class WheelCamber(Effect):
+    """The sign-of-camber offsets of each wheel, its camber from the body's roll, pitch and
+    heave.
+
+    A wheel's camber follows the body's roll (the lateral acceleration, lagged by the roll
+    mode) and its pitch and heave (the longitudinal acceleration: braking compresses the front
+    springs, and a compressed spring cambers the left and right wheels of an axle in opposite
+    directions). In the units of the lateral acceleration, per axle (``k_x = k_xf`` front,
+    ``k_xr`` rear; ``a_x`` the longitudinal acceleration the loads follow, the command plus the
+    resistances)::
+
+        tau a_roll' = a_lat - a_roll              a_lat = (F_yf + F_yr) / m (the model's own)
+        c_left  = a_roll + k_x a_x,   c_right = a_roll - k_x a_x
+        s_w     = tanh(c_w / 0.1 m/s^2)           the wheel's camber sign, smooth
+        slip the wheel's law sees      alpha + s0 s_w              (per wheel, Pacejka's S_H)
+        side force added to the axle   Fz f0 (s_left + s_right) / 2        (Pacejka's S_V)
+
+    The axle's force is the mean of the law at its two wheels' slips (``wheel_slips``; with
+    ``track_slip`` the slips add and its load shares weight them) plus the side force (its two
+    wheels weighted equally). Left is the wheel at ``+t/2`` of CommonRoad's multi-body model
+    (its ``LF``, ``LR``; ``track_slip``'s left). Signs as ``roll_camber``: ``f0``, ``s0``
+    positive push toward the inside of the bend; CommonRoad's multi-body tyre multiplies
+    ``p_vy1`` (0.037 of the load) and ``p_hy1`` (0.0027 rad) by the sign of each wheel's
+    camber, which the roll makes negative in a left bend: ``f0 = -p_vy1``, ``s0 = +p_hy1``.
+    A real tyre's conicity and ply steer do not switch: on a real car this effect is null.
+
+    Measured on the multi-body Ford Escort (``benchmarks/mb_camber.py``, ``wheel_signs``; no
+    noise, 75 s of the workbench's driving program per case): the cambers follow ``a_roll +-
+    k_x a_x`` with ``k_xf`` 0.38-0.40, ``k_xr`` -0.09 to -0.10 and a roll lag of 0.08 s (the
+    roll angle against the lagged lateral acceleration: correlation 0.999); each wheel's sign
+    is right 97-99 % of the time against 85-96 % for ``-sign(v psi_dot)``, ``roll_camber``'s
+    per-axle form.
+
+    With a linear tyre ``s0`` is a force ``mu C_S Fz s0 (s_left + s_right) / 2``, the same as
+    ``f0``'s; they separate where the tyre saturates. Null: ``f0 = s0 = 0`` (``k_xf``, ``k_xr``
+    and ``tau`` then do nothing; their null values are the Ford Escort's). Residual
+    signature: the side slip's residual follows the mean of the two front wheels' signs
+    (lateral acceleration against the longitudinal one).
+    """
+
+    name = "wheel_camber"
+    description = (
+        "per-wheel camber sign: s_w = tanh((a_roll +- k_x a_x) / 0.1 m/s^2), tau a_roll' = "
+        "a_lat - a_roll; slip alpha + s0 s_w per wheel, side force Fz f0 (s_l + s_r) / 2"
+    )
+    params = (
+        EffectParam("f0", "-", -0.1, 0.1, 0.0, 0.01, 0.0, "step side force per wheel load"),
+        EffectParam("s0", "rad", -0.01, 0.01, 0.0, 0.001, 0.0, "step slip shift per wheel"),
+        EffectParam("k_xf", "-", -1.5, 1.5, 0.39, 0.05, 0.39, "front camber: a_x per a_lat"),
+        EffectParam("k_xr", "-", -1.5, 1.5, -0.095, 0.05, -0.095, "rear camber: a_x per a_lat"),
+        EffectParam("tau", "s", ROLL_TAU_MIN_S, 0.5, 0.08, 0.02, 0.08, "roll lag"),
+    )
+    state_names = ("a_roll",)
+    signature_state = "beta"
+    signature_label = "mean front camber sign"
+
+    @staticmethod
+    def signs(a_roll, a_x, k_x):
+        """Smooth camber signs ``(s_left, s_right)`` of an axle's wheels (each (N,)) for the
+        roll's lateral acceleration ``a_roll`` and the longitudinal ``a_x`` [m/s^2]."""
+        return (
+            np.tanh((a_roll + k_x * a_x) / WHEEL_SIGN_WIDTH_MPS2),
+            np.tanh((a_roll - k_x * a_x) / WHEEL_SIGN_WIDTH_MPS2),
+        )
+
+    def _axle_signs(self, ctx, p):
+        k_x = p["k_xf"] if ctx.axle == "front" else p["k_xr"]
+        return self.signs(ctx.states[:, 0], ctx.a_long, k_x)
+
+    def tire_offsets(self, fz, ctx, p):
+        left, right = self._axle_signs(ctx, p)
+        return 0.0, fz * p["f0"] * 0.5 * (left + right)
+
+    def wheel_slips(self, ctx, p):
+        left, right = self._axle_signs(ctx, p)
+        return p["s0"] * left, p["s0"] * right, np.full(left.shape, 0.5)
+
+    def state_rates(self, ctx, delta_cmd, p):
+        tau = np.maximum(np.asarray(p["tau"], dtype=float), ROLL_TAU_MIN_S)
+        return ((ctx.a_lat - ctx.states[:, 0]) / tau)[:, None]
+
+    def max_step(self, p):
+        tau = np.maximum(np.asarray(p["tau"], dtype=float), ROLL_TAU_MIN_S)
+        return float(RK4_STABLE_HLAMBDA * np.min(tau))
+
+    def initial_states(self, data, starts, p):
+        # the lag run over the log's v psi_dot (the steady lateral acceleration; the log's
+        # side-slip rate is too noisy to add) from its first value, held over each step
+        a = data.x[:, 3] * data.x[:, 5]
+        tau = np.maximum(np.asarray(p["tau"], dtype=float), ROLL_TAU_MIN_S)
+        out = np.empty(len(starts))
+        for value in np.unique(tau):
+            rows = tau == value
+            e = np.exp(-data.dt / value)
+            lagged = lfilter([0.0, 1.0 - e], [1.0, -e], a - a[0]) + a[0]
+            out[rows] = lagged[starts[rows]]
+        return out[:, None]
+
+    def signature_regressors(self, data):
+        a = data.x[:, 3] * data.x[:, 5]
+        left, right = self.signs(a, data.u[:, 1], 0.39)
+        return (0.5 * (left + right))[:, None]
+
+
+for _cls in (FrictionSpeed, FrictionLoad, PeakTyre, RollCamber, WheelCamber):
     register_effect(_cls)
