@@ -182,11 +182,13 @@ def drive(truth, vp, mapping: str, mu: float, seconds: float) -> dict:
 
 
 def _lag(a: np.ndarray, tau: float, dt: float) -> np.ndarray:
-    """``a`` through a first-order lag ``tau`` (held over each step, from its first value)."""
+    """``a`` through a first-order lag ``tau``, from its first value, each sample's value
+    taken over the step that ends at it (the sampled signal neither delayed nor led by a step;
+    a rollout integrates the lag continuously)."""
     if tau <= 0.0:
         return a
     e = math.exp(-dt / tau)
-    return lfilter([0.0, 1.0 - e], [1.0, -e], a - a[0]) + a[0]
+    return lfilter([1.0 - e], [1.0, -e], a - a[0]) + a[0]
 
 
 def wheel_signs(rec: np.ndarray, dt: float, skip: int) -> dict:

@@ -257,11 +257,14 @@ class WheelCamber(Effect):
     A real tyre's conicity and ply steer do not switch: on a real car this effect is null.
 
     Measured on the multi-body Ford Escort (``benchmarks/mb_camber.py``, ``wheel_signs``; no
-    noise, 75 s of the workbench's driving program per case): the cambers follow ``a_roll +-
-    k_x a_x`` with ``k_xf`` 0.38-0.40, ``k_xr`` -0.09 to -0.10 and a roll lag of 0.08 s (the
-    roll angle against the lagged lateral acceleration: correlation 0.999); each wheel's sign
-    is right 97-99 % of the time against 85-96 % for ``-sign(v psi_dot)``, ``roll_camber``'s
-    per-axle form.
+    noise, 35 s of the workbench's driving program per case, three friction cases): the
+    cambers follow ``a_roll +- k_x a_x`` with ``k_xf`` 0.38-0.39 (left; right wheel 0.38-0.40),
+    ``k_xr`` -0.09 (left; right -0.09 to -0.10) and a roll lag of 0.08 s (the roll angle
+    against the lagged lateral acceleration: correlation 0.999); each wheel's sign is right
+    97-99.9 % of the time against 83-98 % for ``-sign(v psi_dot)``, ``roll_camber``'s per-axle
+    direction; the mean sign of an axle's wheels (the offsets' force over ``p_vy1 Fz``, RMS
+    0.90-0.99) is left with an RMS of 0.14-0.22 (front) and 0.08-0.18 (rear) against
+    0.24-0.44 and 0.25-0.46 by ``roll_camber``'s ``tanh(v psi_dot / 0.5 m/s^2)``.
 
     With a linear tyre ``s0`` is a force ``mu C_S Fz s0 (s_left + s_right) / 2``, the same as
     ``f0``'s; they separate where the tyre saturates. Null: ``f0 = s0 = 0`` (``k_xf``, ``k_xr``
