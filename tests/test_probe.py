@@ -527,6 +527,22 @@ def test_probe_hands_an_identifiable_estimate_but_never_below_the_floor():
     assert plain.theta_for()[0] == pytest.approx(0.17)
 
 
+def test_probe_cap_of_a_not_identifiable_estimate_is_never_below_the_floor():
+    est, slot = _fitted_estimator()
+    std = (0.01, *slot.estimate.theta_std[1:])
+    low = replace(
+        slot.estimate, theta=(0.18, *slot.estimate.theta[1:]), identifiable=False, theta_std=std
+    )
+    slot.estimate = low
+    th = est.theta_for()
+    assert th[0] == pytest.approx(0.3)  # not the cap 0.18 + 1.96 * 0.01
+    np.testing.assert_allclose(th[0] * th[1:], 0.18 * np.array(low.theta[1:]))  # stiffness kept
+    # a cap above the floor still limits the probe's level
+    slot.probe = ProbeState(mu=0.5, last_step_s=0.0, steps=2)
+    slot.estimate = replace(low, theta=(0.32, *low.theta[1:]))
+    assert est.theta_for()[0] == pytest.approx(0.32 + 1.96 * 0.01)
+
+
 def test_a_level_not_tried_in_a_bend_gives_no_evidence():
     from pcvfe_drake.estimation.probe import bend_ratios, level_bend
 

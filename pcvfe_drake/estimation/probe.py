@@ -619,7 +619,11 @@ def controller_theta(
       the probe starts): on the multi-body truth the peak fit is biased low, and with a
       model-error budget relative to mu a low enough estimate counts as identifiable (grass
       0.17 +- 0.044 for 0.30 on `paper_eval_effects` seed 0: the car then crawled at 3.8 m/s
-      on grass and the conservative unknown-context value slowed the next terrain too).
+      on grass and the conservative unknown-context value slowed the next terrain too). The
+      cap of a not yet identifiable estimate is floored there too: a context's first fit on a
+      few seconds of data can read low with a small std (grass 0.18-0.29 with
+      `paper_eval_effects_project`'s budget 0.02), and a cap below the floor would hand less
+      than the floor the probe starts from and an identifiable fit is raised to.
     """
     mu = float(theta[0])
     bound = estimate.mu_lower_bound if math.isfinite(estimate.mu_lower_bound) else 0.0
@@ -631,6 +635,7 @@ def controller_theta(
         if unidentified_mu == "probe":
             std = estimate.mu_std
             cap = mu + 1.96 * std if math.isfinite(std) and not estimate.below_used else math.inf
+            cap = max(cap, floor_mu)
             start = probe.mu if probe.started else start
         mu = min(start, cap)
     elif estimate.identifiable and unidentified_mu == "probe":
