@@ -748,3 +748,36 @@ def test_a_bend_margin_reads_the_implied_peak_lower():
     assert step(0.2) == pytest.approx(0.6)  # read past probe_linear_ratio: no raise
     with pytest.raises(ValueError, match="probe_bend_margin"):
         LiveFitConfig(probe_bend_margin=-0.1)
+
+
+def test_a_back_off_after_an_identifiable_fit_is_judged_at_the_fit_level():
+    """Slips driven while an identifiable fit was handed belong to the fit's level, not to the
+    probe's: read at the probe's lower level they set its ceiling near the floor (0.33 for 18 s
+    on concrete after fits of 0.67-0.78 for 0.60)."""
+    from pcvfe_drake.estimation.probe import peak_slip_rad
+
+    def run(beta_per_limit):
+        est, slot = _fitted_estimator()
+        slot.estimate = replace(slot.estimate, theta=(0.6, *slot.estimate.theta[1:]), fits=2)
+        slot.probe = ProbeState(mu=0.42, last_step_s=0.0, steps=1)
+        theta = np.array(slot.estimate.theta)
+        k = theta[0] * theta[1:]
+        low = 0.5 * peak_slip_rad(0.42, k)[1]  # the rear's slip limits at the two levels
+        high = 0.5 * peak_slip_rad(0.78, k)[1]
+        assert high > 1.5 * low > 0.015
+        slot.estimate = replace(slot.estimate, theta=(0.78, *theta[1:]), identifiable=True)
+        est.update_probe(3.0)
+        assert est.theta_for()[0] == pytest.approx(0.78)
+        _feed(est, 3.02, 4.0, beta=beta_per_limit(low, high))
+        slot.estimate = replace(slot.estimate, theta=(0.6, *theta[1:]), identifiable=False)
+        est.update_probe(4.0)
+        return est.table().get(0).probe
+
+    # large for the probe's 0.42, not for the 0.78 handed: no back-off, the level restarts
+    p = run(lambda low, high: 1.3 * low)
+    assert p.mu == pytest.approx(0.42) and p.backoffs == 0 and p.ceiling == float("inf")
+    assert p.last_step_s == 4.0
+    # large for the 0.78 handed too: the ceiling is one step below the level that saturated
+    p = run(lambda low, high: 1.3 * high)
+    assert p.backoffs == 1 and p.ceiling == pytest.approx(0.78 / 1.1)
+    assert p.mu == pytest.approx(0.42)  # already below two steps down from 0.78

@@ -259,6 +259,10 @@ class _ContextSlot:
     changes_at_fit: int = 0
     probe: ProbeState = field(default_factory=ProbeState)
     """The exploration state (``unidentified_mu: probe``)."""
+    fit_mu: float = math.nan
+    """The largest mu an identifiable fit handed since the probe's level was set (NaN: none)."""
+    fit_since_s: float = math.nan
+    """When that fit was first handed [s]."""
 
 
 def _discarded(old: ContextEstimate, samples: int, t_now: float, what: str) -> ContextEstimate:

@@ -15,7 +15,11 @@ from pcvfe_drake.estimation.probe import (
     DEFAULT_PROBE_USE_FRACTION,
     ProbeState,
     carried_probe,
+    level_bend,
+    peak_slip_rad,
+    probe_after_fit,
     probe_update,
+    saturated,
     unknown_probe_update,
 )
 
@@ -35,7 +39,12 @@ def update_probes(est, t_now: float) -> None:
     carried, est.carried = est.carried, ProbeState()
     if phase:  # a fitted context not confirmed yet starts from the phase's level as it is now
         carried = est.unknown_probe
-    if slot is None or not slot.estimate.fitted or slot.estimate.identifiable:
+    if slot is None or not slot.estimate.fitted:
+        return
+    if slot.estimate.identifiable:  # the fit is handed until the next update: note its level
+        mu = float(est._unidentified(slot, np.array(slot.estimate.theta))[0])
+        slot.fit_mu = mu if math.isnan(slot.fit_mu) else max(slot.fit_mu, mu)
+        slot.fit_since_s = t_now if math.isnan(slot.fit_since_s) else slot.fit_since_s
         return
     labels, times = est._store.labels(), est._store.times()
     mine = labels == est.current_context
@@ -48,6 +57,10 @@ def update_probes(est, t_now: float) -> None:
         return t, states
 
     use = cfg.probe_use_fraction or DEFAULT_PROBE_USE_FRACTION
+    if math.isfinite(slot.fit_mu):  # the car drove with an identifiable fit since the level
+        slot.probe = _after_fit(est, slot, t_now, since, use)
+        slot.fit_mu = slot.fit_since_s = math.nan
+        return
     handed = est._unidentified(slot, np.array(slot.estimate.theta))  # what the car drove with
     slot.probe = probe_update(
         slot.probe,
@@ -60,6 +73,25 @@ def update_probes(est, t_now: float) -> None:
         est._prior[0],
         use,
     )
+
+
+def _after_fit(est, slot, t_now: float, since, use: float) -> ProbeState:
+    """``probe.probe_after_fit`` for ``slot`` (a context's slot), with the saturation signs
+    (large slip angles in the newest ``probe_window_s``, or the bend ratio above
+    ``probe_bend_limit``) of the data driven at the identifiable fit's level, judged at that
+    level (``slot.fit_mu`` handed since ``slot.fit_since_s``)."""
+    cfg, fit_mu = est.config, slot.fit_mu
+    theta = np.array(slot.estimate.theta)
+    stiffness = theta[0] * theta[1:]  # mu * C_S: kept by every mu handed for the context
+    t_fit, s_fit = since(slot.fit_since_s)
+    _, recent = since(max(slot.fit_since_s, t_now - cfg.probe_window_s))
+    limit = cfg.probe_slip_fraction * peak_slip_rad(fit_mu, stiffness)
+    force = cfg.probe_min_force
+    bend = level_bend(t_fit, s_fit, est.params, stiffness, force, use * fit_mu)
+    sat = saturated(recent, est.params.lf, est.params.lr, limit) or bend > cfg.probe_bend_limit
+    lb = slot.estimate.mu_lower_bound
+    base = min(max(lb if math.isfinite(lb) else 0.0, cfg.unknown_floor_mu), est._prior[0])
+    return probe_after_fit(slot.probe, t_now, fit_mu, bool(sat), base, cfg.probe_step_rel)
 
 
 def _update_unknown_probe(est, t_now: float) -> bool:
