@@ -771,13 +771,21 @@ def test_a_back_off_after_an_identifiable_fit_is_judged_at_the_fit_level():
         _feed(est, 3.02, 4.0, beta=beta_per_limit(low, high))
         slot.estimate = replace(slot.estimate, theta=(0.6, *theta[1:]), identifiable=False)
         est.update_probe(4.0)
-        return est.table().get(0).probe
+        return est, est.table().get(0).probe
 
     # large for the probe's 0.42, not for the 0.78 handed: no back-off, the level restarts
-    p = run(lambda low, high: 1.3 * low)
+    est, p = run(lambda low, high: 1.3 * low)
     assert p.mu == pytest.approx(0.42) and p.backoffs == 0 and p.ceiling == float("inf")
     assert p.last_step_s == 4.0
+    # the car's speed answers the fit's level for probe_hold_s after it; then the probe's own
+    _feed(est, 4.02, 6.9, beta=1.3 * 0.5 * peak_slip_rad(0.42, 0.6 * est.params.C_Sr))
+    est.update_probe(6.9)
+    assert est.table().get(0).probe.backoffs == 0
+    _feed(est, 6.92, 7.1, beta=1.3 * 0.5 * peak_slip_rad(0.42, 0.6 * est.params.C_Sr))
+    est.update_probe(7.1)
+    p = est.table().get(0).probe
+    assert p.backoffs == 1 and p.ceiling == pytest.approx(max(0.42 / 1.1, 0.3))
     # large for the 0.78 handed too: the ceiling is one step below the level that saturated
-    p = run(lambda low, high: 1.3 * high)
+    _, p = run(lambda low, high: 1.3 * high)
     assert p.backoffs == 1 and p.ceiling == pytest.approx(0.78 / 1.1)
     assert p.mu == pytest.approx(0.42)  # already below two steps down from 0.78

@@ -262,7 +262,8 @@ class _ContextSlot:
     fit_mu: float = math.nan
     """The largest mu an identifiable fit handed since the probe's level was set (NaN: none)."""
     fit_since_s: float = math.nan
-    """When that fit was first handed [s]."""
+    """When that fit was first handed, and last handed (NaN: still handed) [s]."""
+    fit_end_s: float = math.nan
 
 
 def _discarded(old: ContextEstimate, samples: int, t_now: float, what: str) -> ContextEstimate:

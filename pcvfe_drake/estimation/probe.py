@@ -489,19 +489,20 @@ def probe_after_fit(
     is_saturated: bool,
     base: float,
     step_rel: float,
+    level_since_s: float,
 ) -> ProbeState:
-    """The probe when its context turns not identifiable again after an identifiable fit was
-    handed (its largest value ``fit_mu``) since the probe's level was set: the data since were
-    driven at the fit's level, not the probe's, so a sign of saturation in them (``is_saturated``,
-    judged at ``fit_mu``) backs off from ``fit_mu``: the ceiling becomes one step below it and
-    the level at most two steps below it, never below the start ``base`` (as
-    :func:`probe_step`); without it the probe keeps its level. Either way the level restarts at
-    ``t_now`` (its bend ratio is read on data driven at it). Judged as the probe's own level, the
-    slips of a concrete fit handed at 0.67-0.78 for 0.60 set the ceiling near the floor (0.33
-    for 18 s; `paper_eval_effects`, the visit continuation, seed 0)."""
+    """The probe at ``t_now`` while its context, not identifiable, was handed an identifiable fit
+    (its largest value ``fit_mu``) until ``level_since_s``, at most ``probe_hold_s`` ago: the
+    car's speed and slips still answer the fit's level, not the probe's, so a sign of saturation
+    (``is_saturated``, judged at ``fit_mu``) backs off from ``fit_mu``: the ceiling becomes one
+    step below it and the level at most two steps below it, never below the start ``base`` (as
+    :func:`probe_step`); without it the probe keeps its level, which restarts at
+    ``level_since_s`` (its bend ratio is read on data driven at it). Judged at the probe's own
+    level, the slips after a concrete fit handed at 0.67-0.78 for 0.60 set the ceiling at the
+    start (0.33 for 18 s; `paper_eval_effects` with the visit continuation, seed 0)."""
     mu = state.mu if state.started else base
     if not is_saturated:
-        return ProbeState(mu, state.ceiling, t_now, state.steps, state.backoffs)
+        return ProbeState(mu, state.ceiling, level_since_s, state.steps, state.backoffs)
     floor = min(base, fit_mu)
     ceiling = max(fit_mu / (1.0 + step_rel), floor, MIN_PROBE_MU)
     down = max(min(mu, fit_mu / (1.0 + step_rel) ** 2), min(base, mu), MIN_PROBE_MU)

@@ -45,6 +45,7 @@ def update_probes(est, t_now: float) -> None:
         mu = float(est._unidentified(slot, np.array(slot.estimate.theta))[0])
         slot.fit_mu = mu if math.isnan(slot.fit_mu) else max(slot.fit_mu, mu)
         slot.fit_since_s = t_now if math.isnan(slot.fit_since_s) else slot.fit_since_s
+        slot.fit_end_s = math.nan
         return
     labels, times = est._store.labels(), est._store.times()
     mine = labels == est.current_context
@@ -57,10 +58,13 @@ def update_probes(est, t_now: float) -> None:
         return t, states
 
     use = cfg.probe_use_fraction or DEFAULT_PROBE_USE_FRACTION
-    if math.isfinite(slot.fit_mu):  # the car drove with an identifiable fit since the level
-        slot.probe = _after_fit(est, slot, t_now, since, use)
-        slot.fit_mu = slot.fit_since_s = math.nan
-        return
+    if math.isfinite(slot.fit_mu):  # the car drove with an identifiable fit: for probe_hold_s
+        # after it, its speed and slips are the fit's level's, not the probe's
+        slot.fit_end_s = t_now if math.isnan(slot.fit_end_s) else slot.fit_end_s
+        if t_now - slot.fit_end_s < cfg.probe_hold_s:
+            slot.probe = _after_fit(est, slot, t_now, since, use)
+            return
+        slot.fit_mu = slot.fit_since_s = slot.fit_end_s = math.nan
     handed = est._unidentified(slot, np.array(slot.estimate.theta))  # what the car drove with
     slot.probe = probe_update(
         slot.probe,
@@ -78,8 +82,8 @@ def update_probes(est, t_now: float) -> None:
 def _after_fit(est, slot, t_now: float, since, use: float) -> ProbeState:
     """``probe.probe_after_fit`` for ``slot`` (a context's slot), with the saturation signs
     (large slip angles in the newest ``probe_window_s``, or the bend ratio above
-    ``probe_bend_limit``) of the data driven at the identifiable fit's level, judged at that
-    level (``slot.fit_mu`` handed since ``slot.fit_since_s``)."""
+    ``probe_bend_limit``) of the data since the identifiable fit was handed, judged at its
+    level (``slot.fit_mu`` handed from ``slot.fit_since_s`` to ``slot.fit_end_s``)."""
     cfg, fit_mu = est.config, slot.fit_mu
     theta = np.array(slot.estimate.theta)
     stiffness = theta[0] * theta[1:]  # mu * C_S: kept by every mu handed for the context
@@ -91,7 +95,8 @@ def _after_fit(est, slot, t_now: float, since, use: float) -> ProbeState:
     sat = saturated(recent, est.params.lf, est.params.lr, limit) or bend > cfg.probe_bend_limit
     lb = slot.estimate.mu_lower_bound
     base = min(max(lb if math.isfinite(lb) else 0.0, cfg.unknown_floor_mu), est._prior[0])
-    return probe_after_fit(slot.probe, t_now, fit_mu, bool(sat), base, cfg.probe_step_rel)
+    step = cfg.probe_step_rel
+    return probe_after_fit(slot.probe, t_now, fit_mu, bool(sat), base, step, slot.fit_end_s)
 
 
 def _update_unknown_probe(est, t_now: float) -> bool:
