@@ -187,14 +187,11 @@ def study(mapping: str, duration_s: float, seed: int, out: str | None) -> dict:
     added_final = added["final"]
     added_mu = _mu(added_final["params"])
     # roll_camber at the tyre's own constants on top of that model (the loop does not select
-    # it with its parameters free; see the module docstring)
+    # it with its parameters free; see the module docstring), and the other held rows
     ref = added_wb.final_fit
-    fixed = {f"roll_camber.{k}": v for k, v in ROLL_CAMBER_TYRE.items()}
-    cam = added_wb.fit_model(ref.model.with_effects("roll_camber"), warm=ref, fixed=fixed)
-    cam_eval = added_wb.evaluate(cam, with_free_run=False)
     ref_eval = added_wb.final_eval
-    cam_mu = _mu(cam.params_dict())
     held = {
+        "with_roll_camber_tyre": (("roll_camber",), {"roll_camber": ROLL_CAMBER_TYRE}),
         "with_track_slip_car": (("track_slip",), {"track_slip": TRACK_CAR}),
         "with_track_and_camber_car": (
             ("track_slip", "roll_camber"),
@@ -255,14 +252,6 @@ def study(mapping: str, duration_s: float, seed: int, out: str | None) -> dict:
             if not k.startswith("mu")
         },
         "with_peak_tyre_verdict": added["verdict"]["text"],
-        "with_roll_camber_tyre": {
-            "fixed": ROLL_CAMBER_TYRE,
-            "error_to_floor": round(cam_eval["model_error"] / cam_eval["noise_floor"], 3),
-            "heldout_error_change": round(cam_eval["model_error"] / ref_eval["model_error"] - 1, 4),
-            "mu": cam_mu,
-            "mu_error": _errors(cam_mu),
-            "params": _effect_params(cam),
-        },
         **held_rows,
         "scenario_models": scenario_rows,
         "last_round": _last_round(report),
