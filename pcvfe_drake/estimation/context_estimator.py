@@ -260,10 +260,9 @@ class _ContextSlot:
     probe: ProbeState = field(default_factory=ProbeState)
     """The exploration state (``unidentified_mu: probe``)."""
     fit_mu: float = math.nan
-    """The largest mu an identifiable fit handed since the probe's level was set (NaN: none)."""
-    fit_since_s: float = math.nan
-    """When that fit was first handed, and last handed (NaN: still handed) [s]."""
+    """The largest mu its latest identifiable spell handed (NaN: none, or over probe_hold_s ago)."""
     fit_end_s: float = math.nan
+    """When it was last handed (NaN: still handed) [s]."""
 
 
 def _discarded(old: ContextEstimate, samples: int, t_now: float, what: str) -> ContextEstimate:

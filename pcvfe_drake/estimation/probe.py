@@ -483,28 +483,17 @@ def probe_step(
 
 
 def probe_after_fit(
-    state: ProbeState,
-    t_now: float,
-    fit_mu: float,
-    is_saturated: bool,
-    base: float,
-    step_rel: float,
-    level_since_s: float,
+    state: ProbeState, t_now: float, fit_mu: float, base: float, step_rel: float
 ) -> ProbeState:
-    """The probe at ``t_now`` while its context, not identifiable, was handed an identifiable fit
-    (its largest value ``fit_mu``) until ``level_since_s``, at most ``probe_hold_s`` ago: the
-    car's speed and slips still answer the fit's level, not the probe's, so a sign of saturation
-    (``is_saturated``, judged at ``fit_mu``) backs off from ``fit_mu``: the ceiling becomes one
-    step below it and the level at most two steps below it, never below the start ``base`` (as
-    :func:`probe_step`); without it the probe keeps its level, which restarts at
-    ``level_since_s`` (its bend ratio is read on data driven at it). Judged at the probe's own
-    level, the slips after a concrete fit handed at 0.67-0.78 for 0.60 set the ceiling at the
-    start (0.33 for 18 s; `paper_eval_effects` with the visit continuation, seed 0)."""
+    """The back-off at ``t_now`` on a sign of saturation judged at an identifiable fit's level
+    ``fit_mu``, handed to the context (not identifiable again) within the last ``probe_hold_s``:
+    the car's speed and slips still answer the fit's level, not the probe's, so the ceiling
+    becomes one step below ``fit_mu`` and the level at most two steps below it, never below
+    the start ``base`` (as :func:`probe_step`). Judged at the probe's own lower level, the slips
+    after a concrete fit handed at 0.60-0.78 for 0.60 set the ceiling at the start (0.33 for
+    18 s on `paper_eval_effects` with the visit continuation, seed 0; 0.36 on seed 9)."""
     mu = state.mu if state.started else base
-    if not is_saturated:
-        return ProbeState(mu, state.ceiling, level_since_s, state.steps, state.backoffs)
-    floor = min(base, fit_mu)
-    ceiling = max(fit_mu / (1.0 + step_rel), floor, MIN_PROBE_MU)
+    ceiling = max(fit_mu / (1.0 + step_rel), min(base, fit_mu), MIN_PROBE_MU)
     down = max(min(mu, fit_mu / (1.0 + step_rel) ** 2), min(base, mu), MIN_PROBE_MU)
     return ProbeState(down, min(state.ceiling, ceiling), t_now, state.steps, state.backoffs + 1)
 
@@ -532,19 +521,28 @@ def probe_update(
     since,
     prior_mu: float,
     use_fraction: float,
+    drove_mu: float = math.nan,
 ) -> ProbeState:
     """One step of a fitted, not identifiable context's probe (:func:`probe_step`) with the
     evidence of its own samples: ``since(t0)`` returns the context's ``(times, states)`` from
     ``t0`` on; ``cfg`` is the ``LiveFitConfig``, ``vehicle`` the ``VehicleParams``,
     ``handed`` the theta the car drove with. Saturation is checked on the newest
-    ``probe_window_s``; the bend ratio on the current level's data, all of it (the newest
-    ``probe_hold_s`` before the first step); with ``probe_start_evidence`` the first step also
-    gets the bend ratio of all the context's data, driven at the stated floor."""
+    ``probe_window_s``, at ``drove_mu`` where it is above the handed mu (an identifiable fit's,
+    handed within ``probe_hold_s``; a back-off then steps down from it: :func:`probe_after_fit`);
+    the bend ratio on the current level's data, all of it (the newest ``probe_hold_s`` before
+    the first step); with ``probe_start_evidence`` the first step also gets the bend ratio of
+    all the context's data, driven at the stated floor."""
     _, recent = since(t_now - cfg.probe_window_s)
     level = state.last_step_s if state.started else t_now - cfg.probe_hold_s
     t_level, s_level = since(level)
     stiffness = handed[0] * handed[1:]  # mu * C_S per axle: the fit's small-slip stiffness
-    limit = cfg.probe_slip_fraction * peak_slip_rad(handed[0], stiffness)
+    judged = max(handed[0], drove_mu) if math.isfinite(drove_mu) else handed[0]
+    limit = cfg.probe_slip_fraction * peak_slip_rad(judged, stiffness)
+    is_saturated = saturated(recent, vehicle.lf, vehicle.lr, limit)
+    if is_saturated and judged > handed[0]:
+        lb = lower_bound if math.isfinite(lower_bound) else 0.0
+        base = min(max(lb, cfg.unknown_floor_mu), prior_mu)
+        return probe_after_fit(state, t_now, judged, base, cfg.probe_step_rel)
     force = cfg.probe_min_force
     bend = level_bend(t_level, s_level, vehicle, stiffness, force, use_fraction * handed[0])
     start_bend = start_mu = math.nan
@@ -559,7 +557,7 @@ def probe_update(
         lower_bound=lower_bound,
         floor_mu=cfg.unknown_floor_mu,
         prior_mu=prior_mu,
-        is_saturated=saturated(recent, vehicle.lf, vehicle.lr, limit),
+        is_saturated=is_saturated,
         use_fraction=use_fraction,
         bend=bend,
         **_step_settings(cfg),

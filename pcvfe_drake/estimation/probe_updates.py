@@ -15,11 +15,7 @@ from pcvfe_drake.estimation.probe import (
     DEFAULT_PROBE_USE_FRACTION,
     ProbeState,
     carried_probe,
-    level_bend,
-    peak_slip_rad,
-    probe_after_fit,
     probe_update,
-    saturated,
     unknown_probe_update,
 )
 
@@ -44,7 +40,6 @@ def update_probes(est, t_now: float) -> None:
     if slot.estimate.identifiable:  # the fit is handed until the next update: note its level
         mu = float(est._unidentified(slot, np.array(slot.estimate.theta))[0])
         slot.fit_mu = mu if math.isnan(slot.fit_mu) else max(slot.fit_mu, mu)
-        slot.fit_since_s = t_now if math.isnan(slot.fit_since_s) else slot.fit_since_s
         slot.fit_end_s = math.nan
         return
     labels, times = est._store.labels(), est._store.times()
@@ -58,13 +53,13 @@ def update_probes(est, t_now: float) -> None:
         return t, states
 
     use = cfg.probe_use_fraction or DEFAULT_PROBE_USE_FRACTION
-    if math.isfinite(slot.fit_mu):  # the car drove with an identifiable fit: for probe_hold_s
-        # after it, its speed and slips are the fit's level's, not the probe's
+    drove = math.nan  # an identifiable fit handed: for probe_hold_s after it the car's speed
+    if math.isfinite(slot.fit_mu):  # and slips answer the fit's level, not the probe's
         slot.fit_end_s = t_now if math.isnan(slot.fit_end_s) else slot.fit_end_s
         if t_now - slot.fit_end_s < cfg.probe_hold_s:
-            slot.probe = _after_fit(est, slot, t_now, since, use)
-            return
-        slot.fit_mu = slot.fit_since_s = slot.fit_end_s = math.nan
+            drove = slot.fit_mu
+        else:
+            slot.fit_mu = slot.fit_end_s = math.nan
     handed = est._unidentified(slot, np.array(slot.estimate.theta))  # what the car drove with
     slot.probe = probe_update(
         slot.probe,
@@ -76,27 +71,8 @@ def update_probes(est, t_now: float) -> None:
         since,
         est._prior[0],
         use,
+        drove_mu=drove,
     )
-
-
-def _after_fit(est, slot, t_now: float, since, use: float) -> ProbeState:
-    """``probe.probe_after_fit`` for ``slot`` (a context's slot), with the saturation signs
-    (large slip angles in the newest ``probe_window_s``, or the bend ratio above
-    ``probe_bend_limit``) of the data since the identifiable fit was handed, judged at its
-    level (``slot.fit_mu`` handed from ``slot.fit_since_s`` to ``slot.fit_end_s``)."""
-    cfg, fit_mu = est.config, slot.fit_mu
-    theta = np.array(slot.estimate.theta)
-    stiffness = theta[0] * theta[1:]  # mu * C_S: kept by every mu handed for the context
-    t_fit, s_fit = since(slot.fit_since_s)
-    _, recent = since(max(slot.fit_since_s, t_now - cfg.probe_window_s))
-    limit = cfg.probe_slip_fraction * peak_slip_rad(fit_mu, stiffness)
-    force = cfg.probe_min_force
-    bend = level_bend(t_fit, s_fit, est.params, stiffness, force, use * fit_mu)
-    sat = saturated(recent, est.params.lf, est.params.lr, limit) or bend > cfg.probe_bend_limit
-    lb = slot.estimate.mu_lower_bound
-    base = min(max(lb if math.isfinite(lb) else 0.0, cfg.unknown_floor_mu), est._prior[0])
-    step = cfg.probe_step_rel
-    return probe_after_fit(slot.probe, t_now, fit_mu, bool(sat), base, step, slot.fit_end_s)
 
 
 def _update_unknown_probe(est, t_now: float) -> bool:
