@@ -788,3 +788,77 @@ def test_a_back_off_after_an_identifiable_fit_is_judged_at_the_fit_level():
     _, p = run(lambda low, high: 1.3 * high)
     assert p.backoffs == 1 and p.ceiling == pytest.approx(0.78 / 1.1)
     assert p.mu == pytest.approx(0.42)  # already below two steps down from 0.78
+
+
+def test_a_level_tried_in_a_bend_rises_to_a_tight_fit_not_yet_identifiable():
+    """``fit_mu`` (``probe_fit_target``): where the level's bend ratio is bent but within the
+    limit (the ratio's noise at a third of the peak: concrete's floor read 1.11-1.15 on the
+    multi-body truth), a tight fit above the level is raised to, a fast step at a time, within
+    the bounds; no evidence (a straight) or a saturated level still holds or backs off."""
+    from pcvfe_drake.estimation.probe import sine_bend_ratio
+
+    rules = {**RULES, "max_excess": 0.12, **FAST, "fast_step_rel": 0.4}
+
+    def step(state, bend, fit_mu=float("nan"), lb=0.26, t=3.0, **kw):
+        return probe_step(
+            state,
+            t,
+            lower_bound=lb,
+            floor_mu=0.3,
+            prior_mu=1.05,
+            is_saturated=False,
+            bend=bend,
+            fit_mu=fit_mu,
+            **{**rules, **kw},
+        )
+
+    s = ProbeState(mu=0.3, last_step_s=0.0)
+    assert step(s, 1.15) is s  # without a fit: bent within the limit, held
+    up = step(s, 1.15, fit_mu=0.62)
+    assert up.mu == pytest.approx(0.42) and up.steps == 1  # one fast step toward the fit
+    assert step(up, 1.15, fit_mu=0.62, t=6.0).mu == pytest.approx(0.42 * 1.4)
+    up2 = step(up, 1.15, fit_mu=0.62, lb=0.22, t=6.0)
+    assert up2.mu == pytest.approx(0.34 / 0.64)  # the demonstrated-friction cap (0.22 + 0.12)
+    assert step(up, 1.15, fit_mu=0.5, lb=0.4, t=6.0).mu == pytest.approx(0.5)  # to the fit
+    assert step(s, 1.15, fit_mu=0.62, t=2.9) is s  # the hold still applies
+    assert step(s, float("nan"), fit_mu=0.62) is s  # not tried in a bend: no evidence
+    assert step(s, 1.15, fit_mu=0.28) is s  # a fit below the level is no target
+    # a linear level's implied peak above the fit still wins
+    assert step(s, 1.0, fit_mu=0.33).mu == pytest.approx(0.42)
+    bent = step(s, 1.3, fit_mu=0.62)
+    assert bent.backoffs == 1 and bent.mu == pytest.approx(0.3)  # saturated: backs off
+    # the first step at the id, on the bends driven at the floor before it
+    start = dict(start_mu=0.3, t=10.0)
+    assert step(ProbeState(), float("nan"), start_bend=1.142, **start).mu == pytest.approx(0.3)
+    first = step(ProbeState(), float("nan"), start_bend=1.142, fit_mu=0.62, **start)
+    assert first.mu == pytest.approx(0.42) and first.steps == 1
+    for start_bend in (1.3, float("nan")):
+        held = step(ProbeState(), float("nan"), start_bend=start_bend, fit_mu=0.62, **start)
+        assert held.mu == pytest.approx(0.3) and held.steps == 0
+    assert sine_bend_ratio(0.32) < 1.05  # what a third of the peak reads without noise
+
+
+def test_estimator_hands_the_probe_a_tight_fit_as_its_target(monkeypatch):
+    import pcvfe_drake.estimation.probe_updates as updates
+
+    seen = []
+    original = updates.probe_update
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs["fit_mu"])
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(updates, "probe_update", spy)
+    for target, std, below, expected in (
+        (True, 0.01, False, 0.62),
+        (False, 0.01, False, None),  # the setting off
+        (True, 0.2, False, None),  # a loose fit is no target
+        (True, 0.01, True, None),  # a fit below the used friction neither
+    ):
+        est, slot = _fitted_estimator(probe_fit_target=target)
+        slot.estimate = replace(slot.estimate, theta=(0.62, *slot.estimate.theta[1:]))
+        slot.estimate = replace(slot.estimate, theta_std=(std, np.nan, np.nan), below_used=below)
+        _feed(est, 0.02, 1.0)
+        est.update_probe(1.0)
+        got = seen.pop()
+        assert got == pytest.approx(expected) if expected else np.isnan(got)

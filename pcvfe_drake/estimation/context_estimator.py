@@ -144,7 +144,8 @@ class LiveFitConfig:
         probe_*: the probe's numbers, each explained in ``probe``'s module docstring
             (``probe_use_fraction`` None: 0.64; the scenario fills it from ``nmpc.speed_margin``;
             ``probe_fast_step_rel`` None: no fast raise; ``probe_start_evidence``,
-            ``probe_unknown``: the first step at the id, a step while the terrain is unknown).
+            ``probe_unknown``, ``probe_fit_target``: the first step at the id, a step while
+            the terrain is unknown, a level tried in a bend raised to a tight fit).
     """
 
     horizon_steps: int = DEFAULT_HORIZON
@@ -190,6 +191,7 @@ class LiveFitConfig:
     probe_start_evidence: bool = False
     probe_unknown: bool = False
     probe_bend_margin: float = 0.0
+    probe_fit_target: bool = False
 
     def __post_init__(self) -> None:
         if self.unidentified_mu not in UNIDENTIFIED_MU:

@@ -58,6 +58,16 @@ The rules (:func:`probe_step`), each number a field of ``LiveFitConfig``:
   less than 1 s of force samples was too noisy to act on, and with a fixed 25 % step instead of
   the implied one the probe passed concrete's 0.60 by a whole step (0.77 on both mappings, seeds 0
   and 5);
+* **toward a tight fit** (``probe_fit_target``): a context's fit whose std is at most
+  ``identifiable_std`` (and not below the used friction) but whose data never came near its
+  peak is a peak the whole of the context's data support through the fitted model; a level
+  tried in a bend with no sign of saturation (a bend ratio at most ``probe_bend_limit``) is
+  raised at least to it, at most one fast step at a time and within the bounds below. A 3-5 s
+  level's ratio is noisy (concrete's levels read 0.04-0.07 apart on the 100 Hz and 20 Hz
+  samples of one lap), and at a third of the peak (1.03 on a magic-formula tyre) it is two to
+  three such errors from the linear ratio's 1.14: at the floor on concrete (0.6) the project's
+  mapping read 1.14-1.15 on seeds 4 and 8, held the floor 9 s and climbed by x1.08-1.17 steps
+  (fit 0.62 +- 0.014 from 35 s, identified at 50 s: `paper_eval_effects_project`, seed 4);
 * **never above** a bend ratio of ``probe_bend_limit`` (1.25: q = 0.80, a handed mu 1.25
   times the peak on a magic-formula tyre): above it the level counts as saturated (back-off
   below);
@@ -428,6 +438,7 @@ def probe_step(
     start_bend: float = math.nan,
     start_mu: float = math.nan,
     bend_margin: float = 0.0,
+    fit_mu: float = math.nan,
 ) -> ProbeState:
     """The probe after one update at ``t_now`` (see the module docstring). ``bend``: the larger
     of the current level's axle bend ratios (NaN: no evidence); at most ``linear_ratio``: the
@@ -437,7 +448,10 @@ def probe_step(
     bend ratio of the context's data before the probe started, driven at ``start_mu`` (NaN: no
     such evidence; the probe starts at its base and holds it ``hold_s``); used only by the
     first call. ``bend_margin``: the implied peak is read at the bend ratio plus this margin
-    (the ratio's noise: a ratio read low implies a peak too high)."""
+    (the ratio's noise: a ratio read low implies a peak too high). ``fit_mu``: the context's
+    fitted peak where the fit is tight but not identifiable (``probe_fit_target``; NaN: not
+    used): a level tried in a bend (a finite ratio, at most ``bend_limit``: no sign of
+    saturation) is raised at least to it, still at most one fast step and within the bounds."""
     is_saturated = is_saturated or bool(bend > bend_limit)
     lb = lower_bound if math.isfinite(lower_bound) else 0.0
     base = min(max(lb, floor_mu), prior_mu)
@@ -445,11 +459,14 @@ def probe_step(
         start = ProbeState(mu=base, last_step_s=t_now)
         if is_saturated or fast_step_rel is None or not math.isfinite(start_mu):
             return start
-        if not start_bend <= linear_ratio:  # bent, or no evidence (NaN): hold the base
-            return start
-        implied = use_fraction / implied_peak_fraction(start_bend + bend_margin) * start_mu
+        target = fit_mu if start_bend <= bend_limit and math.isfinite(fit_mu) else 0.0
+        if not (start_bend <= linear_ratio or target > base):
+            return start  # bent (and no fit above the base), or no evidence (NaN): the base
+        implied = 0.0
+        if start_bend <= linear_ratio:
+            implied = use_fraction / implied_peak_fraction(start_bend + bend_margin) * start_mu
         cap = min(prior_mu, (lb + max_excess) / use_fraction)
-        raised = min(start_mu * (1.0 + fast_step_rel), implied, cap)
+        raised = min(start_mu * (1.0 + fast_step_rel), max(implied, target), cap)
         if raised <= base:
             return start
         return ProbeState(mu=raised, last_step_s=t_now, steps=1)
@@ -475,6 +492,8 @@ def probe_step(
         # evidence (a straight): stay
         q = implied_peak_fraction(bend + bend_margin)
         implied = use_fraction / q - 1.0 if bend <= linear_ratio else 0
+        if bend <= bend_limit and math.isfinite(fit_mu):  # tried in a bend, not saturated
+            implied = max(implied, fit_mu / state.mu - 1.0)
         step = min(fast_step_rel, implied)
     raised = min(state.mu * (1.0 + max(step, 0.0)), cap)
     if raised <= state.mu:  # held or capped: the level and its evidence carry on
@@ -522,6 +541,7 @@ def probe_update(
     prior_mu: float,
     use_fraction: float,
     drove_mu: float = math.nan,
+    fit_mu: float = math.nan,
 ) -> ProbeState:
     """One step of a fitted, not identifiable context's probe (:func:`probe_step`) with the
     evidence of its own samples: ``since(t0)`` returns the context's ``(times, states)`` from
@@ -531,7 +551,8 @@ def probe_update(
     handed within ``probe_hold_s``; a back-off then steps down from it: :func:`probe_after_fit`);
     the bend ratio on the current level's data, all of it (the newest ``probe_hold_s`` before
     the first step); with ``probe_start_evidence`` the first step also gets the bend ratio of
-    all the context's data, driven at the stated floor."""
+    all the context's data, driven at the stated floor; ``fit_mu``: the tight fit's peak the
+    level rises to (``probe_step``; NaN: none)."""
     _, recent = since(t_now - cfg.probe_window_s)
     level = state.last_step_s if state.started else t_now - cfg.probe_hold_s
     t_level, s_level = since(level)
@@ -563,6 +584,7 @@ def probe_update(
         **_step_settings(cfg),
         start_bend=start_bend,
         start_mu=start_mu,
+        fit_mu=fit_mu,
     )
 
 

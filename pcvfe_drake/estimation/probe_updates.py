@@ -61,6 +61,9 @@ def update_probes(est, t_now: float) -> None:
         else:
             slot.fit_mu = slot.fit_end_s = math.nan
     handed = est._unidentified(slot, np.array(slot.estimate.theta))  # what the car drove with
+    fit = slot.estimate  # probe_fit_target: a tight fit, not identifiable, is the level's target
+    tight = math.isfinite(fit.mu_std) and fit.mu_std <= cfg.identifiable_std
+    target = fit.mu if cfg.probe_fit_target and tight and not fit.below_used else math.nan
     slot.probe = probe_update(
         slot.probe,
         t_now,
@@ -72,6 +75,7 @@ def update_probes(est, t_now: float) -> None:
         est._prior[0],
         use,
         drove_mu=drove,
+        fit_mu=target,
     )
 
 
