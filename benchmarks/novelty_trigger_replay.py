@@ -9,14 +9,16 @@ until the visit's context is first reported (``drive_metrics.transition_response
 (wrong) and frames of the transition strips reported as any context, the triggered attempts and
 the kept ones, and the wall time of every HDBSCAN re-clustering (mean, max) on the stored set.
 A third setting is the clustering a scenario ships (``--scenario``, default
-``paper_eval_effects``). Two measures of what the controller would be handed, with the
-estimator's 1 s noise hold (``LiveFitConfig.noise_hold_s``): ``unknown_on_known_s``, seconds on
-a terrain after its context was first reported with no context handed (the unknown-context
-value), and ``handed_higher_s``, seconds handed a context whose terrain's friction is more than
-0.05 above the friction under the car (transition strips, the hold onto a new terrain).
+``paper_eval_effects``), a fourth with ``--hold S`` that clustering with
+``continuation_hold_s`` S (docs/clustering.md, "Continuing a visit"). Two measures of what
+the controller would be handed, with the estimator's 1 s noise hold
+(``LiveFitConfig.noise_hold_s``): ``unknown_on_known_s``, seconds on a terrain after its context
+was first reported with no context handed (the unknown-context value), and
+``handed_higher_s``, seconds handed a context whose terrain's friction is more than 0.05 above
+the friction under the car (transition strips, the hold onto a new terrain).
 
 Usage: python benchmarks/novelty_trigger_replay.py [RUN_DIR ...] [--window 6] [--scenario NAME]
-[--quick]
+[--hold S] [--quick]
 Without run folders it makes one (``terrain_entry_latency.make_run``: ``pcvfe simulate
 paper_eval_effects --seed 0``, one lap; ``--quick``: its first 45 s).
 Prints one JSON object as its last line.
@@ -29,6 +31,7 @@ import json
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -140,6 +143,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--scenario", default="paper_eval_effects", help="the third setting: its clustering"
     )
+    ap.add_argument(
+        "--hold",
+        type=float,
+        default=None,
+        help="a fourth setting: the scenario's clustering with continuation_hold_s HOLD [s] "
+        "(0: a frame beyond the widened gate ends the visit, as without a hold)",
+    )
     ap.add_argument("--quick", action="store_true", help="without runs: a 45 s run")
     args = ap.parse_args(argv)
     if not args.runs:
@@ -153,6 +163,8 @@ def main(argv: list[str] | None = None) -> int:
         "trigger": ClusteringParams(novelty_window_s=args.window),
         "scenario": load_scenario(args.scenario).clustering_params(),
     }
+    if args.hold is not None:
+        settings["hold"] = replace(settings["scenario"], continuation_hold_s=args.hold)
     out = {name: [] for name in settings}
     durations = {name: [] for name in settings}
     for folder in args.runs:

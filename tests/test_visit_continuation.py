@@ -101,3 +101,53 @@ def test_one_terrain_with_min_samples_above_min_cluster_size():
     for k in range(34, 80):
         clusterer.assign(A + 0.01 * rng.standard_normal(3), 0.1 * k)
     assert len(clusterer.recluster(8.0).records) == 1
+
+
+def test_a_hold_keeps_the_visit_open_through_frames_beyond_the_widened_gate():
+    """``continuation_hold_s``: a frame beyond the widened gate but nearest to the visit's
+    context is noise and leaves the visit open for the hold (brick's blurred last frames lay
+    1.1-3.3 gates away, one at 3.08-3.09 ended the visit and the 1.1-2.8 gate frames after it
+    stayed noise); far from it, nearer another context, or after the hold, it ends the visit."""
+    beyond = A + 0.3 * (FAR - A)  # nearest to A's members, beyond 3 gates
+
+    def held(hold):
+        clusterer = ContextClusterer(
+            ClusteringParams(frame_rate_hz=10.0, continuation_gate_scale=3.0, **hold)
+        )
+        return two_terrains_into(clusterer)
+
+    off, a, _ = held({})
+    z = shifted(off, A, FAR)
+    assert off.assign(A, 20.0) == a
+    assert off.assign(beyond, 20.1) == NOISE
+    assert off.assign(z, 20.2) == NOISE  # without the hold the visit ended
+    on, a, b = held({"continuation_hold_s": 1.0})
+    assert on.assign(A, 20.0) == a
+    assert on.assign(beyond, 20.1) == NOISE  # noise itself
+    assert on.assign(z, 20.2) == a  # the visit goes on
+    for k in range(11):  # beyond for longer than the hold: the visit ends
+        assert on.assign(beyond, 20.3 + 0.1 * k) == NOISE
+    assert on.assign(z, 21.5) == NOISE
+    assert on.assign(A, 22.0) == a
+    assert on.assign(shifted(on, B, A), 22.1) == NOISE  # nearest to B: ends A's visit
+    assert on.assign(z, 22.2) == NOISE
+    ClusteringParams(continuation_gate_scale=3.0, continuation_hold_s=0.0)
+    for bad in (
+        {"continuation_hold_s": 1.0},
+        {"continuation_gate_scale": 3.0, "continuation_hold_s": -1.0},
+    ):
+        with pytest.raises(ValueError, match="continuation_hold_s"):
+            ClusteringParams(**bad)
+
+
+def two_terrains_into(clusterer: ContextClusterer) -> tuple[ContextClusterer, int, int]:
+    """:func:`two_terrains`' drive into ``clusterer``."""
+    rng = np.random.default_rng(4)
+    t = 0.0
+    for centre in (A, B):
+        for _ in range(100):
+            clusterer.assign(centre + 0.01 * rng.standard_normal(3), t)
+            t += 0.1
+    clusterer.recluster(t)
+    ids = clusterer.predict(np.array([A, B]))
+    return clusterer, int(ids[0]), int(ids[1])

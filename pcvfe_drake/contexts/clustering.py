@@ -119,6 +119,7 @@ class ContextClusterer:
         # Context reported for the latest frame (the visit a rejected frame may continue).
         self._visit = NOISE
         self._visit_frames = 0
+        self._visit_seen_s = -math.inf  # when the visit's context was last reported
         # Assignment index: stored members of the active contexts and their gates.
         self._index = GateIndex(np.zeros((0, 1)), np.zeros(0, dtype=int), self.params)
 
@@ -254,9 +255,14 @@ class ContextClusterer:
         context_id = int(self._index.labels(z[None, :])[0])
         if context_id == NOISE and self._continues_visit(z):
             self._visit_frames += 1
+            self._visit_seen_s = t_s
             self._store_noise(z, t_s)
             return self._visit
+        if context_id == NOISE and self._visit_held(z, t_s):
+            self._store_noise(z, t_s)  # noise, but the visit stays open for the next frames
+            return NOISE
         self._visit = context_id
+        self._visit_seen_s = t_s
         if context_id >= 0:
             rec = self._records[context_id]
             rec.size += 1.0
@@ -274,6 +280,15 @@ class ContextClusterer:
         if scale is None or self._visit < 0:
             return False
         return self._index.within(z, self._visit, scale)
+
+    def _visit_held(self, z: np.ndarray, t_s: float) -> bool:
+        """A frame beyond the widened gate leaves the visit open when its nearest stored member
+        still belongs to the visit's context and that context was reported within the last
+        ``params.continuation_hold_s`` (None: the frame ends the visit)."""
+        hold = self.params.continuation_hold_s
+        if hold is None or self._visit < 0 or t_s - self._visit_seen_s > hold + 1e-9:
+            return False
+        return self._index.within(z, self._visit, math.inf)
 
     @property
     def continued_frames(self) -> int:

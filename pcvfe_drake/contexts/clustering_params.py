@@ -59,6 +59,11 @@ class ClusteringParams:
             always). The frame must also be nearest to a member of that context. A terrain not
             seen before, far from every context, stays noise; only a frame near the context the
             car was just on continues the visit (docs/clustering.md, "Continuing a visit").
+        continuation_hold_s: None (default: a frame beyond the widened gate ends the visit) or
+            seconds >= 0 (needs ``continuation_gate_scale``): such a frame is noise but leaves
+            the visit open while its nearest member is of the visit's context and that context
+            was reported within this many seconds; a later frame within the widened gate then
+            continues the visit (a blurred frame just beyond it ended brick's visit for good).
     """
 
     frame_rate_hz: float = 10.0
@@ -77,6 +82,7 @@ class ClusteringParams:
     novelty_fraction: float = 0.8
     novelty_min_interval_s: float = 1.0
     continuation_gate_scale: float | None = None
+    continuation_hold_s: float | None = None
 
     def __post_init__(self) -> None:
         positive = (
@@ -143,6 +149,14 @@ class ClusteringParams:
             raise ValueError(
                 "ClusteringParams.continuation_gate_scale must be None (off) or a number >= 1 "
                 f"(a multiple of the outlier gate), got {scale!r}"
+            )
+        hold = self.continuation_hold_s
+        if hold is not None and not (
+            isinstance(hold, int | float) and math.isfinite(hold) and hold >= 0 and scale
+        ):
+            raise ValueError(
+                "ClusteringParams.continuation_hold_s must be None (off) or seconds >= 0, and "
+                f"needs continuation_gate_scale (got {hold!r}, scale {scale!r})"
             )
         if self.min_cluster_size < 2:
             raise ValueError(
