@@ -16,19 +16,11 @@ FAR = np.array([0.0, 0.0, 1.0])
 
 def two_terrains(scale: float | None) -> tuple[ContextClusterer, int, int]:
     """10 s on terrain A, 10 s on B (10 Hz, spread 0.01), re-clustered; ids of A and B."""
-    clusterer = ContextClusterer(
-        ClusteringParams(frame_rate_hz=10.0, continuation_gate_scale=scale)
+    clusterer, a, b = two_terrains_into(
+        ContextClusterer(ClusteringParams(frame_rate_hz=10.0, continuation_gate_scale=scale))
     )
-    rng = np.random.default_rng(4)
-    t = 0.0
-    for centre in (A, B):
-        for _ in range(100):
-            clusterer.assign(centre + 0.01 * rng.standard_normal(3), t)
-            t += 0.1
-    clusterer.recluster(t)
-    ids = clusterer.predict(np.array([A, B]))
-    assert ids[0] >= 0 and ids[1] >= 0 and ids[0] != ids[1]
-    return clusterer, int(ids[0]), int(ids[1])
+    assert a >= 0 and b >= 0 and a != b
+    return clusterer, a, b
 
 
 def shifted(clusterer: ContextClusterer, centre: np.ndarray, away: np.ndarray) -> np.ndarray:
@@ -141,7 +133,8 @@ def test_a_hold_keeps_the_visit_open_through_frames_beyond_the_widened_gate():
 
 
 def two_terrains_into(clusterer: ContextClusterer) -> tuple[ContextClusterer, int, int]:
-    """:func:`two_terrains`' drive into ``clusterer``."""
+    """10 s on terrain A, 10 s on B (10 Hz, spread 0.01) into ``clusterer``, re-clustered; ids
+    of A and B."""
     rng = np.random.default_rng(4)
     t = 0.0
     for centre in (A, B):

@@ -118,7 +118,7 @@ class ContextClusterer:
         self._warned_scale = False
         # Context reported for the latest frame (the visit a rejected frame may continue).
         self._visit = NOISE
-        self._visit_frames = 0
+        self._continued_frames = 0
         self._visit_seen_s = -math.inf  # when the visit's context was last reported
         # Assignment index: stored members of the active contexts and their gates.
         self._index = GateIndex(np.zeros((0, 1)), np.zeros(0, dtype=int), self.params)
@@ -254,7 +254,7 @@ class ContextClusterer:
         self._n_frames += 1
         context_id = int(self._index.labels(z[None, :])[0])
         if context_id == NOISE and self._continues_visit(z):
-            self._visit_frames += 1
+            self._continued_frames += 1
             self._visit_seen_s = t_s
             self._store_noise(z, t_s)
             return self._visit
@@ -294,7 +294,7 @@ class ContextClusterer:
     def continued_frames(self) -> int:
         """Frames reported as the previous frame's context by the widened gate
         (``continuation_gate_scale``) so far."""
-        return self._visit_frames
+        return self._continued_frames
 
     def _free_slot(self) -> int:
         free = np.flatnonzero(~self._used)

@@ -261,9 +261,9 @@ class _ContextSlot:
     changes_at_fit: int = 0
     probe: ProbeState = field(default_factory=ProbeState)
     """The exploration state (``unidentified_mu: probe``)."""
-    fit_mu: float = math.nan
+    handed_fit_mu: float = math.nan
     """The largest mu its latest identifiable spell handed (NaN: none, or over probe_hold_s ago)."""
-    fit_end_s: float = math.nan
+    handed_fit_end_s: float = math.nan
     """When it was last handed (NaN: still handed) [s]."""
 
 

@@ -419,6 +419,13 @@ def saturated(
     )
 
 
+def probe_base(lower_bound: float, floor_mu: float, prior_mu: float) -> float:
+    """Where a context's probe starts and never steps below: the used friction ``lower_bound``
+    (NaN: none) floored at ``floor_mu``, at most the prior."""
+    lb = lower_bound if math.isfinite(lower_bound) else 0.0
+    return min(max(lb, floor_mu), prior_mu)
+
+
 def probe_step(
     state: ProbeState,
     t_now: float,
@@ -454,7 +461,7 @@ def probe_step(
     saturation) is raised at least to it, still at most one fast step and within the bounds."""
     is_saturated = is_saturated or bool(bend > bend_limit)
     lb = lower_bound if math.isfinite(lower_bound) else 0.0
-    base = min(max(lb, floor_mu), prior_mu)
+    base = probe_base(lb, floor_mu, prior_mu)
     if not state.started:
         start = ProbeState(mu=base, last_step_s=t_now)
         if is_saturated or fast_step_rel is None or not math.isfinite(start_mu):
@@ -561,8 +568,7 @@ def probe_update(
     limit = cfg.probe_slip_fraction * peak_slip_rad(judged, stiffness)
     is_saturated = saturated(recent, vehicle.lf, vehicle.lr, limit)
     if is_saturated and judged > handed[0]:
-        lb = lower_bound if math.isfinite(lower_bound) else 0.0
-        base = min(max(lb, cfg.unknown_floor_mu), prior_mu)
+        base = probe_base(lower_bound, cfg.unknown_floor_mu, prior_mu)
         return probe_after_fit(state, t_now, judged, base, cfg.probe_step_rel)
     force = cfg.probe_min_force
     bend = level_bend(t_level, s_level, vehicle, stiffness, force, use_fraction * handed[0])

@@ -39,8 +39,8 @@ def update_probes(est, t_now: float) -> None:
         return
     if slot.estimate.identifiable:  # the fit is handed until the next update: note its level
         mu = float(est._unidentified(slot, np.array(slot.estimate.theta))[0])
-        slot.fit_mu = mu if math.isnan(slot.fit_mu) else max(slot.fit_mu, mu)
-        slot.fit_end_s = math.nan
+        slot.handed_fit_mu = mu if math.isnan(slot.handed_fit_mu) else max(slot.handed_fit_mu, mu)
+        slot.handed_fit_end_s = math.nan
         return
     labels, times = est._store.labels(), est._store.times()
     mine = labels == est.current_context
@@ -54,12 +54,13 @@ def update_probes(est, t_now: float) -> None:
 
     use = cfg.probe_use_fraction or DEFAULT_PROBE_USE_FRACTION
     drove = math.nan  # an identifiable fit handed: for probe_hold_s after it the car's speed
-    if math.isfinite(slot.fit_mu):  # and slips answer the fit's level, not the probe's
-        slot.fit_end_s = t_now if math.isnan(slot.fit_end_s) else slot.fit_end_s
-        if t_now - slot.fit_end_s < cfg.probe_hold_s:
-            drove = slot.fit_mu
+    if math.isfinite(slot.handed_fit_mu):  # and slips answer the fit's level, not the probe's
+        if math.isnan(slot.handed_fit_end_s):  # its first update not handed: the spell ended
+            slot.handed_fit_end_s = t_now
+        if t_now - slot.handed_fit_end_s < cfg.probe_hold_s:
+            drove = slot.handed_fit_mu
         else:
-            slot.fit_mu = slot.fit_end_s = math.nan
+            slot.handed_fit_mu = slot.handed_fit_end_s = math.nan
     handed = est._unidentified(slot, np.array(slot.estimate.theta))  # what the car drove with
     fit = slot.estimate  # probe_fit_target: a tight fit, not identifiable, is the level's target
     tight = math.isfinite(fit.mu_std) and fit.mu_std <= cfg.identifiable_std
