@@ -21,8 +21,9 @@ import numpy as np
 
 from pcvfe_drake.estimation.fit_dataset import windows_from_log
 from pcvfe_drake.estimation.fitting import fit_contexts
-from pcvfe_drake.estimation.synthetic_drive import MeasurementNoise, drive_frame, s_curve_drive
+from pcvfe_drake.models.synthetic_drive import drive_frame, s_curve_drive
 from pcvfe_drake.runs.drivelog import REQUIRED_COLUMNS, DriveLogError, validate_drive_log
+from pcvfe_drake.vehicle.measurement_noise import MeasurementNoise
 from pcvfe_drake.vehicle.params import ford_escort
 
 OPS = {

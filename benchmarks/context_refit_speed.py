@@ -57,7 +57,7 @@ def drive(est: ContextEstimator, t, S, U) -> dict:
 
 def covariance_cost(repeats: int = 50) -> dict:
     """CPU per call of the sandwich and of the Gauss-Newton covariance on live-size Jacobians."""
-    from pcvfe_drake.estimation import least_squares as lsq
+    from pcvfe_drake.models import least_squares as lsq
 
     rng = np.random.default_rng(0)
     out = {}

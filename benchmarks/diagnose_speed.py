@@ -28,9 +28,9 @@ import time
 
 import numpy as np
 
+from pcvfe_drake.models.data import prepare
+from pcvfe_drake.models.effects import known_effects
 from pcvfe_drake.workbench import synth
-from pcvfe_drake.workbench.data import prepare
-from pcvfe_drake.workbench.effects import known_effects
 from pcvfe_drake.workbench.report import diagnose
 
 

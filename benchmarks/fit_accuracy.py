@@ -29,8 +29,9 @@ import numpy as np
 
 from pcvfe_drake.estimation.fit_dataset import build_windows
 from pcvfe_drake.estimation.fitting import fit_gauss_newton
-from pcvfe_drake.estimation.synthetic_drive import MeasurementNoise, s_curve_drive
+from pcvfe_drake.models.synthetic_drive import s_curve_drive
 from pcvfe_drake.vehicle.mb_truth import MbTruth
+from pcvfe_drake.vehicle.measurement_noise import MeasurementNoise
 from pcvfe_drake.vehicle.params import ford_escort
 from pcvfe_drake.vehicle.single_track import STATE_NAMES
 

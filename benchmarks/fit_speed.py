@@ -2,7 +2,7 @@
 
 Data: an S-curve drive of the ST model at ~8 m/s on concrete (mu 0.6, Ford Escort), sampled at
 100 Hz with the documented measurement noise
-(``pcvfe_drake.estimation.synthetic_drive.MeasurementNoise``),
+(``pcvfe_drake.models.synthetic_drive.MeasurementNoise``),
 cut into windows of H = 10 steps every 5 samples; the first 1024 windows are used (about 51 s of
 driving). Both solvers fit mu from the vehicle's nominal value (1.0489) with the stiffnesses held.
 
@@ -36,7 +36,8 @@ import numpy as np
 
 from pcvfe_drake.estimation.fit_dataset import build_windows
 from pcvfe_drake.estimation.fitting import fit_adam, fit_gauss_newton
-from pcvfe_drake.estimation.synthetic_drive import MeasurementNoise, s_curve_drive
+from pcvfe_drake.models.synthetic_drive import s_curve_drive
+from pcvfe_drake.vehicle.measurement_noise import MeasurementNoise
 from pcvfe_drake.vehicle.params import ford_escort
 
 SAME_LOSS_RTOL = 1e-9

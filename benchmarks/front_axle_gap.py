@@ -76,11 +76,11 @@ from scipy.optimize import brentq, minimize_scalar
 from tqdm import tqdm
 from vehiclemodels.utils import tire_model
 
+from pcvfe_drake.models.chassis_effects import wheel_slip_offsets
+from pcvfe_drake.models.tyre_effects import MF_SHAPE
 from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
 from pcvfe_drake.vehicle.params import load_vehicle
 from pcvfe_drake.workbench import synth
-from pcvfe_drake.workbench.chassis_effects import wheel_slip_offsets
-from pcvfe_drake.workbench.tyre_effects import MF_SHAPE
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from mb_camber import wheel_terms  # noqa: E402

@@ -10,7 +10,7 @@ memory (``ru_maxrss`` of that child, from ``os.wait4``) are measured.
 Baselines in the same run, on logs whose size the caps do not touch:
 
 * fit: a ~200,000-row log (two contexts of ~19,700 windows each: just under ``--max-windows``);
-* diagnose: a 29,000-row log (under ``workbench.data.MAX_SAMPLES`` = 30,000: analysed whole).
+* diagnose: a 29,000-row log (under ``models.data.MAX_SAMPLES`` = 30,000: analysed whole).
 
 The ratios (1M-row run / baseline) show what the caps bound: with them, time and memory grow
 only with the reading of the log (~0.5 KB per row), not with the fit (before the caps, fit took
@@ -35,7 +35,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pcvfe_drake.estimation.synthetic_drive import MeasurementNoise, drive_frame, s_curve_drive
+from pcvfe_drake.models.synthetic_drive import drive_frame, s_curve_drive
+from pcvfe_drake.vehicle.measurement_noise import MeasurementNoise
 from pcvfe_drake.vehicle.params import ford_escort
 
 SEGMENT_S = 200.0

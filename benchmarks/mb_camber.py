@@ -47,10 +47,10 @@ from scipy.optimize import least_squares
 from scipy.signal import lfilter
 from vehiclemodels.utils import tire_model
 
+from pcvfe_drake.models.tyre_effects import ROLL_SIGN_WIDTH_MPS2
 from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
 from pcvfe_drake.vehicle.params import load_vehicle
 from pcvfe_drake.workbench import synth
-from pcvfe_drake.workbench.tyre_effects import ROLL_SIGN_WIDTH_MPS2
 
 CASES = (("lateral_peak", 0.30), ("lateral_peak", 0.45), ("peak_and_stiffness", 0.45))
 ROLL_TAUS = (0.0, 0.03, 0.05, 0.08, 0.1, 0.15)

@@ -36,10 +36,10 @@ import numpy as np
 from scipy.optimize import least_squares
 from tqdm import tqdm
 
+from pcvfe_drake.models.chassis_effects import mode_transition
 from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
 from pcvfe_drake.vehicle.params import load_vehicle
 from pcvfe_drake.workbench import synth
-from pcvfe_drake.workbench.chassis_effects import mode_transition
 
 H_S = 0.005
 """Sample step of the measurements [s]."""

@@ -50,8 +50,8 @@ import numpy as np
 import pandas as pd
 
 from pcvfe_drake.estimation.effect_fit import EffectFitter, friction_used
+from pcvfe_drake.models.tyre_effects import MF_SHAPE, PeakTyre
 from pcvfe_drake.vehicle.params import ford_escort
-from pcvfe_drake.workbench.tyre_effects import MF_SHAPE, PeakTyre
 
 STATES = ["sx", "sy", "delta", "v", "psi", "psi_dot", "beta"]
 TRUE_MU = {"patchy_grass": 0.30, "sand": 0.45, "concrete": 0.60, "brick": 0.80}

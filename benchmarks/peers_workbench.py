@@ -60,6 +60,7 @@ import warnings
 
 import numpy as np
 
+from pcvfe_drake.models.data import prepare
 from pcvfe_drake.vehicle.params import load_vehicle
 from pcvfe_drake.vehicle.single_track import (
     BETA,
@@ -73,7 +74,6 @@ from pcvfe_drake.vehicle.single_track import (
     wrap_angle,
 )
 from pcvfe_drake.workbench import synth
-from pcvfe_drake.workbench.data import prepare
 from pcvfe_drake.workbench.report import diagnose
 
 D = (DELTA, V, PSI_DOT, BETA)

@@ -62,9 +62,9 @@ import time
 import numpy as np
 from tqdm import tqdm
 
+from pcvfe_drake.models.data import prepare
 from pcvfe_drake.vehicle.mb_truth import FRICTION_SCALINGS
 from pcvfe_drake.workbench import synth
-from pcvfe_drake.workbench.data import prepare
 from pcvfe_drake.workbench.report import diagnose, write_report
 
 TERRAINS = {"patchy_grass": 0.30, "sand": 0.45, "concrete": 0.60, "brick": 0.80}

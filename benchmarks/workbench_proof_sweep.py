@@ -46,10 +46,10 @@ import time
 
 from tqdm import tqdm
 
+from pcvfe_drake.models.data import prepare
+from pcvfe_drake.models.effects import known_effects
 from pcvfe_drake.runs.resample import resample_log
 from pcvfe_drake.workbench import synth
-from pcvfe_drake.workbench.data import prepare
-from pcvfe_drake.workbench.effects import known_effects
 from pcvfe_drake.workbench.report import diagnose
 from pcvfe_drake.workbench.stability import stand_ins
 

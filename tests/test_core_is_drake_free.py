@@ -21,9 +21,7 @@ def core_modules() -> list[str]:
 
 def test_every_core_module_imports_without_pydrake():
     modules = core_modules()
-    assert (
-        "pcvfe_drake.vehicle.single_track" in modules and "pcvfe_drake.workbench.model" in modules
-    )
+    assert "pcvfe_drake.vehicle.single_track" in modules and "pcvfe_drake.models.model" in modules
     code = (
         "import importlib, sys\n"
         f"for name in {modules!r}:\n"

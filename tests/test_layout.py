@@ -102,3 +102,38 @@ def test_the_cycle_finder_finds_a_circle():
     graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
     assert import_cycles(graph) == [["a", "b", "c"]]
     assert import_cycles({"a": {"b"}, "b": set()}) == []
+
+
+# Packages of the core and what each may import from the others. The shared model sits below its
+# two users: the context fitter (estimation) and the workbench import it, never each other.
+LAYERS_FORBIDDEN = {
+    "pcvfe_drake.models": ("pcvfe_drake.estimation", "pcvfe_drake.workbench"),
+    "pcvfe_drake.estimation": ("pcvfe_drake.workbench",),
+    "pcvfe_drake.workbench": ("pcvfe_drake.estimation",),
+}
+
+
+def _package_of(name: str, prefixes) -> str | None:
+    return next((p for p in prefixes if name == p or name.startswith(p + ".")), None)
+
+
+def test_shared_model_below_its_two_users():
+    mods = project_modules()
+    bad = []
+    for name, path in mods.items():
+        pkg = _package_of(name, LAYERS_FORBIDDEN)
+        if pkg is None:
+            continue
+        for imported in imports_of(path, mods):
+            if _package_of(imported, LAYERS_FORBIDDEN[pkg]):
+                bad.append(f"{name} imports {imported}")
+    assert not bad, "layer contract broken:\n" + "\n".join(sorted(bad))
+
+
+def test_the_layer_check_sees_a_violation(tmp_path):
+    """Imports inside functions count too (``imports_of`` walks the whole tree), so no import in
+    a function can hide a cycle or a layer violation from these tests."""
+    mod = tmp_path / "m.py"
+    mod.write_text("def f():\n    from pcvfe_drake.workbench import ranking\n")
+    mods = {"pcvfe_drake.workbench": mod, "pcvfe_drake.workbench.ranking": mod}
+    assert imports_of(mod, mods) == {"pcvfe_drake.workbench", "pcvfe_drake.workbench.ranking"}

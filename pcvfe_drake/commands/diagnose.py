@@ -6,10 +6,10 @@ import argparse
 import json
 import sys
 
+from pcvfe_drake.models.data import EXCERPTS, load
+from pcvfe_drake.models.effects import get_effect, known_effects
 from pcvfe_drake.runs.output_paths import check_output_dir, write_failed
 from pcvfe_drake.vehicle.params import load_vehicle
-from pcvfe_drake.workbench.data import EXCERPTS, load
-from pcvfe_drake.workbench.effects import get_effect, known_effects
 
 
 def register(subparsers) -> None:

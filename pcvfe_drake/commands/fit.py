@@ -134,9 +134,10 @@ def register(subparsers) -> None:
 
 
 def run_effects(args: argparse.Namespace) -> int:
-    """``--effects``: the effect model on the whole log (``effect_fit.fit_log``)."""
-    from pcvfe_drake.estimation.effect_fit import fit_log, parse_effects
-    from pcvfe_drake.workbench.data import load
+    """``--effects``: the effect model on the whole log (``fit_effects.fit_log``)."""
+    from pcvfe_drake.commands.fit_effects import fit_log
+    from pcvfe_drake.estimation.effect_fit import parse_effects
+    from pcvfe_drake.models.data import load
 
     specs = parse_effects(args.effects)  # unknown effects fail before reading the log
     data = load(args.log, context_column=args.context_column, resample_hz=args.resample)

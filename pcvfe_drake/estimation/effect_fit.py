@@ -3,10 +3,10 @@
 ``pcvfe diagnose`` finds which effects the single-track (ST) model lacks on a log; this module
 lets the context fitter (``ContextEstimator``, scenario ``fitter.effects``) and ``pcvfe fit
 --effects`` estimate friction *with* those effects, through the same model
-(:class:`~pcvfe_drake.workbench.model.WorkbenchModel`), the same windows and cost
-(:func:`~pcvfe_drake.workbench.estimate.fit`: multi-step whitened rollout errors,
+(:class:`~pcvfe_drake.models.model.WorkbenchModel`), the same windows and cost
+(:func:`~pcvfe_drake.models.estimate.fit`: multi-step whitened rollout errors,
 finite-difference sensitivities in one batched rollout) and the same least-squares core
-(:mod:`pcvfe_drake.estimation.least_squares`) as the diagnosis.
+(:mod:`pcvfe_drake.models.least_squares`) as the diagnosis.
 
 Per context the fitted parameters are the base ``mu`` and every effect parameter that the
 scenario does not fix (``FitterEffect.fixed``: values found by ``pcvfe diagnose``); a context's
@@ -37,8 +37,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pcvfe_drake.estimation.estimate_table import Z95
 from pcvfe_drake.estimation.fit_options import COVARIANCES, HAC_LAG_S, with_model_error
+from pcvfe_drake.models.data import (
+    NOISE_STRIDE_S,
+    DriveData,
+    denoised_delta_sigma,
+    initial_state_estimates,
+    robust_noise_sigma,
+    window_starts,
+)
+from pcvfe_drake.models.effects import get_effect
+from pcvfe_drake.models.estimate import fit
+from pcvfe_drake.models.model import WorkbenchModel
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import BETA, NX, PSI_DOT, V
 
@@ -72,8 +82,6 @@ class FitterEffect:
 def parse_effects(entries) -> list[FitterEffect]:
     """``FitterEffect`` list from names, ``"name:param=value,..."`` strings, dicts or
     FitterEffects; unknown effects and parameters are reported by name."""
-    from pcvfe_drake.workbench.effects import get_effect
-
     out = []
     for entry in entries or ():
         if isinstance(entry, FitterEffect):
@@ -118,8 +126,6 @@ def friction_is_peak(model) -> bool:
 
 def build_model(vehicle: VehicleParams, effects, contexts=("all",)):
     """The workbench model (base mu per context) and its fixed-parameter mask and start."""
-    from pcvfe_drake.workbench.model import WorkbenchModel
-
     specs = parse_effects(effects)
     model = WorkbenchModel(vehicle, [s.name for s in specs], ("mu",), list(contexts))
     theta0 = model.initial_theta()
@@ -234,17 +240,9 @@ def friction_used(
 
 
 def drive_data_from_arrays(t: np.ndarray, states: np.ndarray, inputs: np.ndarray, source: str):
-    """A one-context :class:`~pcvfe_drake.workbench.data.DriveData` from buffer arrays (time
+    """A one-context :class:`~pcvfe_drake.models.data.DriveData` from buffer arrays (time
     gaps allowed: the initial-state smoothing runs per gap-free segment, windows never span a
     gap), noise scales estimated as ``pcvfe diagnose`` does."""
-    from pcvfe_drake.workbench.data import (
-        NOISE_STRIDE_S,
-        DriveData,
-        denoised_delta_sigma,
-        initial_state_estimates,
-        robust_noise_sigma,
-    )
-
     t = np.asarray(t, dtype=float)
     x = np.asarray(states, dtype=float).copy()
     u = np.asarray(inputs, dtype=float)
@@ -362,7 +360,6 @@ class EffectFitter:
         return theta
 
     def windows(self, data) -> tuple[np.ndarray, int, int]:
-        from pcvfe_drake.workbench.data import window_starts
 
         horizon = max(2, int(round(self.horizon_s / data.dt)))
         stride = max(1, int(round(self.stride_s / data.dt)))
@@ -381,7 +378,6 @@ class EffectFitter:
         the first fit of a context (cold) starts from the best of ``COLD_MU_FACTORS`` x
         ``mu_start`` (with a peak tyre the nominal mu is rarely near the peak; the costs of the
         starts are residual-only rollouts) and runs ``COLD_ITERATION_FACTOR`` x as many."""
-        from pcvfe_drake.workbench.estimate import fit
 
         if len(t) < 10:
             return None
@@ -445,75 +441,3 @@ def to_result(model, res, n_windows: int, model_error_rel: float = 0.0) -> Effec
         mu_is_peak=friction_is_peak(model),
         warnings=warnings,
     )
-
-
-def fit_log(
-    data,
-    vehicle: VehicleParams,
-    effects,
-    identifiable_std: float = 0.05,
-    near_limit_fraction: float = 0.6,
-    covariance: str = "hac",
-    hac_lag_s: float = HAC_LAG_S,
-    model_error_rel: float = 0.0,
-) -> dict:
-    """``pcvfe fit --effects``: the effect model fitted on a whole log as ``pcvfe diagnose
-    --add`` fits it (one model, mu per context, the effect parameters shared; the diagnosis's
-    training windows, start and solver), so both give the same parameters on the same data.
-
-    Returns a JSON-ready dict: ``effects``, ``params`` (every parameter: value, std, unit, ...),
-    ``mu_is_peak``, and per context the controller's theta, mu's std (``covariance``: ``hac``,
-    the Newey-West sandwich over the time-ordered training windows, or ``iid``, the workbench's;
-    with the model-error budget ``model_error_rel``),
-    its lower bound from the friction used, ``near_limit``, ``identifiable`` and the 95 %
-    interval ``mu_interval_95`` (as ``ContextEstimate.mu_interval_95``; None: no upper bound).
-    """
-    from pcvfe_drake.workbench.ranking import Workbench
-
-    wb = Workbench(data, vehicle)
-    specs = parse_effects(effects)
-    model = wb.base_model.with_effects(*[sp.name for sp in specs])
-    fixed = {f"{sp.name}.{k}": v for sp in specs for k, v in sp.fixed.items()}
-    lag = None
-    if covariance == "hac":  # training windows: h_fit steps, one every h_fit steps
-        span = wb.h_fit * data.dt
-        lag = max(1, math.ceil((span + hac_lag_s) / span - 1e-9))
-    elif covariance != "iid":
-        raise ValueError(f"covariance must be one of {COVARIANCES}, got {covariance!r}")
-    res = wb.fit_model(model, warm=wb.baseline, fixed=fixed, hac_lag=lag)
-    contexts = {}
-    for c, label in enumerate(data.context_names):
-        theta = controller_theta(model, res.theta, c)
-        mu_idx = next(i for i, p in enumerate(model.params) if p.effect is None and p.context == c)
-        rows = data.context == c
-        used = friction_used(data.t[rows], data.x[rows], lateral_only=friction_is_peak(model))
-        std = with_model_error(theta[0], float(res.std[mu_idx]), model_error_rel)
-        near = bool(math.isfinite(used) and used >= near_limit_fraction * theta[0])
-        below = bool(friction_is_peak(model) and math.isfinite(used) and theta[0] < used)
-        if near or not math.isfinite(used):  # the data came near the limit: two-sided
-            interval = [theta[0] - Z95 * std, theta[0] + Z95 * std]
-        else:  # never near: the friction used bounds mu from below, nothing from above
-            interval = [used, None]
-        contexts[label] = {
-            "theta": dict(zip(("mu", "C_Sf", "C_Sr"), map(float, theta), strict=True)),
-            "mu_std": std,
-            "mu_lower_bound": used,
-            "near_limit": near,
-            "below_used": below,
-            "identifiable": bool(
-                near and not below and math.isfinite(std) and std <= identifiable_std
-            ),
-            "mu_interval_95": interval,
-        }
-    return {
-        "effects": [{"name": s.name, "fixed": s.fixed} for s in parse_effects(effects)],
-        "params": res.params_dict(),
-        "mu_is_peak": friction_is_peak(model),
-        "train_cost": float(res.cost),
-        "iterations": int(res.n_iter),
-        "converged": bool(res.converged),
-        "training_windows": int(wb.train_starts.size),
-        "covariance": covariance,
-        "model_error_rel": model_error_rel,
-        "contexts": contexts,
-    }

@@ -27,7 +27,7 @@ the reported standard deviations are those of the windows used.
 Initial-state smoothing (a documented departure from eq. 5b): with noisy measurements, starting
 the rollout from the measured state is an errors-in-variables problem. The noise in the initial
 yaw rate and side slip decays at a rate that grows with mu, so the fit prefers a larger mu to
-shed it faster: with the noise model of ``pcvfe_drake.estimation.synthetic_drive`` and H = 10 this
+shed it faster: with the noise model of ``pcvfe_drake.models.synthetic_drive`` and H = 10 this
 biases mu
 by +0.01 to +0.02. By default the initial steering angle, yaw rate and side slip of a window are
 therefore the mean of the ``2 m + 1`` samples centred on the start, with

@@ -26,7 +26,6 @@ import time
 
 import numpy as np
 
-from pcvfe_drake.estimation import least_squares as lsq
 from pcvfe_drake.estimation.fit_dataset import SKIP_REASONS, WindowDataset
 from pcvfe_drake.estimation.fit_options import (
     STATUS_DIVERGED,
@@ -36,6 +35,7 @@ from pcvfe_drake.estimation.fit_options import (
     with_model_error,
 )
 from pcvfe_drake.estimation.fit_quality import assess
+from pcvfe_drake.models import least_squares as lsq
 from pcvfe_drake.vehicle.params import THETA_NAMES, VehicleParams
 from pcvfe_drake.vehicle.single_track import NTHETA
 

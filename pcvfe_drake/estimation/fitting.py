@@ -26,7 +26,6 @@ from collections.abc import Hashable, Mapping
 
 import numpy as np
 
-from pcvfe_drake.estimation import least_squares as lsq
 from pcvfe_drake.estimation.fit_dataset import SKIP_REASONS, WindowDataset, WindowSplit
 from pcvfe_drake.estimation.fit_loss import (
     check_theta,
@@ -52,6 +51,7 @@ from pcvfe_drake.estimation.fit_options import (
     joint_options,
 )
 from pcvfe_drake.estimation.fit_uncertainty import final_result, no_fit_result
+from pcvfe_drake.models import least_squares as lsq
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import NTHETA
 

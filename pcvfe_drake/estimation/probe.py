@@ -102,6 +102,7 @@ import numpy as np
 
 from pcvfe_drake.estimation.unknown_context import with_friction
 from pcvfe_drake.json_numbers import finite_or_none
+from pcvfe_drake.models.chassis_effects import wheel_slip_offsets
 from pcvfe_drake.vehicle.single_track import BETA, DELTA, PSI_DOT, V
 
 DEFAULT_PROBE_USE_FRACTION = 0.64
@@ -251,7 +252,6 @@ def wheel_peak_share(
     multi-body Ford Escort, ``benchmarks/front_axle_gap.py``), so the tyres can be near their
     peak while the car's mean use is not. The share depends on the fitted ``mu`` and errs
     safe: a peak fitted too high reads a smaller share."""
-    from pcvfe_drake.workbench.chassis_effects import wheel_slip_offsets
 
     x = np.asarray(states, dtype=float)
     tt = np.asarray(t, dtype=float)

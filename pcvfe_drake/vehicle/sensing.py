@@ -14,7 +14,7 @@ state by :class:`StateSensorModel`; the true state stays available as the sim-on
 * ``latency_s`` delays the true state by a whole number of sensor periods (rounded).
 
 The default standard deviations are those of
-:class:`pcvfe_drake.estimation.synthetic_drive.MeasurementNoise` (RTK GNSS position 2 cm,
+:class:`pcvfe_drake.models.synthetic_drive.MeasurementNoise` (RTK GNSS position 2 cm,
 dual-antenna heading 0.5 deg, gyro 0.01 rad/s, slip angle 0.005 rad,
 speed 0.05 m/s, steering encoder 0.002 rad). ``model = "none"`` reports the true state
 unchanged (the behaviour before sensing existed). This module has no ``from __future__ import
@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pcvfe_drake.estimation.synthetic_drive import MeasurementNoise
+from pcvfe_drake.vehicle.measurement_noise import MeasurementNoise
 from pcvfe_drake.vehicle.single_track import NX, STATE_NAMES
 
 SENSING_MODELS = ("none", "ins")

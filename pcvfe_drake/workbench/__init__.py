@@ -13,13 +13,8 @@ Python API::
 See ``docs/workbench.md``.
 """
 
-from pcvfe_drake.workbench import (  # noqa: F401  (registers them)
-    chassis_effects,
-    sensor_effects,
-    tyre_effects,
-)
-from pcvfe_drake.workbench.data import DriveData, load, prepare
-from pcvfe_drake.workbench.effects import (
+from pcvfe_drake.models.data import DriveData, load, prepare
+from pcvfe_drake.models.effects import (
     Effect,
     EffectParam,
     StepContext,
@@ -27,7 +22,7 @@ from pcvfe_drake.workbench.effects import (
     known_effects,
     register_effect,
 )
-from pcvfe_drake.workbench.model import WorkbenchModel
+from pcvfe_drake.models.model import WorkbenchModel
 from pcvfe_drake.workbench.ranking import DiagnoseConfig, Workbench
 from pcvfe_drake.workbench.report import diagnose, write_report
 

@@ -18,10 +18,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from pcvfe_drake.models.data import MIN_SPEED_MPS, DriveData, block_ids, heldout_blocks
+from pcvfe_drake.models.estimate import FIT_STATES
+from pcvfe_drake.models.model import WorkbenchModel
 from pcvfe_drake.vehicle.single_track import NX, PSI, STATE_NAMES, wrap_angle
-from pcvfe_drake.workbench.data import MIN_SPEED_MPS, DriveData, block_ids, heldout_blocks
-from pcvfe_drake.workbench.estimate import FIT_STATES
-from pcvfe_drake.workbench.model import WorkbenchModel
 
 HORIZONS_S = (0.0, 0.5, 1.0, 2.0)
 """k-step horizons [s] reported (0 means one sample step)."""

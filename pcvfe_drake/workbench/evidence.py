@@ -33,9 +33,9 @@ from scipy.optimize import brentq
 from scipy.signal import correlate
 from scipy.stats import chi2, norm
 
+from pcvfe_drake.models.data import DriveData, window_starts
+from pcvfe_drake.models.estimate import FIT_STATES
 from pcvfe_drake.vehicle.single_track import INPUT_NAMES, STATE_NAMES, wrap_angle
-from pcvfe_drake.workbench.data import DriveData, window_starts
-from pcvfe_drake.workbench.estimate import FIT_STATES
 
 RESID_STEP_S = 0.2
 """Prediction step [s] of the residual-structure tests."""

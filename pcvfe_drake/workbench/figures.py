@@ -10,10 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
+from pcvfe_drake.models.data import block_ids, heldout_blocks, window_starts
+from pcvfe_drake.models.estimate import FIT_STATES
 from pcvfe_drake.vehicle.single_track import INPUT_NAMES, STATE_NAMES
 from pcvfe_drake.workbench.compare import noise_rollouts
-from pcvfe_drake.workbench.data import block_ids, heldout_blocks, window_starts
-from pcvfe_drake.workbench.estimate import FIT_STATES
 from pcvfe_drake.workbench.verdict import localise
 
 DPI = 80

@@ -19,14 +19,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
+from pcvfe_drake.models.data import DriveData, window_starts
+from pcvfe_drake.models.effects import get_effect, known_effects
+from pcvfe_drake.models.estimate import FitResult, fit
+from pcvfe_drake.models.model import WorkbenchModel
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import STATE_NAMES
 from pcvfe_drake.workbench.compare import evaluate, public
-from pcvfe_drake.workbench.data import DriveData, window_starts
-from pcvfe_drake.workbench.effects import get_effect, known_effects
-from pcvfe_drake.workbench.estimate import FitResult, fit
 from pcvfe_drake.workbench.evidence import error_drop, excess_error_test
-from pcvfe_drake.workbench.model import WorkbenchModel
 from pcvfe_drake.workbench.selection import run_selection
 from pcvfe_drake.workbench.verdict import final_verdict
 

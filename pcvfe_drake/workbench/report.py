@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
+from pcvfe_drake.models.data import DriveData
 from pcvfe_drake.vehicle.single_track import STATE_NAMES
 from pcvfe_drake.workbench.compare import public
-from pcvfe_drake.workbench.data import DriveData
 from pcvfe_drake.workbench.figures import all_figures
 from pcvfe_drake.workbench.ranking import DiagnoseConfig, Workbench
 from pcvfe_drake.workbench.residuals import breakdowns, whiteness

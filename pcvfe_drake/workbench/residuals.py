@@ -17,16 +17,17 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import norm
 
+from pcvfe_drake.models.data import DriveData, window_starts
+from pcvfe_drake.models.estimate import FIT_STATES
+from pcvfe_drake.models.model import WorkbenchModel
 from pcvfe_drake.vehicle.single_track import INPUT_NAMES, STATE_NAMES, wrap_angle
-from pcvfe_drake.workbench.data import DriveData, window_starts
-from pcvfe_drake.workbench.estimate import FIT_STATES
 from pcvfe_drake.workbench.evidence import (
     bartlett_ccf,
     lagged_corr,
     ma1_portmanteau,
     prewhitened_ccf,
 )
-from pcvfe_drake.workbench.model import WorkbenchModel
+from pcvfe_drake.workbench.verdict import bin_label, range_edges
 
 MAX_LAG = 25
 BAND_Z99 = 2.576
@@ -99,7 +100,6 @@ def _bins(values: np.ndarray, edges: np.ndarray, labels: list[str], score: np.nd
 
 def _range_bins(values: np.ndarray, unit: str, score: np.ndarray):
     """Bins over the data's own range (see :func:`pcvfe_drake.workbench.verdict.range_edges`)."""
-    from pcvfe_drake.workbench.verdict import bin_label, range_edges
 
     edges = range_edges(values)
     labels = [bin_label(edges[i], edges[i + 1], unit) for i in range(edges.size - 1)]

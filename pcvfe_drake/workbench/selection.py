@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
-from pcvfe_drake.workbench.estimate import FitResult
+from pcvfe_drake.models.estimate import FitResult
 from pcvfe_drake.workbench.evidence import error_drop, paired_drop_test
 
 

@@ -35,7 +35,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-from pcvfe_drake.workbench.data import window_starts
+from pcvfe_drake.models.data import window_starts
+from pcvfe_drake.workbench.selection import lr_test
 
 MIN_WINDOWS = 20
 """Fewest training windows of a part (and at least 3 per fitted parameter)."""
@@ -223,7 +224,6 @@ def _prune_unsupported(wb, ref, current: list[str], alpha: float, evidence: dict
     least significant effect whose removal the likelihood-ratio test does not reject
     (p >= ``alpha``) is dropped, until every one is needed. Returns (ref, dropped, n_fits);
     ``evidence`` gets a sentence per dropped effect."""
-    from pcvfe_drake.workbench.selection import lr_test
 
     dropped, n_fits = [], 0
     while current:

@@ -20,7 +20,7 @@ Driving (the excitation), chosen so every library effect is identifiable:
   which separates a road grade from rolling resistance. The driver counter-steers on side
   slip. The steering rate stays inside the vehicle's limit.
 
-Measurement noise (``pcvfe_drake.estimation.synthetic_drive.SURVEY_INS_NOISE``, a
+Measurement noise (``pcvfe_drake.models.synthetic_drive.SURVEY_INS_NOISE``, a
 ``MeasurementNoise``): independent Gaussian noise per state with the accuracy of a survey-grade
 GNSS/INS (e.g. a dual-antenna RTK INS) and a steering encoder; inputs are the recorded commands
 and are noise-free.
@@ -34,9 +34,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from pcvfe_drake.estimation.synthetic_drive import SURVEY_INS_NOISE, MeasurementNoise
+from pcvfe_drake.models.effects import RHO_AIR_KGPM3
+from pcvfe_drake.vehicle.measurement_noise import SURVEY_INS_NOISE, MeasurementNoise
 from pcvfe_drake.vehicle.params import VehicleParams, load_vehicle
-from pcvfe_drake.workbench.effects import RHO_AIR_KGPM3
 
 
 @dataclass(frozen=True)

@@ -18,10 +18,12 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import norm
 
+from pcvfe_drake.models.data import DriveData
+from pcvfe_drake.models.effects import get_effect
+from pcvfe_drake.models.estimate import FIT_STATES
 from pcvfe_drake.vehicle.single_track import STATE_NAMES
-from pcvfe_drake.workbench.data import DriveData
-from pcvfe_drake.workbench.estimate import FIT_STATES
 from pcvfe_drake.workbench.evidence import excess_error_test, residual_structure
+from pcvfe_drake.workbench.stability import stand_ins as unstable_effects
 
 REGIMES = {
     "speed": "m/s",
@@ -167,8 +169,6 @@ def final_verdict(wb, fit, ev, selected: list[str], alpha: float) -> dict:
     residual test (it does not explain its own state), or its parameters are not the same
     over the operating range (:func:`pcvfe_drake.workbench.stability.stand_ins`, a Chow-type
     test at ``alpha``; run only when a test fails and effects would otherwise be named)."""
-    from pcvfe_drake.workbench.effects import get_effect
-    from pcvfe_drake.workbench.stability import stand_ins as unstable_effects
 
     data = wb.data
     resid = residual_structure(fit.model, fit.theta, data, wb.config.n_blocks)

@@ -71,7 +71,8 @@ def test_closed_loop_discovers_contexts_fits_friction_and_tracks(tmp_path):
         assert e["std"] is not None
     # Concrete, the current terrain, holds its samples. (Sand's were relabelled: in this short
     # scenario a re-clustering at 15 s merges sand's clusters under a fresh id, and the fitter's
-    # samples follow the clustering's labels, paper eq. 5d; tests/test_relabel.py covers that.)
+    # samples follow the clustering's labels, paper eq. 5d; tests/estimation/test_relabel.py
+    # covers that.)
     assert by_terrain["concrete"]["samples"] > 100
     # Noise only while a new terrain waits for its first re-clustering.
     assert s["noise_fraction"] < 0.6

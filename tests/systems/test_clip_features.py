@@ -18,7 +18,7 @@ from pcvfe_drake.systems.texture_camera import TextureCamera, to_drake_image
 
 
 def load_tiny_clip_helpers():
-    path = Path(__file__).resolve().parents[1] / "test_features.py"
+    path = Path(__file__).resolve().parents[1] / "perception" / "test_features.py"
     spec = importlib.util.spec_from_file_location("tiny_clip_helpers", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

@@ -11,7 +11,7 @@ from pydrake.trajectories import PiecewisePolynomial
 
 from pcvfe_drake.contexts.cluster_table import FrameLabels
 from pcvfe_drake.estimation.context_estimator import EstimateTable
-from pcvfe_drake.estimation.synthetic_drive import s_curve_drive
+from pcvfe_drake.models.synthetic_drive import s_curve_drive
 from pcvfe_drake.systems.context_fitter import ContextFitter
 from pcvfe_drake.vehicle.params import ford_escort
 

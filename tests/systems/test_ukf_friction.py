@@ -6,9 +6,10 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
-from pcvfe_drake.estimation.synthetic_drive import MeasurementNoise, s_curve_drive
 from pcvfe_drake.estimation.ukf import MU, NXA
+from pcvfe_drake.models.synthetic_drive import s_curve_drive
 from pcvfe_drake.systems.ukf_friction import UkfFriction
+from pcvfe_drake.vehicle.measurement_noise import MeasurementNoise
 from pcvfe_drake.vehicle.params import ford_escort
 
 

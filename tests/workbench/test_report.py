@@ -1,0 +1,100 @@
+"""The diagnosis report: every picture of where the model fails, checked in a headless browser."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from pcvfe_drake.models.data import prepare
+from pcvfe_drake.workbench import synth
+from pcvfe_drake.workbench.report import diagnose, write_report
+
+PNGS = [
+    "selection_path.png",
+    "error_over_log.png",
+    "error_map.png",
+    "regimes.png",
+    "bias.png",
+    "cross_correlation.png",
+    "overlay.png",
+    "residual_autocorr.png",
+    "ranking.png",
+]
+
+
+@pytest.fixture(scope="module")
+def report_dir(tmp_path_factory):
+    (df,) = synth.simulate_truths(
+        [synth.PLANTED["drag"][0]], duration_s=60.0, rate_hz=20.0, seed=2, substeps=2
+    )
+    df["terrain"] = np.where(df["t"] < 30.0, "asphalt", "gravel")
+    report, wb = diagnose(prepare(df, "two contexts"), candidates=["drag", "gyro_bias"])
+    out = tmp_path_factory.mktemp("rep") / "report"
+    write_report(report, wb, out)
+    return out, report
+
+
+def test_report_has_every_picture_and_the_loop(report_dir):
+    out, report = report_dir
+    for png in PNGS:
+        assert (out / png).stat().st_size > 2000, png
+    saved = json.loads((out / "report.json").read_text())
+    assert [s["name"] for s in saved["selected"]] == ["drag"]
+    assert set(saved["verdict"]["context_bias"]) == {"asphalt", "gravel"}
+    # regime bins come from the data's range and are never empty
+    for kind, rows in saved["verdict"]["localisation"]["bins"].items():
+        assert rows and all(r["n"] > 0 for r in rows), kind
+    html = (out / "report.html").read_text()
+    assert html.count("data:image/png;base64,") == len(PNGS)
+    assert 'id="verdict"' in html and "The loop" in html
+
+
+def _chromium() -> str | None:
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+@pytest.mark.skipif(
+    _chromium() is None, reason="no headless Chromium (apt-get install -y chromium)"
+)
+def test_report_renders_in_headless_chromium(report_dir, tmp_path):
+    out, report = report_dir
+    # a copy with a probe script: the page title reports how many images decoded
+    probe = (
+        (out / "report.html")
+        .read_text()
+        .replace(
+            "</body>",
+            '<script>addEventListener("load",()=>{const i=[...document.images];'
+            'document.title="decoded "+i.filter(x=>x.complete&&x.naturalWidth>0).length+"/"'
+            "+i.length;});</script></body>",
+        )
+    )
+    page = tmp_path / "probe.html"
+    page.write_text(probe)
+    args = [_chromium(), "--headless", "--no-sandbox", "--disable-gpu"]
+    dom = subprocess.run(
+        [*args, "--virtual-time-budget=5000", "--dump-dom", page.as_uri()],
+        capture_output=True,
+        text=True,
+        timeout=90,
+    ).stdout
+    assert f"decoded {len(PNGS)}/{len(PNGS)}" in dom, dom[:300]
+    assert report["verdict"]["kind"] in dom
+    shot = tmp_path / "shot.png"
+    subprocess.run(
+        [*args, "--window-size=1200,2400", f"--screenshot={shot}", (out / "report.html").as_uri()],
+        capture_output=True,
+        timeout=90,
+    )
+    import matplotlib.image as mpimg
+
+    img = mpimg.imread(shot)
+    assert img.shape[0] >= 2000 and img.std() > 0.05  # a rendered page, not a blank one
