@@ -46,6 +46,13 @@ def register(subparsers) -> None:
     )
     parser.add_argument("--seeds", type=int, default=None, help="number of seeds per cell")
     parser.add_argument(
+        "--sources",
+        nargs="+",
+        default=None,
+        metavar="NAME",
+        help="run only these friction sources of the experiment",
+    )
+    parser.add_argument(
         "--quick", action="store_true", help="the experiment's quick settings (few seeds, short)"
     )
     parser.add_argument(
@@ -89,6 +96,8 @@ def run(args: argparse.Namespace) -> int:
     from pcvfe_drake.evaluation.store import ResultStore
 
     exp, path = load_experiment(args.experiment)
+    if args.sources:
+        exp = exp.with_sources(args.sources)
     specs = run_specs(exp, path, seeds=args.seeds, quick=args.quick)
     out = args.out or Path("runs") / "evaluate" / (exp.name + ("-quick" if args.quick else ""))
     store = ResultStore(out)

@@ -9,7 +9,8 @@ error RMS and max on the true state, the RMS split by whether mu_hat was below t
 by more than 0.05 (the policy at work on a grippier terrain), within 0.05, or above, the
 time-weighted mu error and the peak friction utilisation.
 
-Usage: python benchmarks/unknown_policy_tracking.py [--quick] [--scenario paper_sim] [--seed 0]
+Usage: python studies/unknown_policy_tracking/unknown_policy_tracking.py
+       [--quick] [--scenario paper_sim] [--seed 0]
 Prints one JSON object as its last line.
 """
 

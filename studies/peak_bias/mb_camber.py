@@ -30,7 +30,7 @@ wheel ``S_hy = sign(gamma) (p_hy1 + p_hy3 |gamma|)`` to the slip and ``S_vy = si
   force over ``p_vy1`` Fz) left by ``roll_camber``'s ``tanh(v psi_dot / 0.5)`` and by
   ``wheel_camber``'s mean sign at ``WHEEL_CAMBER_FORM`` for the widths in ``SIGN_WIDTHS``.
 
-Usage: python benchmarks/mb_camber.py [--seconds S] [--quick]
+Usage: python studies/peak_bias/mb_camber.py [--seconds S] [--quick]
 Last stdout line: one JSON object.
 """
 
@@ -58,7 +58,7 @@ ROLL_TAUS = (0.0, 0.03, 0.05, 0.08, 0.1, 0.15)
 SIGN_WIDTHS = (0.1, 0.3, 0.5)
 """Widths of the smooth sign tried in ``wheel_signs`` [m/s^2]."""
 WHEEL_CAMBER_FORM = {"k_xf": 0.39, "k_xr": -0.095, "tau": 0.08}
-"""``wheel_camber``'s geometry as held in ``benchmarks/workbench_multibody.py``."""
+"""``wheel_camber``'s geometry as held in ``validation/workbench_multibody.py``."""
 
 
 def wheel_terms(x, p):

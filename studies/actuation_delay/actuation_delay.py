@@ -17,7 +17,8 @@ on one ``memq://`` bus, simulated clock): the LCM loop's structural timing (stat
 100 Hz checks, commands applied at the bridge's next check) without the stalls of a loaded
 machine.
 
-Usage: python benchmarks/actuation_delay.py [--delays 0 0.037] [--laps 1 | --duration S]
+Usage: python studies/actuation_delay/actuation_delay.py
+       [--delays 0 0.037] [--laps 1 | --duration S]
        [--lcm-loop] [--quick]
 Last stdout line: one JSON object.
 """

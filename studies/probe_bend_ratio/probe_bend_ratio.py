@@ -15,7 +15,8 @@ the ratio the tyres showed where the probe handed about the truth (0.9-1.1) is w
 The log is at its logging rate (20 Hz in the shipped scenarios), not the fitter's 100 Hz, so a
 window has a fifth of the live samples (the probe's 1 s minimum of samples at force still holds).
 
-Usage: python benchmarks/probe_bend_ratio.py [RUN_DIR ...] [--window 3] [--json-only] [--quick]
+Usage: python studies/probe_bend_ratio/probe_bend_ratio.py
+       [RUN_DIR ...] [--window 3] [--json-only] [--quick]
            [--scenario S]
 Without run folders it makes one: ``pcvfe simulate SCENARIO --seed 0`` (default
 ``paper_eval_effects``; one lap, 1-3 min; ``--quick``: its first 60 s, sand and concrete).
@@ -33,7 +34,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from _own_run import make_run
 
 from pcvfe_drake.estimation.effect_fit import friction_used
 from pcvfe_drake.estimation.probe import bend_ratios
@@ -44,6 +44,19 @@ MIN_FORCE = 0.1
 """The probe's ``probe_min_force`` [g]."""
 BANDS = ((0.0, 0.9), (0.9, 1.1), (1.1, 1.3), (1.3, 10.0))
 """Groups of handed mu / true mu."""
+
+
+def make_run(out: Path, scenario: str, duration_s: float | None = None) -> Path:
+    """One ``pcvfe simulate`` of ``scenario``, seed 0, no Meshcat, into ``out`` (``duration_s``:
+    only its first seconds; None: the scenario's length)."""
+    from pcvfe_drake.cli import main as pcvfe
+
+    cmd = ["simulate", scenario, "--seed", "0", "--no-meshcat", "--out", str(out)]
+    cmd += ["--duration", f"{duration_s:g}"] if duration_s is not None else []
+    print("making a run: pcvfe " + " ".join(cmd), flush=True)
+    if pcvfe(cmd) != 0:
+        raise SystemExit("pcvfe simulate failed")
+    return out
 
 
 def _log(run: Path) -> pd.DataFrame:

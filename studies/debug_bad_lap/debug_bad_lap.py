@@ -8,7 +8,7 @@ headless-Chromium screenshot of each run's playback on its last frame, aimed at 
 friction circle, camera panel) and at the feature cloud. The screenshots go to ``--out-dir``.
 With ``--quick`` only the failing run (no screenshots).
 
-Usage: python benchmarks/debug_bad_lap.py [--quick] [--scenario NAME] [--out-dir DIR]
+Usage: python studies/debug_bad_lap/debug_bad_lap.py [--quick] [--scenario NAME] [--out-dir DIR]
        [--before S ...]
 Last stdout line: one JSON object.
 """
@@ -17,14 +17,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from playback_screenshot import find_chromium, screenshot  # noqa: E402
+from chromium import find_chromium, screenshot
 
 CAR_OFFSET = np.array([-7.0, 0.0, 9.0])  # FrictionCircleView's default offset from the car
 

@@ -47,7 +47,7 @@ multi-body tyre's camber terms that CommonRoad multiplies by the camber's sign, 
 lateral force of 3.7 % of the load) and ``p_hy1`` (a 0.0027 rad slip shift), are set to 0; the
 terms proportional to the camber stay.
 
-Usage: python benchmarks/workbench_multibody.py [--quick] [--duration S] [--seed N]
+Usage: python validation/workbench_multibody.py [--quick] [--duration S] [--seed N]
        [--mappings m1,m2] [--out DIR] [--no-camber-offset]
        (--out: the workbench's figures per mapping)
 Last stdout line: one JSON object.
@@ -60,8 +60,8 @@ import json
 import time
 
 import numpy as np
-from tqdm import tqdm
 
+from pcvfe_drake.progress import progress_bar
 from pcvfe_drake.vehicle.mb_truth import FRICTION_SCALINGS
 from pcvfe_drake.workbench import synth
 from pcvfe_drake.workbench.data import prepare
@@ -74,7 +74,7 @@ WATCH = ("suspension_lag", "roll_camber", "wheel_camber")
 """Effects whose last-round entry is reported (added to the library after the study)."""
 TRACK_CAR = {"t": 1.39, "k_lt": -0.85}
 """``track_slip`` at the multi-body Ford Escort's front track and its front wheels' measured load
-transfer (``benchmarks/front_axle_gap.py``)."""
+transfer (``studies/peak_bias/front_axle_gap.py``)."""
 SCENARIO_MODELS = {
     "found_before": {"peak_tyre": {"k_s": 1.19}, "axle_stiffness": {"k_f": 0.96, "k_r": 1.08}},
     "car_model": {
@@ -90,10 +90,10 @@ with k_s 1), every parameter held, mu per terrain fitted."""
 ROLL_CAMBER_TYRE = {"f0": -0.037, "f1": 0.0, "s0": 0.0027}
 """``roll_camber`` at the multi-body tyre's sign-of-camber constants: ``-p_vy1`` (the side force
 opposes the bend: the roll cambers the wheels negatively in a left bend) and ``+p_hy1`` (the slip
-shift adds to the slip; ``benchmarks/mb_camber.py``)."""
+shift adds to the slip; ``studies/peak_bias/mb_camber.py``)."""
 WHEEL_CAMBER_TYRE = {"f0": -0.037, "s0": 0.0027, "k_xf": 0.39, "k_xr": -0.095, "tau": 0.08}
 """``wheel_camber`` at the same tyre constants, with the camber geometry measured on the
-multi-body Ford Escort (``benchmarks/mb_camber.py``, ``wheel_signs``: the pitch and heave's
+multi-body Ford Escort (``studies/peak_bias/mb_camber.py``, ``wheel_signs``: the pitch and heave's
 share ``k_xf``, ``k_xr`` and the roll's lag ``tau``)."""
 
 
@@ -292,7 +292,7 @@ def main() -> int:
         parser.error(f"unknown mapping(s) {bad}; choose from {FRICTION_SCALINGS}")
     t0 = time.perf_counter()
     rows = []
-    for m in tqdm(mappings, desc="mappings"):
+    for m in progress_bar(mappings, desc="mappings"):
         row = study(m, args.duration, args.seed, args.out)
         print(json.dumps(row), flush=True)
         rows.append(row)
@@ -352,6 +352,10 @@ def main() -> int:
         ),
         "wall_s": round(time.perf_counter() - t0, 1),
     }
+    summary["target"] = (
+        "with peak_tyre added, the held-out error <= 1.5x the noise floor under every mapping"
+    )
+    summary["passed"] = summary["all_within_target_with_peak_tyre"]
     summary["median_final_error_to_floor"] = float(
         np.median([r["final_error_to_floor"] for r in rows])
     )

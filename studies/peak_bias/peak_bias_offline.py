@@ -32,7 +32,7 @@ temporary folder (``--quick``: one seed of the experiment's quick 30 s, sand onl
 ``--models project`` (with ``--scenario paper_eval_effects_project`` and that scenario's runs):
 the rows of ``PROJECT_MODELS`` instead, for the project's mapping (``peak_and_stiffness``).
 
-Usage: python benchmarks/peak_bias_offline.py [--runs DIR] [--quick] [--source pcvfe_effects]
+Usage: python studies/peak_bias/peak_bias_offline.py [--runs DIR] [--quick] [--source pcvfe_effects]
        [--scenario paper_eval_effects] [--seeds 0,1,2] [--terrains patchy_grass,sand,brick]
        [--models public|project]
 Each fit takes about a second. Last stdout line: one JSON object.
@@ -61,7 +61,7 @@ ROLL_CAMBER_TYRE = {"f0": -0.037, "f1": 0.0, "s0": 0.0027}
 """``roll_camber`` at the multi-body tyre's own sign-of-camber offsets (``p_vy1``, ``p_hy1``)."""
 TRACK = {"name": "track_slip", "fixed": {"t": 1.39, "k_lt": -0.85}}
 """``track_slip`` at the multi-body Ford Escort's track widths (``T_f``, ``T_r``) and the load
-transfer its front wheels show (``benchmarks/front_axle_gap.py``: the inner wheel loaded)."""
+transfer its front wheels show (``studies/peak_bias/front_axle_gap.py``: the inner wheel loaded)."""
 TRACK_EFFECTIVE = {"name": "track_slip", "fixed": {"t": 1.1, "k_lt": -0.85}}
 MODELS = {
     "as_run": [PEAK, AXLE],

@@ -12,7 +12,7 @@ renders (``layers.<name>.pixels_differing``, ``renders`` above ``LAYER_MIN_SHARE
 recording is set to stop on its last frame, so the screenshot shows the end of the run. Skipped,
 with the reason in the JSON, when Chromium is absent (Debian: ``apt-get install -y chromium``).
 
-Usage: python benchmarks/playback_screenshot.py [--quick] [--html PATH] [--out PNG] [--out-dir DIR]
+Usage: python validation/playback_screenshot.py [--quick] [--html PATH] [--out PNG] [--out-dir DIR]
 Last stdout line: one JSON object.
 """
 
@@ -215,6 +215,11 @@ def main() -> int:
         else:
             out["layers_skipped"] = "--html given: the layers are checked on a fresh run only"
         print(f"  {out}", flush=True)
+    out["target"] = (
+        "the playback renders the scene and every debugging layer (skipped: no Chromium)"
+    )
+    if not out.get("skipped"):
+        out["passed"] = bool(out.get("renders_scene")) and bool(out.get("layers_render", True))
     print(json.dumps(out))
     return 0
 

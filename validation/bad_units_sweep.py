@@ -8,7 +8,7 @@ t): 79 logs. Each is validated (``validate_drive_log``, gaps allowed as in ``pcv
 ones that pass are fitted (``fit_contexts``, defaults) and compared with the clean log's mu.
 ``silent`` counts fits off by more than 0.05 in mu with no warning.
 
-Usage: python benchmarks/bad_units_sweep.py [--quick]   (--quick: the same, it is fast)
+Usage: python validation/bad_units_sweep.py [--quick]   (--quick: the same, it is fast)
 Last stdout line: one JSON object.
 """
 
@@ -87,6 +87,11 @@ def main() -> int:
         "silent_wrong_mu": silent,
         "silent_cases": silent_cases,
         "clean_mu": mu0,
+        "target": (
+            "no unit or sign confusion passes silently: only scale errors of 10 % (x1.1, x0.9) "
+            "may give a mu off by > 0.05 without a warning (docs/drive_log.md)"
+        ),
+        "passed": all(c.split(":")[0].split()[1] in ("x1.1", "x0.9") for c in silent_cases),
     }
     print(json.dumps(result))
     return 0

@@ -9,7 +9,7 @@ context got its first fit, counted from the first entry into the terrain
 response at that entry (time until |mu_hat - mu_true| <= 0.05; none for the start terrain).
 Plus the run's mean speed, lateral RMS and time-weighted mu error.
 
-Usage: python benchmarks/relabel_first_fit.py [--quick] [--scenario paper_sim] [--seed 0]
+Usage: python validation/relabel_first_fit.py [--quick] [--scenario paper_sim] [--seed 0]
 Prints one JSON object as its last line.
 """
 
@@ -93,6 +93,16 @@ def main() -> int:
         for name in after
         if name in before and before[name][key] is not None and after[name][key] is not None
     }
+    result["target"] = (
+        "relabelling never delays a terrain's first fit and does not raise the lap's "
+        "time-weighted mu error"
+    )
+    result["passed"] = bool(
+        result["first_fit_earlier_s"]
+        and all(v >= 0 for v in result["first_fit_earlier_s"].values())
+        and result["relabel"]["mu_abs_error_time_weighted"]
+        <= result["online_ids"]["mu_abs_error_time_weighted"]
+    )
     print(json.dumps(result))
     return 0
 

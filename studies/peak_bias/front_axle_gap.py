@@ -55,7 +55,7 @@ piece dropped while the suspension settles; ``--runs``; the MB model with ``--sc
 ``friction_mapping``; ``yaw_rate_rms_vs_log_radps``: how far the replayed yaw rate strays from
 the logged one; ``--no-drive``: the replays only).
 
-Usage: python benchmarks/front_axle_gap.py [--seconds S] [--runs DIR --seeds 0,1]
+Usage: python studies/peak_bias/front_axle_gap.py [--seconds S] [--runs DIR --seeds 0,1]
        [--scenario paper_eval_effects] [--law K_F,K_S] [--terrains patchy_grass,sand]
        [--no-drive] [--quick]
 Last stdout line: one JSON object.
@@ -72,6 +72,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from mb_camber import wheel_terms
 from scipy.optimize import brentq, minimize_scalar
 from tqdm import tqdm
 from vehiclemodels.utils import tire_model
@@ -81,9 +82,6 @@ from pcvfe_drake.vehicle.params import load_vehicle
 from pcvfe_drake.workbench import synth
 from pcvfe_drake.workbench.chassis_effects import wheel_slip_offsets
 from pcvfe_drake.workbench.tyre_effects import MF_SHAPE
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from mb_camber import wheel_terms  # noqa: E402
 
 STEPS = (
     "fitter_law",

@@ -21,7 +21,7 @@ seed) pairs within 0.05 after 20 s (contexts that reached 20 s), of runs within 
 scored context, and the 95 % interval coverage; mean speed relative to the oracle of the same
 seed.
 
-Usage: python benchmarks/fit_multibody_eval.py [--quick] [--seeds 1] [--sources st,effects,oracle]
+Usage: python validation/fit_multibody_eval.py [--quick] [--seeds 1] [--sources st,effects,oracle]
        [--mappings lateral_peak,peak_and_stiffness] [--effects MAPPING=E1,E2 ...]
 Runs take minutes each (multi-body truth). Last stdout line: one JSON object.
 """
@@ -33,7 +33,7 @@ import dataclasses
 import json
 import time
 
-from tqdm import tqdm
+from pcvfe_drake.progress import progress_bar
 
 EFFECTS = {
     "lateral_peak": ["peak_tyre:k_s=0"],
@@ -191,7 +191,8 @@ def main() -> int:
         for s in sources
     ]
     runs = []
-    for mapping, source, seed in tqdm(jobs, desc="paper_eval runs"):
+    bar = progress_bar(jobs, desc="paper_eval runs")
+    for mapping, source, seed in bar:
         r = run_one(mapping, source, seed, effects.get(mapping, []), args.laps)
         runs.append(r)
         ctx = ", ".join(
@@ -200,7 +201,7 @@ def main() -> int:
             for c in r["contexts"]
             if c["true_mu"] is not None
         )
-        tqdm.write(
+        bar.write(
             f"{mapping} {source} seed {seed}: laps {r['laps_fraction']:.2f}, "
             f"{r['mean_speed_mps']:.2f} m/s, failures {r['catastrophic_failures']}, "
             f"cpu {r['cpu_s']:.0f} s; {ctx}"
@@ -217,6 +218,15 @@ def main() -> int:
         "aggregate": aggregate(runs),
         "runs": runs,
     }
+    effect_runs = [r for r in runs if r["source"] == "effects"]
+    result["target"] = (
+        "PC-VFE with the effect model drives every run to its end (a lap, or --laps) without "
+        "a catastrophic failure (the single-track rows are the comparison)"
+    )
+    result["passed"] = bool(effect_runs) and all(
+        (r["laps_fraction"] or 0) >= 0.999 * min(args.laps, 1.0) and not r["catastrophic_failures"]
+        for r in effect_runs
+    )
     print(json.dumps(result, default=lambda v: None))
     return 0
 

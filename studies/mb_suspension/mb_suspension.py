@@ -21,7 +21,8 @@ directly, states and forces, no noise:
   regression on sign(a_y), a_y and a_x sign(a_y) (the part no function of the accelerations
   describes: roll and pitch dynamics, the sign flips).
 
-Usage: python benchmarks/mb_suspension.py [--seconds S] [--mu MU] [--quick]  (--quick: 20 s)
+Usage: python studies/mb_suspension/mb_suspension.py
+       [--seconds S] [--mu MU] [--quick]  (--quick: 20 s)
 Last stdout line: one JSON object.
 """
 

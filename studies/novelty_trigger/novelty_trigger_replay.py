@@ -17,9 +17,10 @@ was first reported with no context handed (the unknown-context value), and
 ``handed_higher_s``, seconds handed a context whose terrain's friction is more than 0.05 above
 the friction under the car (transition strips, the hold onto a new terrain).
 
-Usage: python benchmarks/novelty_trigger_replay.py [RUN_DIR ...] [--window 6] [--scenario NAME]
+Usage: python studies/novelty_trigger/novelty_trigger_replay.py
+       [RUN_DIR ...] [--window 6] [--scenario NAME]
 [--hold S] [--quick]
-Without run folders it makes one (``terrain_entry_latency.make_run``: ``pcvfe simulate
+Without run folders it makes one (``make_run`` below: ``pcvfe simulate
 paper_eval_effects --seed 0``, one lap; ``--quick``: its first 45 s).
 Prints one JSON object as its last line.
 """
@@ -36,7 +37,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from _own_run import make_run
 
 from pcvfe_drake.contexts.clustering import NOISE, ClusteringParams, ContextClusterer
 from pcvfe_drake.runs import drive_metrics
@@ -45,6 +45,19 @@ STRIPS = ("gravel", "dry_soil")
 PERIOD_S = 10.0
 NOISE_HOLD_S = 1.0
 HIGHER_TOL = 0.05
+
+
+def make_run(out: Path, scenario: str, duration_s: float | None = None) -> Path:
+    """One ``pcvfe simulate`` of ``scenario``, seed 0, no Meshcat, into ``out`` (``duration_s``:
+    only its first seconds; None: the scenario's length)."""
+    from pcvfe_drake.cli import main as pcvfe
+
+    cmd = ["simulate", scenario, "--seed", "0", "--no-meshcat", "--out", str(out)]
+    cmd += ["--duration", f"{duration_s:g}"] if duration_s is not None else []
+    print("making a run: pcvfe " + " ".join(cmd), flush=True)
+    if pcvfe(cmd) != 0:
+        raise SystemExit("pcvfe simulate failed")
+    return out
 
 
 def read_log(folder: Path) -> pd.DataFrame:
