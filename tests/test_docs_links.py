@@ -14,6 +14,9 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+"""Reference pages: links resolve and no commit hash."""
+NOTES = [ROOT / "CHANGELOG.md", *sorted((ROOT / "studies").rglob("*.md"))]
+"""History and studies: links resolve (hashes are part of their record)."""
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
 HASH = re.compile(r"\b(?=[0-9a-f]*[a-f])(?=[0-9a-f]*[0-9])[0-9a-f]{7,40}\b")
 README_MAX_LINES = 220
@@ -30,7 +33,7 @@ def relative_links(text: str) -> list[str]:
     return out
 
 
-@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
+@pytest.mark.parametrize("page", PAGES + NOTES, ids=lambda p: str(p.relative_to(ROOT)))
 def test_every_relative_link_resolves(page):
     missing = [t for t in relative_links(page.read_text()) if not (page.parent / t).exists()]
     assert not missing, f"{page.relative_to(ROOT)}: links to missing files {missing}"
