@@ -13,7 +13,12 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+PAGES = [
+    ROOT / "README.md",
+    ROOT / "benchmarks" / "README.md",
+    ROOT / "validation" / "README.md",
+    *sorted((ROOT / "docs").glob("*.md")),
+]
 """Reference pages: links resolve and no commit hash."""
 NOTES = [ROOT / "CHANGELOG.md", *sorted((ROOT / "studies").rglob("*.md"))]
 """History and studies: links resolve (hashes are part of their record)."""
@@ -39,7 +44,7 @@ def test_every_relative_link_resolves(page):
     assert not missing, f"{page.relative_to(ROOT)}: links to missing files {missing}"
 
 
-@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))
 def test_no_commit_hash(page):
     found = HASH.findall(page.read_text())
     assert not found, f"{page.relative_to(ROOT)}: commit hashes {found} (history: CHANGELOG.md)"
