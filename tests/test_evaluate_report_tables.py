@@ -4,6 +4,7 @@ results page, on small synthetic run folders and results tables with known answe
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -14,7 +15,11 @@ from pcvfe_drake.cli import main
 from pcvfe_drake.control.course import load_course
 from pcvfe_drake.evaluation import interval_coverage as ic
 from pcvfe_drake.evaluation.entry_latency import experiment_entries, run_entries, terrain_lag
-from pcvfe_drake.evaluation.results_page import experiment_section, update_results_page
+from pcvfe_drake.evaluation.results_page import (
+    experiment_section,
+    page_folders,
+    update_results_page,
+)
 from pcvfe_drake.runs.drivelog import TRUE_STATE_COLUMNS
 from pcvfe_drake.vehicle.single_track import STATE_NAMES
 
@@ -217,3 +222,56 @@ def test_report_options_from_the_command_line(tmp_path, capsys):
     assert "## tiny" in page.read_text()
     assert main(["evaluate", "paper_sim", "--entry-latency"]) == 2
     assert "go with --report DIR" in capsys.readouterr().err
+
+
+def test_the_projects_results_page_is_generated_from_its_stored_tables(tmp_path, monkeypatch):
+    """docs/results.md is exactly what its stored experiment folders give: never hand-edited."""
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.chdir(root)
+    folders = page_folders("docs/results.md")
+    assert folders, "docs/results.md names no stored experiment"
+    regenerated = update_results_page(tmp_path / "results.md", folders)
+    assert regenerated.read_text() == (root / "docs" / "results.md").read_text()
+
+
+def test_sources_restrict_the_grid_and_name_an_unknown_one():
+    from pcvfe_drake.evaluation.experiment import Experiment, Source
+
+    exp = Experiment(
+        name="g",
+        sources=[Source(name=n) for n in ("pcvfe", "ukf", "oracle")],
+        reference="pcvfe",
+    )
+    part = exp.with_sources(["oracle", "ukf"])
+    assert [s.name for s in part.sources] == ["ukf", "oracle"]  # the experiment's order
+    assert part.reference_source == "ukf"  # the reference was left out: the first kept
+    assert exp.with_sources(["pcvfe", "oracle"]).reference_source == "pcvfe"
+    with pytest.raises(ValueError, match="unknown source.*kmpc.*its sources: pcvfe, ukf, oracle"):
+        exp.with_sources(["kmpc"])
+
+
+def test_refit_of_a_run_folders_final_buffer(tmp_path):
+    """A run on the ST truth (mu 0.6, 20 s S-curves, noise-free): the refit of the context's
+    buffer finds mu, the row carries the run's own estimate and the truth."""
+    from pcvfe_drake.estimation.synthetic_drive import drive_frame, s_curve_drive
+    from pcvfe_drake.vehicle.params import ford_escort
+
+    t, states, inputs = s_curve_drive(ford_escort(), [0.6], duration_s=20.0)
+    log = drive_frame(t, states[0], inputs[0])
+    log["final_context"] = 0
+    folder = tmp_path / "paper_sim__pcvfe__s003"
+    folder.mkdir()
+    log.to_parquet(folder / "drive_log.parquet")
+    estimate = {"id": 0, "majority_terrain": "concrete", "true_mu": 0.6, "mu_hat": 0.59}
+    estimate |= {"std": 0.01, "covered_95": True, "near_limit": True}
+    (folder / "summary.json").write_text(json.dumps({"seed": 3, "mu_estimates": [estimate]}))
+    fitter = {"buffer_s": 60.0, "horizon_steps": 10, "stride_steps": 5, "min_windows": 20}
+    fitter |= {"max_windows": 512, "near_limit_fraction": 0.6, "effects": []}
+    scenario = {"vehicle": "ford_escort", "seed": 3, "fitter": fitter}
+    (folder / "scenario.yaml").write_text(yaml.safe_dump(scenario))
+    (row,) = ic.refit_run(folder)
+    assert row["kind"] == "st" and row["seed"] == 3 and row["terrain"] == "concrete"
+    assert row["hac"]["mu"] == pytest.approx(0.6, abs=0.01)
+    assert row["iid"]["mu"] == pytest.approx(row["hac"]["mu"], abs=1e-6)  # one fit, two stds
+    assert row["live_mu"] == 0.59 and row["live_std_data"] == pytest.approx(0.01)
+    assert row["mu_lower_bound"] > 0.1

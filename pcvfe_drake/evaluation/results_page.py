@@ -130,7 +130,7 @@ def experiment_section(root: str | Path) -> tuple[str, str]:
     command = env.get("command") or "(not recorded)"
     when = env.get("started_utc") or "(not recorded)"
     out += [
-        f"Reproduce: `{command}` (started {when}; stored in `{key}`), then "
+        f"Reproduce: `{command}` (started {when}; the tables of this section: `{key}`), then "
         f"`pcvfe evaluate --report {key} --results-page PAGE`.",
         "",
         f"{len(runs)} runs, {len(done)} done, {len(runs) - len(done)} failed as runs. "
@@ -173,6 +173,11 @@ def experiment_section(root: str | Path) -> tuple[str, str]:
                 _world_rows(here, sources),
             )
     return key, "\n".join(out)
+
+
+def page_folders(page: str | Path) -> list[str]:
+    """The experiment folders a results page was written from, in its order."""
+    return list(_sections(Path(page).read_text()))
 
 
 def _sections(text: str) -> dict[str, str]:
