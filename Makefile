@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: run test lint bench clean venv
+.PHONY: run test lint bench validate clean venv
 
 $(STAMP): pyproject.toml
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "Python 3.11 is required (python3.11 not found)"; exit 1; }
@@ -25,11 +25,15 @@ lint: $(STAMP)
 test: lint
 	$(VENV)/bin/pytest -q
 
-# The peers (pyproject extra `peers`; sysidentpy without its numpy cap, see pyproject.toml).
+# Timed claims and peers. The peers: pyproject extra `peers`, sysidentpy without its numpy cap.
 bench: $(STAMP)
 	$(PY) -m pip install --quiet -e ".[peers]"
 	$(PY) -m pip install --quiet --no-deps sysidentpy==0.9.0
 	$(PY) benchmarks/run_all.py
+
+# The accuracy checks, each against its target (VALIDATE_ARGS=--quick for a shorter pass).
+validate: $(STAMP)
+	$(PY) validation/run_all.py $(VALIDATE_ARGS)
 
 clean:
 	rm -rf $(VENV) build *.egg-info runs

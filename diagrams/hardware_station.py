@@ -1,6 +1,6 @@
 """The hardware vehicle station: the real car (or ``pcvfe vehicle-bridge``) over LCM.
 
-``MakeHardwareStation`` (called by ``MakeVehicleStation(scenario, meshcat, hardware=True)``)
+``MakeLcmStation`` (called by ``MakeVehicleStation(scenario, meshcat, hardware=True)``)
 builds the station the way ``manipulation``'s hardware station does: LCM buses from the
 scenario's ``hardware.lcm_buses`` (``diagrams/lcm_buses.py``), an ``LcmPublisherSystem`` for
 the actuation, and small translator systems between LCM messages and the station's ports.
@@ -53,7 +53,7 @@ def queue_capacity(period_s: float) -> int:
     return max(5, int(round(QUEUE_SECONDS / period_s)))
 
 
-def MakeHardwareStation(
+def MakeLcmStation(
     scenario: Scenario,
     meshcat: Meshcat | None = None,
     *,
@@ -74,7 +74,7 @@ def MakeHardwareStation(
     """
     hw = scenario.hardware
     builder = DiagramBuilder()
-    lcm = scenario_lcm(hw, builder, lcm_buses, "MakeHardwareStation")
+    lcm = scenario_lcm(hw, builder, lcm_buses, "MakeLcmStation")
     nmpc_period = scenario.rates.nmpc_period_s
 
     # Every message, not only the newest (playout.py): the receivers drain these queues.

@@ -387,9 +387,9 @@ def run_simulation(
         )
     bar = None
     if progress:
-        from tqdm import tqdm
+        from pcvfe_drake.progress import progress_bar
 
-        bar = tqdm(
+        bar = progress_bar(
             total=stop_t,
             unit="s sim",
             bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}{postfix}]",

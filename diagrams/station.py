@@ -1,10 +1,12 @@
 """The vehicle station: the car and its downward camera behind a fixed set of exported ports.
 
-``MakeVehicleStation`` returns a Diagram whose exported ports are the contract between the
-vehicle and everything that estimates or controls it. The simulated station (this version) holds
-the ``VehiclePlant`` (single-track or multi-body truth over the scenario's terrain map) and the
-``TextureCamera``. The hardware station (the project's next step: the real car over LCM) will
-export the same ports, so ``MakeSimulation`` and any other consumer connect only to these names:
+``MakeVehicleStation(scenario, meshcat, hardware=False)`` returns a Diagram whose exported ports
+are the contract between the vehicle and everything that estimates or controls it, so that
+``MakeSimulation`` and any other consumer connect only to these names, whichever station is
+built. The simulated station (``hardware=False``) holds the ``VehiclePlant`` (single-track or
+multi-body truth over the scenario's terrain map) and the ``TextureCamera``; the hardware
+station (``hardware=True``: ``MakeLcmStation`` in ``hardware_station.py``, the real car or
+``pcvfe vehicle-bridge`` over LCM) exports the same ports:
 
 ====================  ======  ===============================================================
 port                  dir     meaning
@@ -86,9 +88,9 @@ def MakeVehicleStation(
     (StateSensor) between the plant's state and the exported ``state``.
     """
     if hardware:
-        from pcvfe_drake.diagrams.hardware_station import MakeHardwareStation
+        from pcvfe_drake.diagrams.hardware_station import MakeLcmStation
 
-        return MakeHardwareStation(scenario, meshcat, lcm_buses=lcm_buses)
+        return MakeLcmStation(scenario, meshcat, lcm_buses=lcm_buses)
     params = load_vehicle(scenario.vehicle)
     terrain_map = terrain_map if terrain_map is not None else build_terrain_map(scenario)
     course = course if course is not None else load_course(scenario.course)

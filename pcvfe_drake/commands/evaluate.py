@@ -46,6 +46,13 @@ def register(subparsers) -> None:
     )
     parser.add_argument("--seeds", type=int, default=None, help="number of seeds per cell")
     parser.add_argument(
+        "--sources",
+        nargs="+",
+        default=None,
+        metavar="NAME",
+        help="run only these friction sources of the experiment",
+    )
+    parser.add_argument(
         "--quick", action="store_true", help="the experiment's quick settings (few seeds, short)"
     )
     parser.add_argument(
@@ -56,6 +63,58 @@ def register(subparsers) -> None:
         help="only rebuild report.md / report.html of a results folder (no runs)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    more = parser.add_argument_group(
+        "with --report: more tables of the stored runs (each written beside report.md)"
+    )
+    more.add_argument(
+        "--entry-latency",
+        action="store_true",
+        help="per terrain entry: seconds to the context's id, first fit, mu within 0.05 "
+        "(entry_latency.md/.json)",
+    )
+    more.add_argument(
+        "--against",
+        metavar="SOURCE",
+        default=None,
+        help="with --entry-latency: seconds lost per terrain to this source's run of each seed",
+    )
+    more.add_argument(
+        "--interval-coverage",
+        action="store_true",
+        help="refit each context's final buffer and count how often the 95 %% intervals hold "
+        "the truth (interval_coverage.md/.json)",
+    )
+    more.add_argument(
+        "--calibrate",
+        nargs="?",
+        const="effects",
+        choices=("effects", "st", "live"),
+        default=None,
+        help="with --interval-coverage: choose the model-error budget on the calibration seeds "
+        "(fits of this kind, default effects), then score every seed with it",
+    )
+    more.add_argument(
+        "--calibration-seeds", default="0-4", help="seeds to calibrate on, e.g. 0-4 (default)"
+    )
+    more.add_argument(
+        "--target", type=float, default=0.9, help="with --calibrate: share of pairs to cover"
+    )
+    more.add_argument(
+        "--model-error-rel", type=float, default=0.0, help="the budget to score (no --calibrate)"
+    )
+    more.add_argument(
+        "--two-sided",
+        action="store_true",
+        help="two-sided intervals also where the data never came near the limit",
+    )
+    more.add_argument(
+        "--results-page",
+        type=Path,
+        default=None,
+        metavar="PAGE",
+        help="also write (or update) this experiment's section of a results page, e.g. "
+        "docs/results.md",
+    )
     parser.set_defaults(func=run)
 
 
@@ -70,15 +129,59 @@ def _environment() -> dict:
     }
 
 
+def _report(args: argparse.Namespace) -> int:
+    """``--report DIR`` and the tables that go with it."""
+    from pcvfe_drake.evaluation.report import build_report
+
+    if args.against is not None and not args.entry_latency:
+        raise ValueError("--against goes with --entry-latency")
+    if args.calibrate is not None and not args.interval_coverage:
+        raise ValueError("--calibrate goes with --interval-coverage")
+    md, html = build_report(args.report)
+    print(f"report: {md}\n        {html}")
+    if args.entry_latency:
+        from pcvfe_drake.evaluation.entry_latency import write_entry_latency
+
+        json_path, md_path, text = write_entry_latency(args.report, args.against)
+        print(f"\n{text}\nentry latency: {md_path}\n               {json_path}")
+    if args.interval_coverage:
+        from pcvfe_drake.evaluation.interval_coverage import write_interval_coverage
+
+        json_path, md_path, text = write_interval_coverage(
+            args.report,
+            calibration_seeds=args.calibration_seeds,
+            model_error_rel=args.model_error_rel,
+            calibrate_on=args.calibrate,
+            target=args.target,
+            two_sided=args.two_sided,
+        )
+        print(f"\n{text}\ninterval coverage: {md_path}\n                   {json_path}")
+    if args.results_page is not None:
+        from pcvfe_drake.evaluation.results_page import update_results_page
+
+        page = update_results_page(args.results_page, [args.report])
+        print(f"results page: {page}")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     from pcvfe_drake.evaluation.report import build_report
 
+    extras = [
+        flag
+        for flag, given in (
+            ("--entry-latency", args.entry_latency),
+            ("--interval-coverage", args.interval_coverage),
+            ("--results-page", args.results_page is not None),
+        )
+        if given
+    ]
     if args.report is not None:
         if args.experiment is not None:
             raise ValueError("--report DIR rebuilds a report; give no experiment with it")
-        md, html = build_report(args.report)
-        print(f"report: {md}\n        {html}")
-        return 0
+        return _report(args)
+    if extras:
+        raise ValueError(f"{', '.join(extras)} go with --report DIR (the stored runs)")
     if args.experiment is None:
         raise ValueError("give an experiment file (or --report DIR)")
     if args.workers is not None and args.workers < 1:
@@ -89,6 +192,8 @@ def run(args: argparse.Namespace) -> int:
     from pcvfe_drake.evaluation.store import ResultStore
 
     exp, path = load_experiment(args.experiment)
+    if args.sources:
+        exp = exp.with_sources(args.sources)
     specs = run_specs(exp, path, seeds=args.seeds, quick=args.quick)
     out = args.out or Path("runs") / "evaluate" / (exp.name + ("-quick" if args.quick else ""))
     store = ResultStore(out)

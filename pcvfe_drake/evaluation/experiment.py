@@ -88,6 +88,21 @@ class Experiment:
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 
+    def with_sources(self, names: list[str]) -> "Experiment":
+        """A copy that runs only the sources ``names`` (in the experiment's order), so one part
+        of a grid can be run or rerun; the reference stays when kept, else the first kept
+        source is it. Raises ValueError naming any unknown source."""
+        known = [s.name for s in self.sources]
+        unknown = [n for n in names if n not in known]
+        if unknown:
+            raise ValueError(
+                f"--sources: unknown source(s) {', '.join(unknown)} of experiment {self.name} "
+                f"(its sources: {', '.join(known)})"
+            )
+        kept = [s for s in self.sources if s.name in names]
+        reference = self.reference if self.reference in names else ""
+        return dataclasses.replace(self, sources=kept, reference=reference)
+
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]*$")
 

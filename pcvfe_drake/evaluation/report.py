@@ -104,7 +104,8 @@ class _Doc:
         return "\n".join(out)
 
 
-def _fmt(x: float) -> str:
+def fmt_number(x: float) -> str:
+    """A number in 3 significant digits (whole above 1000; "-" for None or NaN)."""
     if x is None or not math.isfinite(x):
         return "-"
     if x == 0:
@@ -112,13 +113,14 @@ def _fmt(x: float) -> str:
     return f"{x:.3g}" if abs(x) < 1000 else f"{x:.0f}"
 
 
-def _cell(values) -> str:
+def ci_text(values) -> str:
+    """``mean [lo, hi]`` of ``values`` with its 95 % interval (``(n=1)`` for a single value)."""
     ci = mean_ci(values)
     if ci.n == 0:
         return "-"
     if ci.n == 1 or not math.isfinite(ci.lo):
-        return f"{_fmt(ci.mean)} (n=1)"
-    return f"{_fmt(ci.mean)} [{_fmt(ci.lo)}, {_fmt(ci.hi)}]"
+        return f"{fmt_number(ci.mean)} (n=1)"
+    return f"{fmt_number(ci.mean)} [{fmt_number(ci.lo)}, {fmt_number(ci.hi)}]"
 
 
 def _sources(store: ResultStore, runs: pd.DataFrame) -> list[str]:
@@ -192,11 +194,11 @@ def _terrain_table(doc: _Doc, rows: list[dict], sources: list[str]) -> None:
                 [
                     src,
                     str(r["terrain"]),
-                    _fmt(r["true_mu"]),
+                    fmt_number(r["true_mu"]),
                     str(r["pairs"]),
                     share(r["within"], r["scored"]),
                     share(r["covered"], r["interval_known"]),
-                    f"{_fmt(r['mu_hat_min'])}-{_fmt(r['mu_hat_max'])}",
+                    f"{fmt_number(r['mu_hat_min'])}-{fmt_number(r['mu_hat_max'])}",
                 ]
             )
         total = {k: sum(r[k] for r in mine) for k in ("pairs", "within", "scored")}
@@ -240,7 +242,11 @@ def build_report(root: str | Path) -> tuple[Path, Path]:
     ref = _reference(store, sources)
     done = runs[runs["status"] == "done"]
     failed = runs[runs["status"] != "done"]
-    metrics = [m for m in METRICS if np.isfinite(done[m.column].astype(float)).any()]
+    metrics = [
+        m
+        for m in METRICS
+        if m.column in done.columns and np.isfinite(done[m.column].astype(float)).any()
+    ]
     missing = [m.label for m in METRICS if m not in metrics]
     store.figures.mkdir(parents=True, exist_ok=True)
 
@@ -268,7 +274,7 @@ def build_report(root: str | Path) -> tuple[Path, Path]:
             r = here[here["source"] == src]
             n_failed = int(((failed["scenario"] == sc) & (failed["source"] == src)).sum())
             count = f"{len(r)}" + (f" (+{n_failed} failed)" if n_failed else "")
-            rows.append([src, count] + [_cell(r[m.column].astype(float)) for m in metrics])
+            rows.append([src, count] + [ci_text(r[m.column].astype(float)) for m in metrics])
         doc.table(header, rows)
         doc.h(3, f"Paired difference to {ref} (source minus {ref}, same seed)")
         header = ["source", "pairs"] + [_label(m) for m in metrics]
@@ -279,7 +285,7 @@ def build_report(root: str | Path) -> tuple[Path, Path]:
                 continue
             mine = [d[d["source"] == src]["diff"] for d in diffs.values()]
             pairs = max((len(d) for d in mine), default=0)
-            rows.append([src, str(pairs)] + [_cell(d) for d in mine])
+            rows.append([src, str(pairs)] + [ci_text(d) for d in mine])
         doc.table(header, rows)
         for col, label in (("mean_speed_mps", "mean speed [m/s]"), ("failures", "failures")):
             if col not in diffs:
@@ -291,7 +297,7 @@ def build_report(root: str | Path) -> tuple[Path, Path]:
             cols = [s for s in sources if s in d.columns]
             doc.table(
                 ["seed", *cols],
-                [[str(seed)] + [_fmt(d.loc[seed, c]) for c in cols] for seed in d.index],
+                [[str(seed)] + [fmt_number(d.loc[seed, c]) for c in cols] for seed in d.index],
             )
         _terrain_table(doc, [r for r in terrain if r["scenario"] == sc], sources)
         stopped = here[here["error"].astype(str) != ""]

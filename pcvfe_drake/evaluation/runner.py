@@ -166,9 +166,9 @@ def run_sweep(
     stats.submitted = len(futures)
     bar = None
     if progress:
-        from tqdm import tqdm
+        from pcvfe_drake.progress import progress_bar
 
-        bar = tqdm(total=len(futures), unit="run", desc="runs", smoothing=0.0)
+        bar = progress_bar(total=len(futures), unit="run", desc="runs", smoothing=0.0)
         bar.set_postfix_str(f"done=0 failed=0 skipped={stats.skipped}")
     pending = as_completed(futures)
     try:

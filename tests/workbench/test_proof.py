@@ -4,7 +4,7 @@ in a triple) and nothing else, clean logs give nothing, and resampled clean logs
 Logs come from ``pcvfe_drake.workbench.synth`` (a truth plant written independently of the
 effect library, realistic magnitudes, GNSS/INS-grade measurement noise), 90 s at 20 Hz, seed 0.
 Every diagnosis ranks the whole library. Heavier sweeps over seeds (every pair, clean-log
-false-discovery rate over 20+ seeds) are in ``benchmarks/workbench_proof_sweep.py``.
+false-discovery rate over 20+ seeds) are in ``validation/workbench_proof_sweep.py``.
 """
 
 from __future__ import annotations
