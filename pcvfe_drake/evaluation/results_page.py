@@ -112,8 +112,9 @@ def _versions(env: dict, runs: pd.DataFrame) -> list[str]:
     return lines or ["- (no versions recorded)"]
 
 
-def experiment_section(root: str | Path) -> tuple[str, str]:
-    """``(key, markdown)`` of one stored experiment; the key is its folder as given."""
+def experiment_section(root: str | Path, page: str | Path = "PAGE") -> tuple[str, str]:
+    """``(key, markdown)`` of one stored experiment; the key is its folder as given, ``page``
+    the page it is written to (named in the command that rewrites the section)."""
     store = ResultStore(root)
     if not store.exists():
         raise FileNotFoundError(f"{store.root}: no runs.parquet (not a pcvfe evaluate folder)")
@@ -130,8 +131,10 @@ def experiment_section(root: str | Path) -> tuple[str, str]:
     command = env.get("command") or "(not recorded)"
     when = env.get("started_utc") or "(not recorded)"
     out += [
-        f"Reproduce: `{command}` (started {when}; the tables of this section: `{key}`), then "
-        f"`pcvfe evaluate --report {key} --results-page PAGE`.",
+        f"Made by `{command}` (started {when}). This section was written by "
+        f"`pcvfe evaluate --report {key} --results-page {Path(page).as_posix()}` from the "
+        f"tables in `{key}` (that command's output folder; its `runs/` of drive logs need not "
+        "be kept).",
         "",
         f"{len(runs)} runs, {len(done)} done, {len(runs) - len(done)} failed as runs. "
         f"Settings as run:",
@@ -193,7 +196,7 @@ def update_results_page(page: str | Path, roots: Sequence[str | Path]) -> Path:
     page = Path(page)
     sections = _sections(page.read_text()) if page.is_file() else {}
     for root in roots:
-        key, body = experiment_section(root)
+        key, body = experiment_section(root, page)
         sections[key] = body
     parts = [TITLE, "", INTRO, ""]
     for key, body in sections.items():
