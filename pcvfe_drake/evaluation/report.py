@@ -141,9 +141,9 @@ def _label(m) -> str:
 def _scenario_maps(store: ResultStore, runs: pd.DataFrame) -> dict:
     """Per scenario: terrain map image, its bounds and the course polyline (from a run's
     scenario.yaml)."""
-    from pcvfe_drake.control.course import load_course
+    from pcvfe_drake.diagrams.world_io import build_world
     from pcvfe_drake.perception.ground_render import render_topdown
-    from pcvfe_drake.runs.scenario import Scenario, build_terrain_map
+    from pcvfe_drake.worlds.world_file import TerrainOverride
 
     maps = {}
     for sc, group in runs.groupby("scenario"):
@@ -151,15 +151,21 @@ def _scenario_maps(store: ResultStore, runs: pd.DataFrame) -> dict:
         if not path.is_file():
             continue
         raw = yaml.safe_load(path.read_text()) or {}
-        scenario = Scenario(
-            course=raw.get("course", "slalom"), terrain_layout=raw.get("terrain_layout", "paper")
-        )
         try:
-            terrain = build_terrain_map(scenario)
-            image = render_topdown(terrain, px_per_m=2.0)
-            bounds = terrain.bounds_m
-            course = load_course(scenario.course)
-        except (ValueError, FileNotFoundError):
+            overrides = {
+                name: TerrainOverride(**change)
+                for name, change in (raw.get("terrains") or {}).items()
+            }
+            world = build_world(
+                raw.get("world", "paper"),
+                terrains=overrides,
+                course=raw.get("course") or "",
+                check_course=False,
+            )
+            image = render_topdown(world.terrain_map, px_per_m=2.0)
+            bounds = world.terrain_map.bounds_m
+            course = world.course
+        except (ValueError, FileNotFoundError, TypeError):
             continue
         maps[sc] = (image, bounds, np.column_stack([course.x, course.y]))
     return maps
