@@ -214,4 +214,3 @@ def test_run_length_overrides():
     assert by_laps.stop_time_s() == s.max_duration_s
     with pytest.raises(ValueError, match="either"):
         s.with_run_length(laps=1, duration_s=3)
-
