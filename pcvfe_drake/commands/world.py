@@ -30,11 +30,20 @@ def register(subparsers) -> None:
     gen.add_argument(
         "--terrains", type=int, default=None, help="terrain regions (3-6; default: drawn)"
     )
-    gen.add_argument("--mu-range", type=float, nargs=2, default=None, metavar=("LO", "HI"),
-                     help="range of the drawn frictions (default 0.15 1.0)")  # fmt: skip
-    gen.add_argument("--vehicle", default="ford_escort",
-                     help="vehicle preset or file the course must be drivable by (its size "
-                     "also scales the world)")  # fmt: skip
+    gen.add_argument(
+        "--mu-range",
+        type=float,
+        nargs=2,
+        default=None,
+        metavar=("LO", "HI"),
+        help="range of the drawn frictions (default 0.15 1.0)",
+    )
+    gen.add_argument(
+        "--vehicle",
+        default="ford_escort",
+        help="vehicle preset or file the course must be drivable by (its size "
+        "also scales the world)",
+    )
     gen.add_argument("--out", type=Path, default=Path("."), help="folder for the files")
     gen.add_argument("--name", default=None, help="world name (default generated_sNNNN)")
     gen.set_defaults(func=run_generate)
@@ -46,40 +55,34 @@ def register(subparsers) -> None:
 
 
 def run_generate(args: argparse.Namespace) -> int:
-    from pcvfe_drake.perception.texture_library import default_textures
+    from pcvfe_drake.diagrams.world_io import build_world
     from pcvfe_drake.vehicle.params import load_vehicle
-    from pcvfe_drake.worlds.generate import MU_RANGE, generate_world
+    from pcvfe_drake.worlds.generate import MU_RANGE, write_generated_world
 
     check_output_dir(args.out)
     vehicle = load_vehicle(args.vehicle)
     mu_range = tuple(args.mu_range) if args.mu_range else MU_RANGE
     name = args.name or f"generated_s{args.seed:04d}"
     print(f"generating world {name} (seed {args.seed}, vehicle {vehicle.name}) ...", flush=True)
-    world = generate_world(
-        args.seed,
-        vehicle,
-        terrains=args.terrains,
-        mu_range=mu_range,
-        textures=default_textures().names,
-        name=name,
+    world_path, world = write_generated_world(
+        args.seed, vehicle, args.out, terrains=args.terrains, mu_range=mu_range, name=name
     )
-    args.out.mkdir(parents=True, exist_ok=True)
-    world_path = args.out / f"{name}.yaml"
-    course_path = args.out / f"{name}_course.yaml"
-    course_path.write_text(world.course_yaml)
-    world_path.write_text(world.world_yaml)
-    from pcvfe_drake.diagrams.world_io import build_world
-
     built = build_world(world_path, vehicle=vehicle)  # the checks every world passes
     x0, x1, y0, y1 = built.terrain_map.bounds_m
-    print(f"  {world_path}: {x1 - x0:g} m x {y1 - y0:g} m, course {course_path.name} "
-          f"({world.lap_m:.0f} m lap)")  # fmt: skip
+    print(
+        f"  {world_path}: {x1 - x0:g} m x {y1 - y0:g} m, course {built.course.name} "
+        f"({world.lap_m:.0f} m lap)"
+    )
     regions, strip = world.terrains[:-1], world.terrains[-1]
-    print("  terrains along the course: "
-          + ", ".join(f"{n} (mu {m:.2f})" for n, m in regions)
-          + f"; transition strips: {strip[0]} (mu {strip[1]:.2f})")  # fmt: skip
-    print(f"  run it: printf 'world: {world_path.resolve()}\\n' > with_world.yaml; "
-          "pcvfe simulate --with with_world.yaml")  # fmt: skip
+    print(
+        "  terrains along the course: "
+        + ", ".join(f"{n} (mu {m:.2f})" for n, m in regions)
+        + f"; transition strips: {strip[0]} (mu {strip[1]:.2f})"
+    )
+    print(
+        f"  run it: printf 'world: {world_path.resolve()}\\n' > with_world.yaml; "
+        "pcvfe simulate --with with_world.yaml"
+    )
     return 0
 
 

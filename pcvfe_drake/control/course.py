@@ -175,8 +175,16 @@ class CourseSpec:
             if bad:
                 raise ValueError(f"course segment {i}: " + "; ".join(bad))
             segments.append(segment)
-        for name in ("start_x_m", "start_y_m", "start_heading_deg", "smoothing_m", "spacing_m",
-                     "half_width_m", "speed_mps", "closure_tol_m"):  # fmt: skip
+        for name in (
+            "start_x_m",
+            "start_y_m",
+            "start_heading_deg",
+            "smoothing_m",
+            "spacing_m",
+            "half_width_m",
+            "speed_mps",
+            "closure_tol_m",
+        ):
             if name in values and not _is_number(values[name]):
                 raise ValueError(f"course field {name}={values[name]!r}: must be a number")
         return cls(segments=segments, **values)

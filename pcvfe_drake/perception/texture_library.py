@@ -147,8 +147,9 @@ class TextureSet:
         other._mean = dict(self._mean)
         for name, (path, tile_m) in files.items():
             path = Path(path).resolve()
-            other._entries[name] = TextureEntry(name, str(path), float("nan"), float(tile_m),
-                                                "image file", "")  # fmt: skip
+            other._entries[name] = TextureEntry(
+                name, str(path), float("nan"), float(tile_m), "image file", ""
+            )
         return other
 
     @property

@@ -52,11 +52,22 @@ def world_figure(terrain_map, course, title: str, path: Path) -> Path:
         mx, my = xs[mask].mean(), ys[mask].mean()
         i = int(np.argmin((xs[mask] - mx) ** 2 + (ys[mask] - my) ** 2))
         variation = " ~" if terrain_map.mu_fields[k] is not None else ""
-        ax.text(xs[mask][i], ys[mask][i], f"{t.name}\nmu {t.mu:.2f}{variation}", ha="center",
-                va="center", fontsize=8, bbox={"fc": "w", "alpha": 0.7, "lw": 0})  # fmt: skip
+        ax.text(
+            xs[mask][i],
+            ys[mask][i],
+            f"{t.name}\nmu {t.mu:.2f}{variation}",
+            ha="center",
+            va="center",
+            fontsize=8,
+            bbox={"fc": "w", "alpha": 0.7, "lw": 0},
+        )
         handles.append(Patch(color=colours[k], label=f"{t.name} (mu {t.mu:.2f})"))
-    ax.legend(handles=handles + ax.get_legend_handles_labels()[0], loc="upper right",
-              fontsize=7, framealpha=0.85)  # fmt: skip
+    ax.legend(
+        handles=handles + ax.get_legend_handles_labels()[0],
+        loc="upper right",
+        fontsize=7,
+        framealpha=0.85,
+    )
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_title(title, fontsize=10)

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import yaml
@@ -138,8 +139,9 @@ def _draw_course(rng: np.random.Generator, scale: float, r_min: float, name: str
             waves, radius, length, sign = s
             first = _round(straight * rng.uniform(0.25, 0.75), 4)
             segments.append(Segment("straight", length_m=first))
-            segments.append(Segment("scurve", length_m=length, radius_m=radius,
-                                    angle_deg=sign, waves=waves))  # fmt: skip
+            segments.append(
+                Segment("scurve", length_m=length, radius_m=radius, angle_deg=sign, waves=waves)
+            )
             segments.append(Segment("straight", length_m=_round(straight - first, 4)))
         segments.append(Segment("arc", radius_m=radii[i], angle_deg=float(angles[i])))
     return CourseSpec(
@@ -281,3 +283,38 @@ def generate_world(
         float(course.length),
         [(n, m) for n, m in zip(order_names + [names[k]], mus, strict=True)],
     )
+
+
+def write_generated_world(
+    seed: int,
+    vehicle: VehicleParams,
+    out_dir: Path,
+    *,
+    terrains: int | None = None,
+    mu_range: tuple[float, float] = MU_RANGE,
+    name: str | None = None,
+) -> tuple[Path, GeneratedWorld]:
+    """Generate the world of ``seed`` with the shipped textures and write its world file and
+    course file into ``out_dir``; returns the world file's path and the world. An existing file
+    with other content is replaced (the same seed rewrites the same bytes)."""
+    from pcvfe_drake.perception.texture_library import default_textures
+
+    name = name or f"generated_s{seed:04d}"
+    world = generate_world(
+        seed,
+        vehicle,
+        terrains=terrains,
+        mu_range=mu_range,
+        textures=default_textures().names,
+        name=name,
+    )
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    world_path = out_dir / f"{name}.yaml"
+    for path, text in (
+        (out_dir / f"{name}_course.yaml", world.course_yaml),
+        (world_path, world.world_yaml),
+    ):
+        if not path.is_file() or path.read_text() != text:
+            path.write_text(text)
+    return world_path, world

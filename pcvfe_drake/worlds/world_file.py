@@ -277,8 +277,12 @@ def world_problems(world: WorldSpec) -> list[str]:
         pts = r.polygon
         need(len(pts) >= 3, f"{where}.polygon", pts, "needs at least 3 points")
         bad = [k for k, p in enumerate(pts) if point_problem(p)]
-        need(not bad, f"{where}.polygon[{bad[0] if bad else 0}]", pts[bad[0]] if bad else None,
-             "must be a point [x, y] of two finite numbers")  # fmt: skip
+        need(
+            not bad,
+            f"{where}.polygon[{bad[0] if bad else 0}]",
+            pts[bad[0]] if bad else None,
+            "must be a point [x, y] of two finite numbers",
+        )
         if len(pts) >= 3 and not bad:
             crossing = polygon_self_intersection(pts)
             need(
@@ -301,17 +305,26 @@ def world_problems(world: WorldSpec) -> list[str]:
             for k, w in enumerate(getattr(s, side)):
                 ok = _is_number(w.amplitude_m) and _is_number(w.phase_rad)
                 ok &= _is_number(w.wavelength_m) and w.wavelength_m != 0
-                need(ok, f"{where}.{side}[{k}]", dataclasses.asdict(w), "needs finite numbers "
-                     "and a non-zero wavelength_m")  # fmt: skip
+                need(
+                    ok,
+                    f"{where}.{side}[{k}]",
+                    dataclasses.asdict(w),
+                    "needs finite numbers and a non-zero wavelength_m",
+                )
     if world.label_image is not None:
         li = world.label_image
         need(bool(li.file.strip()), "label_image.file", li.file, "must name a PNG file")
         need(bool(li.legend), "label_image.legend", li.legend, "must map colours to terrains")
         for colour, terrain in li.legend.items():
-            need(bool(_COLOUR_RE.match(str(colour))), f"label_image.legend.{colour}", colour,
-                 "must be a colour '#rrggbb'")  # fmt: skip
-            need(terrain in known, f"label_image.legend.{colour}", terrain,
-                 f"is not one of {names}")  # fmt: skip
+            need(
+                bool(_COLOUR_RE.match(str(colour))),
+                f"label_image.legend.{colour}",
+                colour,
+                "must be a colour '#rrggbb'",
+            )
+            need(
+                terrain in known, f"label_image.legend.{colour}", terrain, f"is not one of {names}"
+            )
     need(
         bool(world.regions) or world.label_image is not None,
         "regions",
