@@ -37,6 +37,12 @@ _YAML12_FLOAT = re.compile(r"^[-+]?(\.[0-9]+|[0-9]+(\.[0-9]*)?)([eE][-+]?[0-9]+)
 """A number in YAML 1.2's core schema (PyYAML's YAML 1.1 needs a dot before an exponent)."""
 
 
+_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+_DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+"""libyaml's safe loader and dumper where PyYAML has them (the same documents, parsed several
+times faster: a world file holds long lists of vertices)."""
+
+
 def _number(value):
     """``value`` as a float when it is a YAML 1.2 number written as text, else None."""
     if isinstance(value, str) and _YAML12_FLOAT.match(value.strip()):
@@ -129,7 +135,7 @@ def load_typed_yaml(schema, text: str, source: str, kind: str, defaults=None):
     when given); every error is a ``ValueError`` naming ``source`` and the dotted field. An empty
     text gives ``defaults`` (or the dataclass defaults). ``kind`` names the file in messages."""
     try:
-        raw = yaml.safe_load(text)
+        raw = yaml.load(text, Loader=_LOADER)
     except yaml.YAMLError as exc:
         raise ValueError(f"{source}: not valid YAML: {exc}") from exc
     if raw is None:
@@ -139,7 +145,7 @@ def load_typed_yaml(schema, text: str, source: str, kind: str, defaults=None):
         raise ValueError(f"{source}: malformed {kind}: " + "; ".join(problems))
     kwargs = {} if defaults is None else {"defaults": defaults}
     try:
-        return yaml_load_typed(schema=schema, data=yaml.safe_dump(data), **kwargs)
+        return yaml_load_typed(schema=schema, data=yaml.dump(data, Dumper=_DUMPER), **kwargs)
     except (RuntimeError, ValueError, TypeError, NotImplementedError) as exc:
         raise ValueError(f"{source}: malformed {kind}: {exc}") from exc
 
