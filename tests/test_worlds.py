@@ -229,7 +229,7 @@ BAD_COURSES = [
 @pytest.mark.parametrize("change, match", BAD_COURSES)
 def test_course_files_with_bad_values_are_named_errors(tmp_path, change, match):
     msg = bad(tmp_path, match, course=COURSE.replace(*change, 1))
-    assert "oval" in msg
+    assert "oval.yaml" in msg
 
 
 def test_world_yaml_errors_name_the_field(tmp_path):

@@ -562,7 +562,11 @@ def load_course(spec: str | Path | CourseSpec | None = None) -> Course:
     """A built :class:`Course` from a shipped name, a YAML file or a spec (None: ``slalom``)."""
     if isinstance(spec, CourseSpec):
         return build_course(spec)
-    return build_course(load_course_spec(spec))
+    loaded = load_course_spec(spec)
+    try:
+        return build_course(loaded)
+    except ValueError as exc:  # name the file (or shipped name) the course came from
+        raise ValueError(f"course file {'slalom' if spec is None else spec}: {exc}") from exc
 
 
 # ---------------------------------------------------------------------------- speed profile
