@@ -259,3 +259,25 @@ def test_a_scenario_names_a_world_file_and_overrides_its_frictions(tmp_path):
     overlay.write_text("terrains: {ice: {mu: -1}}\n")
     with pytest.raises(ValueError, match=r"terrains.ice.mu=-1.0: must be a number in \(0, 2\]"):
         load_scenario("paper_sim", overlay)
+
+
+def test_the_speed_profile_keeps_the_steering_rate_within_the_limit():
+    from pcvfe_drake.control.course import CourseSpec, Segment, build_course, speed_profile
+
+    waves = [
+        Segment("scurve", length_m=60.0, radius_m=8.0, waves=4, angle_deg=1.0),
+        Segment("arc", radius_m=10.0, angle_deg=180.0),
+    ]
+    course = build_course(
+        CourseSpec(name="waves", segments=waves * 2, smoothing_m=3.0, speed_mps=8.0)
+    )
+    wheelbase, rate = 2.4, 0.32
+    free = speed_profile(course, 0.9)
+    limited = speed_profile(course, 0.9, steer_rate_max=rate, wheelbase_m=wheelbase)
+    delta = np.arctan(wheelbase * course.curvature)
+    d_delta = np.abs(np.gradient(np.unwrap(delta), course.ds))
+    assert np.max(free.v * d_delta) > 1.5 * rate  # friction alone asks for too fast a steering
+    assert np.max(limited.v * d_delta) < 1.05 * rate
+    assert np.all(limited.v <= free.v + 1e-12) and limited.lap_time > free.lap_time
+    off = speed_profile(course, 0.9, steer_rate_max=0.0, wheelbase_m=wheelbase)
+    np.testing.assert_array_equal(off.v, free.v)
