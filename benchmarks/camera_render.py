@@ -24,8 +24,8 @@ import time
 import numpy as np
 
 from pcvfe_drake.control.course import load_course
+from pcvfe_drake.diagrams.world_io import world_terrain_map
 from pcvfe_drake.perception.camera import CameraConfig, DownwardCamera
-from pcvfe_drake.perception.terrain import default_terrain_map
 
 BUDGET_MS = 2.0
 
@@ -67,7 +67,7 @@ def main() -> int:
     parser.add_argument("--quick", action="store_true", help="a quarter lap, fewer baseline runs")
     args = parser.parse_args()
 
-    terrain = default_terrain_map()
+    terrain = world_terrain_map("paper")
     course = load_course()
     dt = 0.1
     n_frames = int(course.length / course.speed / dt)

@@ -188,12 +188,12 @@ def _default_course(laps: float, params: ClusteringParams) -> dict:
     """Online clustering of descriptor features along the default course (see module doc)."""
     from pcvfe_drake.contexts.metrics import context_metrics
     from pcvfe_drake.control.course import load_course
+    from pcvfe_drake.diagrams.world_io import world_terrain_map
     from pcvfe_drake.perception.camera import DownwardCamera
     from pcvfe_drake.perception.features import make_extractor
-    from pcvfe_drake.perception.terrain import default_terrain_map
 
     course = load_course(None)
-    terrain_map = default_terrain_map()
+    terrain_map = world_terrain_map("paper")
     camera = DownwardCamera(terrain_map)
     extractor = make_extractor("descriptor")
     speed, rate = 8.0, params.frame_rate_hz

@@ -314,10 +314,10 @@ def main() -> int:
         parser.error(f"--clip {args.clip}: not a CLIP model folder (no clip.json)")
     n = 40 if args.quick else 200
     rng = np.random.default_rng(0)
+    from pcvfe_drake.diagrams.world_io import world_terrain_map
     from pcvfe_drake.perception.camera import DownwardCamera
-    from pcvfe_drake.perception.terrain import default_terrain_map
 
-    cam = DownwardCamera(default_terrain_map())
+    cam = DownwardCamera(world_terrain_map("paper"))
     xy = rng.uniform([-60, -40], [60, 40], size=(n, 2))
     workloads = {
         "camera_224": [cam.render(x, y, rng.uniform(-np.pi, np.pi)) for x, y in xy],

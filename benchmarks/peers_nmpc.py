@@ -374,9 +374,9 @@ def main(argv=None) -> int:
             "`pip install .[peers]` installs it"
         }
         print(f"PEER MISSING: {result['peers_missing']['casadi']}", flush=True)
-    from pcvfe_drake.perception.terrain import default_terrain_map
+    from pcvfe_drake.diagrams.world_io import world_terrain_map
 
-    terrain = default_terrain_map()
+    terrain = world_terrain_map("paper")
 
     def mu_at(xy):
         return float(terrain.mu_at(np.asarray(xy, dtype=float)))

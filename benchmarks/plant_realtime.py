@@ -26,7 +26,8 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
-from pcvfe_drake.perception.terrain import default_terrain_map
+from pcvfe_drake.diagrams.world_io import world_terrain_map
+from pcvfe_drake.perception.terrain import TerrainMap
 from pcvfe_drake.systems.vehicle_plant import VehiclePlant
 from pcvfe_drake.vehicle.mb_truth import MbTruth
 from pcvfe_drake.vehicle.params import ford_escort
@@ -76,7 +77,15 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="10 s of simulated time, not 60 s")
     args = parser.parse_args()
     duration = 10.0 if args.quick else 60.0
-    terrain_map = default_terrain_map(outside="concrete")
+    paper = world_terrain_map("paper")
+    terrain_map = TerrainMap.from_label_image(
+        paper.labels,
+        paper.terrains,
+        x_min_m=paper.x_min_m,
+        y_min_m=paper.y_min_m,
+        resolution_m=paper.resolution_m,
+        outside="concrete",
+    )
 
     params = ford_escort()
     st_call = per_call_s(lambda: st_dynamics(X0, U, params), 2000)

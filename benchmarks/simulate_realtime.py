@@ -31,9 +31,10 @@ from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
-from pcvfe_drake.control.course import initial_state, load_course
+from pcvfe_drake.control.course import initial_state
 from pcvfe_drake.diagrams.run_simulation import run_simulation, simulator_config
 from pcvfe_drake.diagrams.scenario_io import load_scenario
+from pcvfe_drake.diagrams.world_io import scenario_course
 from pcvfe_drake.runs.scenario import build_terrain_map
 from pcvfe_drake.systems.vehicle_plant import VehiclePlant
 from pcvfe_drake.vehicle.params import load_vehicle
@@ -43,7 +44,7 @@ def plant_only_rtf(scenario, duration_s: float) -> float:
     """Real-time factor of the truth plant alone with a constant actuation (same integrator),
     circling on the course's tightest corner (constant steering keeps it on the map)."""
     params = load_vehicle(scenario.vehicle)
-    course = load_course(scenario.course)
+    course = scenario_course(scenario)
     s_corner = float(course.s[int(np.argmax(np.abs(course.curvature)))])
     x0 = initial_state(course, params, scenario.initial_speed_mps, s_corner)
     builder = DiagramBuilder()

@@ -74,9 +74,9 @@ def run_one(spec: dict[str, Any]) -> dict[str, Any]:
 
 
 def _simulate(spec: dict[str, Any]) -> dict[str, Any]:
-    from pcvfe_drake.control.course import load_course
     from pcvfe_drake.diagrams.run_simulation import run_simulation
     from pcvfe_drake.diagrams.scenario_io import scenario_from_yaml_text
+    from pcvfe_drake.diagrams.world_io import scenario_course
     from pcvfe_drake.evaluation.tables import context_rows, failure_rows, lap_rows
 
     scenario = scenario_from_yaml_text(
@@ -85,7 +85,7 @@ def _simulate(spec: dict[str, Any]) -> dict[str, Any]:
     sim = run_simulation(scenario, None, progress=False, write_outputs=False)
     summary = sim.summary
     failures = failure_rows(summary)
-    laps = lap_rows(sim.log, load_course(scenario.course), [f["t_s"] for f in failures])
+    laps = lap_rows(sim.log, scenario_course(scenario), [f["t_s"] for f in failures])
     buffer = io.BytesIO()
     sim.log.to_parquet(buffer, index=False)
     return {

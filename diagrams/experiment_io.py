@@ -4,7 +4,8 @@ The dataclasses live in the core (``pcvfe_drake.evaluation.experiment``); the lo
 because it uses ``pydrake.common.yaml.yaml_load_typed``. Errors name the file and the dotted
 field. :func:`run_specs` loads each scenario of the experiment, applies the experiment's and the
 source's overrides, the seed and the run length, and validates the result with the scenario
-loader, so every run of the grid is checked before anything is submitted.
+loader, so every run of the grid is checked before anything is submitted. An experiment's
+``worlds`` (listed or generated) make a world axis: every scenario runs in every world.
 """
 
 from __future__ import annotations
@@ -30,6 +31,9 @@ from pcvfe_drake.evaluation.experiment import (
     spec_hash,
 )
 from pcvfe_drake.runs.scenario import resolve_scenario_path
+from pcvfe_drake.vehicle.params import load_vehicle
+from pcvfe_drake.worlds.generate import write_generated_world
+from pcvfe_drake.worlds.world_file import WORLD_DIR, resolve_world_path
 
 
 def experiment_from_yaml_text(text: str, source: str = "<string>") -> Experiment:
@@ -54,19 +58,66 @@ def _scenario_path(entry: str, experiment_path: Path) -> Path:
     return resolve_scenario_path(entry)
 
 
+def experiment_worlds(
+    exp: Experiment, experiment_path: Path, worlds_dir: Path | None, progress: bool = False
+) -> list[tuple[str, str]]:
+    """The worlds of the experiment's world axis as ``(label, world)`` (a shipped name or an
+    absolute file); generated worlds are written into ``worlds_dir``. Empty: no world axis."""
+    out: list[tuple[str, str]] = []
+    for i, entry in enumerate(exp.worlds.names):
+        try:
+            path = resolve_world_path(entry, experiment_path.parent)
+        except FileNotFoundError as exc:
+            raise ValueError(f"{experiment_path}: worlds.names[{i}]: {exc}") from exc
+        shipped = path.parent == WORLD_DIR and path.stem == entry
+        out.append((path.stem, entry if shipped else str(path)))
+    gen = exp.worlds.generate
+    if gen is not None:
+        if worlds_dir is None:
+            raise ValueError(f"{experiment_path}: worlds.generate needs a folder for the worlds")
+        vehicle_name = gen.vehicle
+        if not vehicle_name:
+            first = load_scenario(_scenario_path(exp.scenarios[0], experiment_path))
+            vehicle_name = first.vehicle
+        vehicle = load_vehicle(vehicle_name)
+        for seed in range(gen.seed, gen.seed + gen.count):
+            if progress:
+                print(f"  generating world seed {seed} into {worlds_dir}", flush=True)
+            path, _ = write_generated_world(
+                seed,
+                vehicle,
+                worlds_dir,
+                terrains=gen.terrains,
+                mu_range=(gen.mu_range[0], gen.mu_range[1]),
+            )
+            out.append((path.stem, str(path.resolve())))
+    labels = [label for label, _ in out]
+    dupes = sorted({x for x in labels if labels.count(x) > 1})
+    if dupes:
+        raise ValueError(f"{experiment_path}: two worlds share a name: {dupes}")
+    return out
+
+
 def run_specs(
     exp: Experiment,
     experiment_path: str | Path,
     *,
     seeds: int | None = None,
     quick: bool = False,
+    worlds_dir: str | Path | None = None,
+    progress: bool = False,
 ) -> list[RunSpec]:
-    """Every run of the grid (scenario x source x seed), validated; order: seed-major.
+    """Every run of the grid (scenario x world x source x seed), validated; order: seed-major.
 
     ``seeds`` replaces the experiment's seed count; ``quick`` uses ``exp.quick`` (its seed count
-    unless ``seeds`` is given, and its duration).
+    unless ``seeds`` is given, and its duration). ``worlds_dir``: where generated worlds are
+    written (needed when the experiment generates worlds). A run in a world of the world axis
+    is named for its scenario and world (``paper_sim@generated_s0100``).
     """
     experiment_path = Path(experiment_path)
+    worlds = experiment_worlds(
+        exp, experiment_path, Path(worlds_dir) if worlds_dir else None, progress
+    )
     if seeds is not None and seeds < 1:
         raise ValueError(f"--seeds must be >= 1, got {seeds}")
     n_seeds = seeds if seeds is not None else (exp.quick.seeds if quick else exp.seeds)
@@ -80,25 +131,31 @@ def run_specs(
             raise ValueError(f"{experiment_path}: scenarios[{i}]={entry!r}: {exc}") from exc
         if duration_s is not None or laps is not None:
             base = base.with_run_length(laps=laps, duration_s=duration_s)
-        base_dict = base.to_dict()
-        for j, src in enumerate(exp.sources):
-            where = f"{experiment_path}: sources[{j}] ({src.name}) on scenarios[{i}] ({base.name})"
-            merged = apply_overrides(base_dict, exp.overrides, f"{experiment_path}: overrides")
-            merged = apply_overrides(merged, src.overrides, where)
-            checked = scenario_from_yaml_text(yaml.safe_dump(merged), source=where)
-            for k, seed in enumerate(exp.seed_list(n_seeds)):
-                scenario = dataclasses.replace(checked, seed=seed).to_dict()
-                per_seed[k].append(
-                    RunSpec(
-                        run_id=run_id(base.name, src.name, seed),
-                        experiment=exp.name,
-                        scenario_name=base.name,
-                        source=src.name,
-                        seed=seed,
-                        scenario=scenario,
-                        spec_hash=spec_hash(scenario),
+        for label, world in worlds or [("", "")]:
+            base_dict = base.to_dict()
+            cell = base.name
+            if world:  # the world axis: the world's own course, the scenario's settings
+                base_dict.update(world=world, course="")
+                cell = f"{base.name}@{label}"
+            for j, src in enumerate(exp.sources):
+                where = f"{experiment_path}: sources[{j}] ({src.name}) on scenarios[{i}] ({cell})"
+                merged = apply_overrides(base_dict, exp.overrides, f"{experiment_path}: overrides")
+                merged = apply_overrides(merged, src.overrides, where)
+                checked = scenario_from_yaml_text(yaml.safe_dump(merged), source=where)
+                for k, seed in enumerate(exp.seed_list(n_seeds)):
+                    scenario = dataclasses.replace(checked, seed=seed).to_dict()
+                    per_seed[k].append(
+                        RunSpec(
+                            run_id=run_id(cell, src.name, seed),
+                            experiment=exp.name,
+                            scenario_name=cell,
+                            source=src.name,
+                            seed=seed,
+                            scenario=scenario,
+                            spec_hash=spec_hash(scenario),
+                            world=label,
+                        )
                     )
-                )
     specs = [s for group in per_seed for s in group]
     ids = [s.run_id for s in specs]
     dupes = sorted({i for i in ids if ids.count(i) > 1})

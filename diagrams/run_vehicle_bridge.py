@@ -23,9 +23,10 @@ from pydrake.systems.primitives import LogVectorOutput
 
 from pcvfe_drake.diagrams.lcm_buses import shared_drake_lcm
 from pcvfe_drake.diagrams.vehicle_bridge import MakeVehicleBridge
+from pcvfe_drake.diagrams.world_io import scenario_world
 from pcvfe_drake.hardware.latency import LatencyRecorder
 from pcvfe_drake.lcmtypes import lcmt_vehicle_actuation, lcmt_vehicle_state
-from pcvfe_drake.runs.scenario import Scenario, build_terrain_map
+from pcvfe_drake.runs.scenario import Scenario
 from pcvfe_drake.vehicle.single_track import STATE_NAMES
 
 TRUTH_PERIOD_S = 0.05
@@ -136,7 +137,7 @@ def run_vehicle_bridge(
 
 
 def _truth_frame(scenario: Scenario, logs: dict) -> pd.DataFrame:
-    names = build_terrain_map(scenario).names
+    names = scenario_world(scenario).terrain_map.names
     state = logs["true_state"]
     t = state.sample_times()
     frame = pd.DataFrame({"t": t})

@@ -25,11 +25,22 @@ from pathlib import Path
 import yaml
 from pydrake.common.yaml import yaml_load_typed
 
-from pcvfe_drake.runs.scenario import DERIVED_FIELDS, Scenario, resolve_scenario_path
+from pcvfe_drake.runs.scenario import (
+    DERIVED_FIELDS,
+    REPLACED_FIELDS,
+    Scenario,
+    resolve_scenario_path,
+)
 from pcvfe_drake.vehicle.params import PRESETS
 
 _YAML12_FLOAT = re.compile(r"^[-+]?(\.[0-9]+|[0-9]+(\.[0-9]*)?)([eE][-+]?[0-9]+)?$")
 """A number in YAML 1.2's core schema (PyYAML's YAML 1.1 needs a dot before an exponent)."""
+
+
+_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+_DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+"""libyaml's safe loader and dumper where PyYAML has them (the same documents, parsed several
+times faster: a world file holds long lists of vertices)."""
 
 
 def _number(value):
@@ -58,6 +69,9 @@ def _normalise(schema, data, prefix: str, problems: list[str]):
     out = {}
     for key, value in data.items():
         name = f"{prefix}{key}"
+        if schema is Scenario and key in REPLACED_FIELDS:
+            problems.append(f"field {name!r} was {REPLACED_FIELDS[key]}")
+            continue
         if key not in fields:
             problems.append(f"unknown field {name!r} (known: {', '.join(sorted(fields))})")
             continue
@@ -121,7 +135,7 @@ def load_typed_yaml(schema, text: str, source: str, kind: str, defaults=None):
     when given); every error is a ``ValueError`` naming ``source`` and the dotted field. An empty
     text gives ``defaults`` (or the dataclass defaults). ``kind`` names the file in messages."""
     try:
-        raw = yaml.safe_load(text)
+        raw = yaml.load(text, Loader=_LOADER)
     except yaml.YAMLError as exc:
         raise ValueError(f"{source}: not valid YAML: {exc}") from exc
     if raw is None:
@@ -131,7 +145,7 @@ def load_typed_yaml(schema, text: str, source: str, kind: str, defaults=None):
         raise ValueError(f"{source}: malformed {kind}: " + "; ".join(problems))
     kwargs = {} if defaults is None else {"defaults": defaults}
     try:
-        return yaml_load_typed(schema=schema, data=yaml.safe_dump(data), **kwargs)
+        return yaml_load_typed(schema=schema, data=yaml.dump(data, Dumper=_DUMPER), **kwargs)
     except (RuntimeError, ValueError, TypeError, NotImplementedError) as exc:
         raise ValueError(f"{source}: malformed {kind}: {exc}") from exc
 
@@ -166,16 +180,30 @@ def load_scenario(path_or_name: str | Path | None = None, *overrides: str | Path
     each of ``overrides`` (files or shipped names) on top of it, in order.
 
     A ``vehicle`` that is not a preset name is a vehicle YAML file; a relative path is taken
-    relative to the scenario file that names it and stored as an absolute path.
+    relative to the scenario file that names it and stored as an absolute path; so is a
+    ``world`` or ``course`` file that lies relative to the scenario.
     """
     scenario = None
     for layer in (path_or_name, *overrides):
         path = resolve_scenario_path(layer)
-        before = scenario.vehicle if scenario is not None else None
+        before = scenario if scenario is not None else Scenario()
         text = read_yaml_file(path)
         scenario = scenario_from_yaml_text(text, source=str(path), defaults=scenario)
-        if scenario.vehicle not in PRESETS and scenario.vehicle != before:
+        if scenario.vehicle not in PRESETS and scenario.vehicle != before.vehicle:
             scenario = _resolve_vehicle(scenario, path)
+        for key in ("world", "course"):
+            if getattr(scenario, key) != getattr(before, key):
+                scenario = _resolve_relative(scenario, key, path)
+    return scenario
+
+
+def _resolve_relative(scenario: Scenario, key: str, path: Path) -> Scenario:
+    """``scenario.<key>`` (a world or course) as an absolute path when it names a file relative
+    to the scenario file ``path`` (shipped names and other values are left as they are)."""
+    value = getattr(scenario, key)
+    candidate = Path(value).expanduser()
+    if value and not candidate.is_absolute() and (path.parent / candidate).is_file():
+        return dataclasses.replace(scenario, **{key: str((path.parent / candidate).resolve())})
     return scenario
 
 

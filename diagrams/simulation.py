@@ -28,16 +28,17 @@ from pydrake.geometry import Meshcat
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
-from pcvfe_drake.control.course import Course, load_course
+from pcvfe_drake.control.course import Course
 from pcvfe_drake.control.nmpc import NmpcConfig
 from pcvfe_drake.diagrams.debug_layers import AddDebugLayers
 from pcvfe_drake.diagrams.station import SIM_ONLY_OUTPUTS, MakeVehicleStation
+from pcvfe_drake.diagrams.world_io import scenario_world
 from pcvfe_drake.estimation.lookup import build_lookup_table
 from pcvfe_drake.perception.features import make_extractor
 from pcvfe_drake.perception.terrain import TerrainMap
 from pcvfe_drake.runs.friction_sources import fixed_mu
 from pcvfe_drake.runs.runlog import RunLog
-from pcvfe_drake.runs.scenario import Scenario, build_terrain_map
+from pcvfe_drake.runs.scenario import Scenario
 from pcvfe_drake.systems.clip_features import ClipFeatures
 from pcvfe_drake.systems.context_clustering import ContextClustering
 from pcvfe_drake.systems.context_fitter import ContextFitter
@@ -197,8 +198,8 @@ def MakeSimulation(
     ``friction_circle_view``, ``camera_view``, ``feature_view``).
     """
     params = load_vehicle(scenario.vehicle)
-    terrain_map = build_terrain_map(scenario)
-    course = load_course(scenario.course)
+    world = scenario_world(scenario, params)
+    terrain_map, course = world.terrain_map, world.course
     rates = scenario.rates
 
     builder = DiagramBuilder()

@@ -37,11 +37,12 @@ from pydrake.geometry import Meshcat
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource
 
-from pcvfe_drake.control.course import Course, initial_state, load_course
+from pcvfe_drake.control.course import Course, initial_state
+from pcvfe_drake.diagrams.world_io import scenario_world
 from pcvfe_drake.hardware.watchdog import StationStatus
 from pcvfe_drake.perception.camera import CameraConfig
 from pcvfe_drake.perception.terrain import TerrainMap
-from pcvfe_drake.runs.scenario import Scenario, build_terrain_map
+from pcvfe_drake.runs.scenario import Scenario
 from pcvfe_drake.systems.state_sensor import StateSensor
 from pcvfe_drake.systems.texture_camera import TextureCamera
 from pcvfe_drake.systems.vehicle_plant import VehiclePlant
@@ -72,7 +73,7 @@ def MakeVehicleStation(
     """The station diagram of ``scenario`` (named ``vehicle_station``; ports in the module doc).
 
     Args:
-        scenario: the scenario (vehicle, truth model, terrain layout, camera, rates, seed).
+        scenario: the scenario (vehicle, truth model, world, camera, rates, seed).
         meshcat: accepted so every station factory has the same signature; the simulated
             station draws nothing itself (``MakeSimulation`` adds the ``MeshcatView``).
         hardware: True builds the LCM station instead (``hardware_station.py``): the same
@@ -92,8 +93,10 @@ def MakeVehicleStation(
 
         return MakeLcmStation(scenario, meshcat, lcm_buses=lcm_buses)
     params = load_vehicle(scenario.vehicle)
-    terrain_map = terrain_map if terrain_map is not None else build_terrain_map(scenario)
-    course = course if course is not None else load_course(scenario.course)
+    if terrain_map is None or course is None:
+        world = scenario_world(scenario, params)
+        terrain_map = terrain_map if terrain_map is not None else world.terrain_map
+        course = course if course is not None else world.course
     x0 = initial_state(course, params, scenario.initial_speed_mps, scenario.start_s_m)
 
     builder = DiagramBuilder()

@@ -15,6 +15,7 @@ COMMANDS = [
     "features",
     "export_clip",
     "terrain_map",
+    "world",
     "diagnose",
     "evaluate",
     "vehicle_bridge",

@@ -178,8 +178,20 @@ class VehiclePlant(LeafSystem):
         start with sx, sy)."""
         if self.terrain_map is None:
             return self.params.mu, -1
-        k = int(self.terrain_map.index_at(x[:2]))
-        return self.terrain_map.terrains[k].mu, k
+        mu, k = self.terrain_map.mu_and_index_at(x[:2])
+        return float(mu), int(k)
+
+    def _mb_parameters(self, mu: float, k: int):
+        """The multi-body tire parameters for friction ``mu`` on terrain ``k``: the terrain's
+        set, built once, unless the terrain's mu varies in space (then one set per 0.005 of
+        mu, cached)."""
+        if k < 0 or self.terrain_map.mu_fields[k] is None:
+            return self._mb_params[k]
+        key = ("mu", round(mu / 0.005))
+        params = self._mb_params.get(key)
+        if params is None:
+            params = self._mb_params[key] = self.mb.parameters_for_mu(key[1] * 0.005)
+        return params
 
     def _raw_state(self, context) -> np.ndarray:
         if self._state_index is None:
@@ -208,8 +220,8 @@ class VehiclePlant(LeafSystem):
             theta = np.array([mu, self.params.C_Sf, self.params.C_Sr])
             xdot = st_dynamics(x, u, self.params, theta)
         else:
-            _, k = self._mu_index(x)
-            xdot = self.mb.rhs(x.tolist(), u.tolist(), self._mb_params[k])
+            mu, k = self._mu_index(x)
+            xdot = self.mb.rhs(x.tolist(), u.tolist(), self._mb_parameters(mu, k))
             if not np.all(np.isfinite(xdot)):
                 raise ValueError(
                     f"VehiclePlant: MB derivatives are not finite at t = {context.get_time():.4f} "

@@ -1,9 +1,8 @@
 """Closed-loop laps of the tracking NMPC with the true friction given.
 
 Runs the Ford Escort on the ``slalom`` course on each uniform terrain (mu 0.3, 0.45, 0.6, 0.8)
-and on the default four-terrain map (``pcvfe_drake.perception.terrain.default_terrain_map``), the
-KMPC
-baseline on the four-terrain map, and the RoboRacer on ``slalom_small``; the truth is the ST model
+and on the four-terrain map of the shipped ``paper`` world, the KMPC baseline on the
+four-terrain map, and the RoboRacer on ``slalom_small``; the truth is the ST model
 (RK4 at 10 ms). With ``--mb`` also CommonRoad's multi-body model (saturating Pacejka tires) on the
 four-terrain map: at the course's 5 m/s, with the speed cap raised to 12 m/s, and (informative,
 not a pass criterion) at 12 m/s believing mu = 1 everywhere. Otherwise the controller is told the
@@ -104,9 +103,9 @@ def main(argv=None) -> int:
     mus = (0.3, 0.8) if args.quick else (0.3, 0.45, 0.6, 0.8)
     for mu in mus:
         results.append(run(f"NMPC uniform mu={mu}", slalom, ford, cfg, lambda xy, mu=mu: mu, laps))
-    from pcvfe_drake.perception.terrain import default_terrain_map
+    from pcvfe_drake.diagrams.world_io import world_terrain_map
 
-    terrain = default_terrain_map()
+    terrain = world_terrain_map("paper")
 
     def mixed(xy):
         return float(terrain.mu_at(np.asarray(xy, dtype=float)))

@@ -55,6 +55,9 @@ def register(subparsers) -> None:
         "--truth", choices=TRUTH_MODELS, default="st", help="truth model of the plant"
     )
     parser.add_argument("--vehicle", default=None, help="vehicle preset or YAML file")
+    parser.add_argument(
+        "--world", default="paper", help="world: shipped name or world file (docs/worlds.md)"
+    )
     parser.set_defaults(func=run)
 
 
@@ -65,12 +68,12 @@ def run(args: argparse.Namespace) -> int:
     # The diagram lives in pcvfe_drake.diagrams (imported here, not at module import time, so
     # that the core package stays free of pydrake).
     from pcvfe_drake.diagrams.plant_demo import run_plant_demo
-    from pcvfe_drake.perception.terrain import default_terrain_map
+    from pcvfe_drake.diagrams.world_io import world_terrain_map
 
     params = load_vehicle(args.vehicle)
     result = run_plant_demo(
         params,
-        default_terrain_map(),
+        world_terrain_map(args.world),
         open_loop_input,
         x0=START_STATE,
         duration_s=args.duration,

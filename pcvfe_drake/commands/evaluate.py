@@ -194,8 +194,10 @@ def run(args: argparse.Namespace) -> int:
     exp, path = load_experiment(args.experiment)
     if args.sources:
         exp = exp.with_sources(args.sources)
-    specs = run_specs(exp, path, seeds=args.seeds, quick=args.quick)
     out = args.out or Path("runs") / "evaluate" / (exp.name + ("-quick" if args.quick else ""))
+    specs = run_specs(
+        exp, path, seeds=args.seeds, quick=args.quick, worlds_dir=out / "worlds", progress=True
+    )
     store = ResultStore(out)
     as_run = exp.to_dict()
     as_run["seeds"] = len({s.seed for s in specs})

@@ -1,4 +1,4 @@
-"""``pcvfe terrain-map``: render the default terrain layout top-down to a PNG and list it."""
+"""``pcvfe terrain-map``: render a world's terrain map top-down to a PNG and list its terrains."""
 
 from __future__ import annotations
 
@@ -9,18 +9,17 @@ import cv2
 import numpy as np
 
 from pcvfe_drake.perception.ground_render import render_topdown
-from pcvfe_drake.perception.terrain import default_terrain_map
 from pcvfe_drake.runs.output_paths import OutputPathError, check_output_file, write_failed
 
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
         "terrain-map",
-        help="render the default terrain map top-down (PNG) and list its terrains",
+        help="render a world's terrain map top-down (PNG) and list its terrains",
         description=(
-            "Render the paper's four-quadrant terrain layout (with its transition strips) as a "
-            "north-up RGB image, textures tiled at their world size, and print each terrain's "
-            "friction and area."
+            "Render a world's terrain map (default: the paper's four quadrants with their "
+            "transition strips) as a north-up RGB image, textures tiled at their world size, "
+            "and print each terrain's friction and area."
         ),
     )
     parser.add_argument(
@@ -31,7 +30,9 @@ def register(subparsers) -> None:
     )
     parser.add_argument("--px-per-m", type=float, default=4.0, help="resolution [px/m]")
     parser.add_argument(
-        "--strip-width", type=float, default=3.0, help="transition strip width [m] (0: none)"
+        "--world",
+        default="paper",
+        help="shipped world (paper, paper_small, paper_no_strips) or world file (docs/worlds.md)",
     )
     parser.add_argument("--flat", action="store_true", help="mean colours instead of textures")
     parser.set_defaults(func=run)
@@ -62,7 +63,9 @@ def write_image(path: Path, rgb: np.ndarray) -> None:
 
 def run(args: argparse.Namespace) -> int:
     check_image_path(args.out)
-    terrain = default_terrain_map(strip_width_m=args.strip_width)
+    from pcvfe_drake.diagrams.world_io import world_terrain_map
+
+    terrain = world_terrain_map(args.world)
     image = render_topdown(terrain, args.px_per_m, flat=args.flat)
     write_image(args.out, image)
     x0, x1, y0, y1 = terrain.bounds_m
@@ -73,5 +76,6 @@ def run(args: argparse.Namespace) -> int:
     cell_area = terrain.resolution_m**2
     for k, t in enumerate(terrain.terrains):
         area = counts[k] * cell_area
-        print(f"  {t.name:14s} mu {t.mu:4.2f}  texture {t.texture:14s} {area:8.0f} m^2")
+        texture = Path(t.texture).name
+        print(f"  {t.name:14s} mu {t.mu:4.2f}  texture {texture:14s} {area:8.0f} m^2")
     return 0

@@ -27,10 +27,15 @@ Shipped courses live in ``pcvfe_drake/data/courses/<name>.yaml``:
   per S-curve side, 2.4 m radii, 2.12 m/s: the earlier 120 m x 80 m slalom at 1/5 scale, the speed
   scaled by sqrt(1/5) so the lateral accelerations match the full-size course's).
 
+Drivable courses: :func:`build_course` rejects a course that crosses itself, does not close, or
+whose smoothing window is a large part of the lap; :func:`check_course_for_vehicle` one with a
+bend tighter than a vehicle's minimum turning radius. Every error is one line naming the course.
+
 Speed profile: :func:`speed_profile` gives v_ref(s) <= ``speed_margin`` * sqrt(mu g / |kappa|),
-capped by a cruise speed, with forward (acceleration) and backward (braking) passes whose limits
-are a fraction of mu g. The passes are closed-form cumulative minima (no Python loop), so the
-profile is cheap to recompute whenever the friction estimate changes.
+at most the speed at which following the course's steering ``atan(L kappa)`` needs a given
+steering rate, capped by a cruise speed, with forward (acceleration) and backward (braking)
+passes whose limits are a fraction of mu g. The passes are closed-form cumulative minima (no
+Python loop), so the profile is cheap to recompute whenever the friction estimate changes.
 """
 
 from __future__ import annotations
@@ -69,8 +74,25 @@ class Segment:
     angle_deg: float = 0.0
     waves: int = 1
 
+    def problems(self) -> list[str]:
+        """Fields that are not numbers (or a non-integer ``waves``), as ``"field=value: why"``."""
+        out = []
+        for name in ("length_m", "radius_m", "angle_deg"):
+            value = getattr(self, name)
+            if not _is_number(value):
+                out.append(f"{name}={value!r}: must be a number")
+        waves = self.waves
+        if not (_is_number(waves) and float(waves).is_integer()):
+            out.append(f"waves={waves!r}: must be a whole number")
+        if not isinstance(self.kind, str) or self.kind not in SEGMENT_KINDS:
+            out.append(f"kind={self.kind!r}: must be one of {SEGMENT_KINDS}")
+        return out
+
     def arcs(self) -> list[tuple[float, float]]:
         """The segment as (arc length [m], curvature [1/m]) pieces."""
+        bad = self.problems()
+        if bad:
+            raise ValueError("segment " + "; ".join(bad))
         if self.kind == "straight":
             _require(self.length_m > 0, "straight length_m", self.length_m, "> 0")
             return [(float(self.length_m), 0.0)]
@@ -148,7 +170,23 @@ class CourseSpec:
                     f"course segment {i}: {seg!r} must be a mapping with keys in "
                     f"{sorted(seg_known)}"
                 )
-            segments.append(Segment(**seg))
+            segment = Segment(**seg)
+            bad = segment.problems()
+            if bad:
+                raise ValueError(f"course segment {i}: " + "; ".join(bad))
+            segments.append(segment)
+        for name in (
+            "start_x_m",
+            "start_y_m",
+            "start_heading_deg",
+            "smoothing_m",
+            "spacing_m",
+            "half_width_m",
+            "speed_mps",
+            "closure_tol_m",
+        ):
+            if name in values and not _is_number(values[name]):
+                raise ValueError(f"course field {name}={values[name]!r}: must be a number")
         return cls(segments=segments, **values)
 
     def scaled(self, factor: float, name: str | None = None) -> CourseSpec:
@@ -331,6 +369,10 @@ def _wrap(a):
     return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2.0 * np.pi)
 
 
+def _is_number(value) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
 def _require(ok: bool, name: str, value, rule: str) -> None:
     if not ok:
         raise ValueError(f"course: {name}={value!r} must be {rule}")
@@ -348,7 +390,18 @@ def build_course(spec: CourseSpec) -> Course:
     _require(spec.smoothing_m >= 0, "smoothing_m", spec.smoothing_m, ">= 0")
     _require(spec.half_width_m > 0, "half_width_m", spec.half_width_m, "> 0")
     _require(spec.speed_mps > 0, "speed_mps", spec.speed_mps, "> 0")
-    pieces = [piece for seg in spec.segments for piece in seg.arcs()]
+    _require(
+        0 < spec.closure_tol_m <= MAX_CLOSURE_TOL_M,
+        "closure_tol_m",
+        spec.closure_tol_m,
+        f"in (0, {MAX_CLOSURE_TOL_M}] m (a larger gap is a course that does not close)",
+    )
+    pieces = []
+    for i, seg in enumerate(spec.segments):
+        try:
+            pieces += seg.arcs()
+        except ValueError as exc:
+            raise ValueError(f"course '{spec.name}': segment {i}: {exc}") from exc
     lengths = np.array([p[0] for p in pieces])
     kappas = np.array([p[1] for p in pieces])
 
@@ -371,6 +424,12 @@ def build_course(spec: CourseSpec) -> Course:
         )
 
     total = float(lengths.sum())
+    if spec.smoothing_m > MAX_SMOOTHING_FRACTION * total:
+        raise ValueError(
+            f"course '{spec.name}': smoothing_m={spec.smoothing_m:g} is longer than "
+            f"{MAX_SMOOTHING_FRACTION:g} of the lap ({total:.1f} m): it would average the bends "
+            "away"
+        )
     n = max(8, int(round(total / spec.spacing_m)))
     ds = total / n
     # Curvature on sample midpoints of the piecewise-constant profile (exact cell averages).
@@ -399,6 +458,13 @@ def build_course(spec: CourseSpec) -> Course:
     ys -= frac * (ys[-1] - ys[0])
     # Curvature at the samples (average of the adjacent cells) for sampling and profiles.
     kappa_nodes = 0.5 * (kappa + np.roll(kappa, 1))
+    crossing = _self_crossing(xs[:-1], ys[:-1], total)
+    if crossing is not None:
+        s1, s2, x, y = crossing
+        raise ValueError(
+            f"course '{spec.name}': the course crosses itself near ({x:.1f}, {y:.1f}) m "
+            f"(at s={s1:.1f} m and s={s2:.1f} m)"
+        )
     return Course(
         spec.name,
         xs[:-1],
@@ -409,6 +475,52 @@ def build_course(spec: CourseSpec) -> Course:
         spec.half_width_m,
         spec.speed_mps,
     )
+
+
+MAX_CLOSURE_TOL_M = 0.5
+"""Largest gap allowed between the end and the start of a course's segment chain [m]."""
+
+MAX_SMOOTHING_FRACTION = 0.1
+"""Largest curvature-smoothing window of a course as a fraction of its lap."""
+
+CROSSING_CHECK_SPACING_M = 1.0
+"""Chord length of the polyline on which self-crossings are looked for [m]."""
+
+
+def _self_crossing(x: np.ndarray, y: np.ndarray, length: float):
+    """``(s1, s2, x, y)`` of a place where the closed path (x, y) crosses itself, or None.
+    Looks on chords of about ``CROSSING_CHECK_SPACING_M`` (a bend of radius R departs from its
+    chord by less than spacing^2 / 8R)."""
+    from pcvfe_drake.worlds.world_file import polygon_self_intersection
+
+    step = max(1, int(round(CROSSING_CHECK_SPACING_M / (length / x.size))))
+    idx = np.arange(0, x.size, step)
+    pts = np.column_stack([x[idx], y[idx]])
+    hit = polygon_self_intersection(pts)
+    if hit is None:
+        return None
+    i, j = hit
+    ds = length / x.size
+    return idx[i] * ds, idx[j] * ds, pts[i, 0], pts[i, 1]
+
+
+def min_turning_radius_m(params: VehicleParams) -> float:
+    """Smallest radius the vehicle can follow in kinematic cornering: L / tan(delta_max) [m]."""
+    delta = min(abs(params.delta_max), abs(params.delta_min))
+    return params.L / math.tan(delta)
+
+
+def check_course_for_vehicle(course: Course, params: VehicleParams, source: str) -> None:
+    """A ``ValueError`` naming ``source`` when a bend of ``course`` is tighter than the vehicle's
+    minimum turning radius (the course's curvature after smoothing)."""
+    r_min = min_turning_radius_m(params)
+    i = int(np.argmax(np.abs(course.curvature)))
+    k = abs(float(course.curvature[i]))
+    if k > 1.0 / r_min:
+        raise ValueError(
+            f"{source}: a bend of radius {1.0 / k:.2f} m at s={course.s[i]:.1f} m is tighter "
+            f"than the vehicle {params.name!r} can turn (minimum radius {r_min:.2f} m)"
+        )
 
 
 COURSE_DIR = "data/courses"
@@ -450,7 +562,11 @@ def load_course(spec: str | Path | CourseSpec | None = None) -> Course:
     """A built :class:`Course` from a shipped name, a YAML file or a spec (None: ``slalom``)."""
     if isinstance(spec, CourseSpec):
         return build_course(spec)
-    return build_course(load_course_spec(spec))
+    loaded = load_course_spec(spec)
+    try:
+        return build_course(loaded)
+    except ValueError as exc:  # name the file (or shipped name) the course came from
+        raise ValueError(f"course file {'slalom' if spec is None else spec}: {exc}") from exc
 
 
 # ---------------------------------------------------------------------------- speed profile
@@ -502,6 +618,8 @@ def speed_profile(
     a_drive_max: float = np.inf,
     v_min: float = 0.5,
     g: float = G_MPS2,
+    steer_rate_max: float = 0.0,
+    wheelbase_m: float = 0.0,
 ) -> SpeedProfile:
     """Friction-limited reference speed over a course.
 
@@ -514,6 +632,9 @@ def speed_profile(
     Args:
         course: the course.
         mu: friction coefficient the controller believes, a scalar or one value per course sample.
+        steer_rate_max: steering rate [rad/s] the reference may demand; with ``wheelbase_m`` > 0
+            the speed is at most ``steer_rate_max / |d delta / ds|`` where delta = atan(L kappa)
+            is the kinematic steering along the course (0: no such limit).
     """
     mu_arr = np.broadcast_to(np.asarray(mu, dtype=float), course.s.shape)
     if not np.all(np.isfinite(mu_arr)) or np.any(mu_arr <= 0):
@@ -523,6 +644,10 @@ def speed_profile(
     v_cap = course.speed if v_max is None or v_max <= 0 else float(v_max)
     k = np.maximum(np.abs(course.curvature), 1e-9)
     v = np.minimum(speed_margin * np.sqrt(mu_arr * g / k), v_cap)
+    if steer_rate_max > 0 and wheelbase_m > 0:
+        delta = np.arctan(wheelbase_m * course.curvature)
+        d_delta = np.abs(np.roll(delta, -1) - np.roll(delta, 1)) / (2 * course.ds)  # [rad/m]
+        v = np.minimum(v, steer_rate_max / np.maximum(d_delta, 1e-9))
     v = np.maximum(v, min(v_min, v_cap))
     a_acc = np.minimum(long_fraction * mu_arr * g, a_drive_max)
     a_brk = long_fraction * mu_arr * g

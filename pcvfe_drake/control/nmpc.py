@@ -316,6 +316,8 @@ class NmpcController:
                 long_fraction=cfg.long_fraction,
                 a_drive_max=self.params.a_max,
                 g=self.params.g,
+                steer_rate_max=cfg.steer_rate_fraction * self.params.delta_dot_max,
+                wheelbase_m=self.params.L,
             )
             self._profiles[key] = prof
         return prof

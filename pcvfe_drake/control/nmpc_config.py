@@ -40,6 +40,12 @@ class NmpcConfig:
             catches up at the friction polygon's limit and can overshoot the profile before a
             bend).
         max_speed_mps: cap on the reference speed (None or 0: the course's planned speed).
+        steer_rate_fraction: share of the vehicle's steering-rate limit the reference speed
+            may demand: v_ref <= steer_rate_fraction * delta_dot_max / |d delta / ds| with delta
+            the kinematic steering of the course's curvature, so every drivable course is
+            driven where its bends change faster than the steering can follow (the rest of
+            the limit is left for correcting tracking errors). 0: no such limit (the speed
+            profile then depends on friction alone).
         friction_margin: radius of the QP's friction polygon, fraction of mu_hat g.
         corridor_fraction: soft corridor half-width, fraction of the course half-width.
         slack_linear, slack_quadratic: penalties on the slacks (per unit, per unit^2).
@@ -72,6 +78,7 @@ class NmpcConfig:
     long_fraction: float = 0.5
     ref_rise_limit: bool = True
     max_speed_mps: float | None = None
+    steer_rate_fraction: float = 0.8
     friction_margin: float = 0.9
     corridor_fraction: float = 0.5
     slack_linear: float = 100.0
@@ -133,6 +140,7 @@ class NmpcConfig:
             need(value is None or value > 0, name, "> 0 or None")
         need(0 < self.speed_margin <= 1, "speed_margin", "in (0, 1]")
         need(0 < self.long_fraction <= 1, "long_fraction", "in (0, 1]")
+        need(0 <= self.steer_rate_fraction <= 1, "steer_rate_fraction", "in [0, 1] (0: off)")
         need(self.slack_linear >= 0 and self.slack_quadratic > 0, "slack_quadratic", "> 0")
         need(int(self.max_iter) >= 1, "max_iter", ">= 1")
         need(int(self.fallback_shift_steps) >= 0, "fallback_shift_steps", ">= 0")

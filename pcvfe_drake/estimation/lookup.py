@@ -13,10 +13,12 @@ drive, no dynamics. How the table is made (:func:`build_lookup_table`):
 3. **Rejection radius.** Each class's radius is ``reject_factor`` times the 99th percentile of
    its own frames' distances to its prototype; a frame farther than that from its nearest
    prototype is "unknown".
-4. **mu table.** Each class's mu is the texture's ``mu`` in ``textures/index.yaml`` (the values
-   the simulated terrains use: the table is exact for the classes it knows, the best case for
-   the baseline); a frame classified as unknown gets ``default_mu`` (default: the lowest mu in
-   the table, the safe choice).
+4. **mu table.** Each class's mu is the texture's ``mu`` in ``textures/index.yaml``: a table of
+   literature values, fixed whatever the world or a scenario's ``terrains`` overrides set as the
+   ground's real friction (a lookup table is exactly what does not know the ground's real value;
+   on the shipped paper worlds the two agree, the best case for the baseline); a frame
+   classified as unknown gets ``default_mu`` (default: the lowest mu in the table, the safe
+   choice).
 
 :meth:`LookupTable.classify` is nearest prototype plus rejection; ``mu_for`` maps a feature
 vector to mu.

@@ -1,4 +1,5 @@
-"""Experiment files of ``pcvfe evaluate``: a grid of scenario x friction source x seed (no pydrake).
+"""Experiment files of ``pcvfe evaluate``: a grid of scenario x world x friction source x seed
+(no pydrake).
 
 An experiment names the scenarios to run, the friction sources to compare (each one a set of
 scenario overrides, e.g. ``estimator: ukf`` or ``nmpc.model: ks``), how many seeds, how long each
@@ -12,6 +13,11 @@ Overrides are a flat mapping from a dotted scenario field to a value
 the result is loaded and validated as a scenario, so a bad override gets the scenario loader's
 error naming the field. Every run of the grid is a :class:`RunSpec`: the complete scenario it
 runs (as a mapping, seed and run length included), so a worker needs nothing but the spec.
+
+Worlds: ``worlds`` lists world files or shipped worlds and/or asks for generated ones
+(``worlds: {generate: {count: 20, seed: 100, mu_range: [0.15, 1.0]}}``); every scenario then
+runs in every world (its own world and course replaced), so that one number is not the number
+of the one world it was tuned on. Without ``worlds`` each scenario runs in its own world.
 
 Shipped experiments live in ``pcvfe_drake/data/experiments/<name>.yaml``.
 """
@@ -54,6 +60,30 @@ class QuickSettings:
 
 
 @dataclass
+class GenerateWorlds:
+    """Generated worlds of an experiment (``pcvfe world generate``, docs/worlds.md)."""
+
+    count: int = 0
+    """How many: seeds ``seed`` .. ``seed + count - 1``."""
+    seed: int = 0
+    mu_range: list[float] = field(default_factory=lambda: [0.15, 1.0])
+    """Range of the drawn frictions [LO, HI]."""
+    terrains: int | None = None
+    """Terrain regions per world (None: drawn, 3-6)."""
+    vehicle: str = ""
+    """Vehicle the courses must be drivable by and scaled to ("": the first scenario's)."""
+
+
+@dataclass
+class WorldSettings:
+    """The worlds an experiment runs every scenario in (none: each scenario's own world)."""
+
+    names: list[str] = field(default_factory=list)
+    """Shipped world names or world files (relative paths: relative to the experiment file)."""
+    generate: GenerateWorlds | None = None
+
+
+@dataclass
 class Experiment:
     """A comparison grid. Every field has a default except what makes a grid: sources."""
 
@@ -76,6 +106,7 @@ class Experiment:
     plot_seed: int | None = None
     """The seed whose mu_hat over time the report plots for every source (None: first_seed)."""
     quick: QuickSettings = field(default_factory=QuickSettings)
+    worlds: WorldSettings = field(default_factory=WorldSettings)
 
     @property
     def reference_source(self) -> str:
@@ -155,6 +186,36 @@ def experiment_problems(exp: Experiment) -> list[str]:
         "must be an integer >= 1",
     )
     need(_positive(exp.quick.duration_s), "quick.duration_s", exp.quick.duration_s, "must be > 0")
+    for i, w in enumerate(exp.worlds.names):
+        need(bool(str(w).strip()), f"worlds.names[{i}]", w, "must not be empty")
+    gen = exp.worlds.generate
+    if gen is not None:
+        need(
+            isinstance(gen.count, int) and gen.count >= 1,
+            "worlds.generate.count",
+            gen.count,
+            "must be an integer >= 1",
+        )
+        need(
+            isinstance(gen.seed, int) and gen.seed >= 0,
+            "worlds.generate.seed",
+            gen.seed,
+            "must be an integer >= 0",
+        )
+        mr = gen.mu_range
+        need(
+            len(mr) == 2 and all(_positive(v) for v in mr) and mr[0] <= mr[1] <= 2.0,
+            "worlds.generate.mu_range",
+            mr,
+            "must be [LO, HI] with 0 < LO <= HI <= 2",
+        )
+        if gen.terrains is not None:
+            need(
+                isinstance(gen.terrains, int) and 3 <= gen.terrains <= 6,
+                "worlds.generate.terrains",
+                gen.terrains,
+                "must be an integer in [3, 6]",
+            )
     if exp.plot_seed is not None:
         need(
             isinstance(exp.plot_seed, int) and exp.plot_seed >= 0,
@@ -206,6 +267,8 @@ class RunSpec:
     seed: int
     scenario: dict = field(hash=False, compare=False)
     spec_hash: str = ""
+    world: str = ""
+    """The world's name when the experiment has a world axis ("" : the scenario's own)."""
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

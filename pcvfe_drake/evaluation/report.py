@@ -143,9 +143,9 @@ def _label(m) -> str:
 def _scenario_maps(store: ResultStore, runs: pd.DataFrame) -> dict:
     """Per scenario: terrain map image, its bounds and the course polyline (from a run's
     scenario.yaml)."""
-    from pcvfe_drake.control.course import load_course
+    from pcvfe_drake.diagrams.world_io import build_world
     from pcvfe_drake.perception.ground_render import render_topdown
-    from pcvfe_drake.runs.scenario import Scenario, build_terrain_map
+    from pcvfe_drake.worlds.world_file import TerrainOverride
 
     maps = {}
     for sc, group in runs.groupby("scenario"):
@@ -153,18 +153,92 @@ def _scenario_maps(store: ResultStore, runs: pd.DataFrame) -> dict:
         if not path.is_file():
             continue
         raw = yaml.safe_load(path.read_text()) or {}
-        scenario = Scenario(
-            course=raw.get("course", "slalom"), terrain_layout=raw.get("terrain_layout", "paper")
-        )
         try:
-            terrain = build_terrain_map(scenario)
-            image = render_topdown(terrain, px_per_m=2.0)
-            bounds = terrain.bounds_m
-            course = load_course(scenario.course)
-        except (ValueError, FileNotFoundError):
+            overrides = {
+                name: TerrainOverride(**change)
+                for name, change in (raw.get("terrains") or {}).items()
+            }
+            world = build_world(
+                raw.get("world", "paper"),
+                terrains=overrides,
+                course=raw.get("course") or "",
+                check_course=False,
+            )
+            image = render_topdown(world.terrain_map, px_per_m=2.0)
+            bounds = world.terrain_map.bounds_m
+            course = world.course
+        except (ValueError, FileNotFoundError, TypeError):
             continue
         maps[sc] = (image, bounds, np.column_stack([course.x, course.y]))
     return maps
+
+
+def world_table(runs: pd.DataFrame, metric, sources: list[str]) -> list[dict]:
+    """Per source, over the worlds of the world axis: the per-world means of ``metric`` (over
+    seeds), their median, the worst world and its value, the count of worlds and failed runs.
+    Rows of runs without a world are left out."""
+    if "world" not in runs.columns:
+        return []
+    done = runs[(runs["status"] == "done") & (runs["world"].astype(str) != "")]
+    out = []
+    for src in sources:
+        mine = done[done["source"] == src]
+        per_world = mine.groupby("world")[metric.column].mean().dropna()
+        if per_world.empty:
+            continue
+        worst = per_world.idxmax() if metric.better == "lower" else per_world.idxmin()
+        failed = runs[(runs["source"] == src) & (runs["status"] != "done")]
+        out.append(
+            {
+                "source": src,
+                "worlds": int(per_world.size),
+                "mean": float(per_world.mean()),
+                "median": float(per_world.median()),
+                "worst_world": str(worst),
+                "worst": float(per_world[worst]),
+                "failed_runs": int(len(failed)),
+            }
+        )
+    return out
+
+
+def _worlds_section(doc: _Doc, runs: pd.DataFrame, sources: list[str], metrics) -> None:
+    """Results over the worlds of the world axis: per source, each metric's per-world mean
+    (over seeds), its median and its worst world, since a mean over worlds hides the world a
+    method fails in."""
+    if "world" not in runs.columns or not (runs["world"].astype(str) != "").any():
+        return
+    doc.h(2, "Over worlds")
+    n_worlds = runs.loc[runs["world"].astype(str) != "", "world"].nunique()
+    doc.p(
+        f"{n_worlds} worlds. Per source and metric: the mean over seeds in each world, then the "
+        "median and the mean of those over the worlds, and the worst world (the lowest, or the "
+        "highest where lower is better) with its value."
+    )
+    header = ["metric", "source", "worlds", "median", "mean", "worst world", "worst"]
+    rows = []
+    for m in metrics:
+        for r in world_table(runs, m, sources):
+            rows.append(
+                [
+                    _label(m),
+                    r["source"],
+                    str(r["worlds"]),
+                    fmt_number(r["median"]),
+                    fmt_number(r["mean"]),
+                    r["worst_world"],
+                    fmt_number(r["worst"]),
+                ]
+            )
+    doc.table(header, rows)
+    done = runs[(runs["status"] == "done") & (runs["world"].astype(str) != "")]
+    per = done.pivot_table(index="world", columns="source", values="mean_speed_mps", aggfunc="mean")
+    if not per.empty:
+        cols = [s for s in sources if s in per.columns]
+        doc.p("Per world: mean speed [m/s] (mean over seeds).")
+        doc.table(
+            ["world", *cols], [[w] + [fmt_number(per.loc[w, c]) for c in cols] for w in per.index]
+        )
 
 
 def _terrain_table(doc: _Doc, rows: list[dict], sources: list[str]) -> None:
@@ -307,6 +381,8 @@ def build_report(root: str | Path) -> tuple[Path, Path]:
                 "time before it): "
                 + "; ".join(f"{r.run_id}: {r.error}" for r in stopped.itertuples())
             )
+
+    _worlds_section(doc, runs, sources, metrics)
 
     doc.h(2, "Figures")
     bars = plots.plot_bars(runs, sources, store.figures / "speed_failures.png")

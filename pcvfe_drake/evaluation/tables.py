@@ -96,6 +96,7 @@ def run_row(spec: Mapping[str, Any], result: Mapping[str, Any]) -> dict[str, Any
         "run_id": spec["run_id"],
         "experiment": spec["experiment"],
         "scenario": spec["scenario_name"],
+        "world": spec.get("world", ""),
         "source": spec["source"],
         "seed": int(spec["seed"]),
         "spec_hash": spec["spec_hash"],

@@ -29,6 +29,8 @@ class GroundRenderer:
 
     def __init__(self, terrain_map: TerrainMap, textures: TextureSet | None = None) -> None:
         self.map = terrain_map
+        if textures is None:
+            textures = terrain_map.textures
         self.textures = textures if textures is not None else default_textures()
         for t in terrain_map.terrains:
             self.textures.entry(t.texture)  # fail early on unknown texture names

@@ -16,7 +16,6 @@ unless the map was given an ``outside`` terrain, which is then used for them.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -24,7 +23,6 @@ import cv2
 import numpy as np
 
 UNKNOWN = 255  # label of raster cells that no region covers
-_SUBPIXEL_SHIFT = 8  # fixed-point bits for cv2.fillPoly vertex coordinates
 
 
 @dataclass(frozen=True)
@@ -56,6 +54,12 @@ class TerrainMap:
         resolution_m: side length of one cell [m].
         outside: name of a terrain used for points outside the raster or on uncovered cells;
             None (default) makes such look-ups raise ``ValueError``.
+        mu_fields: per terrain (by label), an optional :class:`MuField` added to its mu where
+            the terrain lies (None: uniform mu on every terrain).
+        textures: the ``TextureSet`` that holds the terrains' textures (None: the packaged
+            textures); a world with photo textures brings its own.
+        transitions: names of the terrains of transition strips (a visit too short to form a
+            context: the context scores leave them out).
     """
 
     def __init__(
@@ -67,6 +71,9 @@ class TerrainMap:
         y_min_m: float,
         resolution_m: float,
         outside: str | None = None,
+        mu_fields: Sequence[MuField | None] | None = None,
+        textures=None,
+        transitions: Sequence[str] = (),
     ) -> None:
         labels = np.asarray(labels)
         if labels.ndim != 2 or labels.size == 0:
@@ -115,6 +122,16 @@ class TerrainMap:
         # Python-level copies for the single-point fast path (the plant calls it every step).
         self._inv_res = 1.0 / self.resolution_m
         self._mu_list = self._mu.tolist()
+        fields = list(mu_fields) if mu_fields is not None else [None] * len(terrains)
+        if len(fields) != len(terrains):
+            raise ValueError(f"mu_fields needs one entry per terrain, got {len(fields)}")
+        self.mu_fields: list[MuField | None] = fields
+        self._any_field = any(f is not None for f in fields)
+        self.textures = textures
+        unknown = sorted(set(transitions) - set(names))
+        if unknown:
+            raise ValueError(f"transitions {unknown} are not terrains of the map ({names})")
+        self.transitions: tuple[str, ...] = tuple(transitions)
 
     # ----------------------------------------------------------------------------- construction
     @classmethod
@@ -176,11 +193,7 @@ class TerrainMap:
             else:
                 index[terrain.name] = len(terrains)
                 terrains.append(terrain)
-            # Pixel coordinates with integer values at cell centres (OpenCV's convention).
-            u = (poly[:, 0] - x_min) / resolution_m - 0.5
-            v = (y_max - poly[:, 1]) / resolution_m - 0.5
-            uv = np.stack([u, v], axis=1)
-            _rasterise_polygon(labels, uv, index[terrain.name])
+            paint_polygon(labels, poly, index[terrain.name], x_min, y_max, resolution_m)
         if not terrains:
             raise ValueError("from_polygons needs at least one region")
         return cls(
@@ -271,11 +284,27 @@ class TerrainMap:
         return f"point ({x:.3f}, {y:.3f}) m lies on no terrain region of the map"
 
     def mu_at(self, xy: np.ndarray) -> np.ndarray | float:
-        """True friction coefficient at world points: (N, 2) -> (N,); (2,) -> float."""
+        """True friction coefficient at world points: (N, 2) -> (N,); (2,) -> float. The
+        terrain's mu plus its :class:`MuField` where it has one."""
+        return self.mu_and_index_at(xy)[0]
+
+    def mu_and_index_at(self, xy: np.ndarray) -> tuple[np.ndarray | float, np.ndarray | int]:
+        """(true mu, terrain index) at world points (shapes as :meth:`mu_at`)."""
         k = self.index_at(xy)
         if isinstance(k, int):
-            return self._mu_list[k]
-        return self._mu[k]
+            field = self.mu_fields[k] if self._any_field else None
+            if field is None:
+                return self._mu_list[k], k
+            xy_arr = np.asarray(xy, dtype=float)
+            return field.mu(self._mu_list[k], xy_arr[None, :])[0], k
+        mu = self._mu[k]
+        if self._any_field:
+            xy_arr = np.asarray(xy, dtype=float)
+            for j, field in enumerate(self.mu_fields):
+                on = k == j
+                if field is not None and np.any(on):
+                    mu[on] = field.mu(self._mu_list[j], xy_arr[on])
+        return mu, k
 
     def name_at(self, xy: np.ndarray) -> np.ndarray | str:
         """Terrain name at world points: (N, 2) -> (N,) object array of str; (2,) -> str."""
@@ -283,6 +312,65 @@ class TerrainMap:
         if isinstance(k, int):
             return self.terrains[k].name
         return self._names[k]
+
+
+class MuField:
+    """A smooth spatial variation of mu: values on a regular grid (bilinear in between) added to
+    a terrain's mu, the sum kept within [``floor``, 2].
+
+    Args:
+        offsets: (R, C) offsets [-] on grid nodes; node (i, j) is at
+            ``(x0_m + j * spacing_m, y0_m + i * spacing_m)``.
+    """
+
+    def __init__(
+        self, offsets: np.ndarray, *, x0_m: float, y0_m: float, spacing_m: float, floor=0.02
+    ):
+        self.offsets = np.asarray(offsets, dtype=float)
+        if self.offsets.ndim != 2 or min(self.offsets.shape) < 2:
+            raise ValueError(f"MuField offsets must be (R>=2, C>=2), got {self.offsets.shape}")
+        self.x0_m, self.y0_m, self.spacing_m = float(x0_m), float(y0_m), float(spacing_m)
+        self.floor = float(floor)
+
+    @classmethod
+    def gaussian(
+        cls,
+        bounds_m: tuple[float, float, float, float],
+        *,
+        amplitude: float,
+        length_scale_m: float,
+        seed: int,
+    ) -> MuField:
+        """A Gaussian random field over ``bounds_m`` of standard deviation ``amplitude`` and
+        correlation length ``length_scale_m`` [m], drawn from ``seed``: white noise on a grid of
+        a quarter of the length scale, smoothed by a Gaussian kernel, scaled to unit variance."""
+        from scipy.ndimage import gaussian_filter
+
+        x0, x1, y0, y1 = bounds_m
+        spacing = length_scale_m / 4.0
+        cols = int(np.ceil((x1 - x0) / spacing)) + 2
+        rows = int(np.ceil((y1 - y0) / spacing)) + 2
+        noise = np.random.default_rng(seed).standard_normal((rows, cols))
+        smooth = gaussian_filter(noise, sigma=length_scale_m / spacing / 2.0, mode="wrap")
+        std = float(smooth.std())
+        offsets = amplitude * smooth / std if std > 0 else np.zeros_like(smooth)
+        return cls(offsets, x0_m=x0 - spacing / 2, y0_m=y0 - spacing / 2, spacing_m=spacing)
+
+    def offset_at(self, xy: np.ndarray) -> np.ndarray:
+        """Offsets at world points (N, 2) [m] -> (N,) (bilinear; clamped at the grid's edge)."""
+        rows, cols = self.offsets.shape
+        fx = np.clip((xy[:, 0] - self.x0_m) / self.spacing_m, 0.0, cols - 1.000001)
+        fy = np.clip((xy[:, 1] - self.y0_m) / self.spacing_m, 0.0, rows - 1.000001)
+        j, i = fx.astype(int), fy.astype(int)
+        tx, ty = fx - j, fy - i
+        o = self.offsets
+        top = o[i, j] * (1 - tx) + o[i, j + 1] * tx
+        bottom = o[i + 1, j] * (1 - tx) + o[i + 1, j + 1] * tx
+        return top * (1 - ty) + bottom * ty
+
+    def mu(self, base_mu: float, xy: np.ndarray) -> np.ndarray:
+        """``base_mu`` plus the offsets at ``xy`` (N, 2), within [floor, 2]."""
+        return np.clip(base_mu + self.offset_at(xy), self.floor, 2.0)
 
 
 def _present_labels(labels: np.ndarray) -> np.ndarray:
@@ -299,161 +387,52 @@ def _present_labels(labels: np.ndarray) -> np.ndarray:
     return np.flatnonzero(counts)
 
 
+def paint_polygon(
+    labels: np.ndarray,
+    polygon_m: np.ndarray,
+    value: int,
+    x_min_m: float,
+    y_max_m: float,
+    resolution_m: float,
+) -> None:
+    """Set the cells of raster ``labels`` (row 0 at ``y_max_m``, column 0 at ``x_min_m``) whose
+    centre lies inside ``polygon_m`` ((M, 2) world vertices [m]) to ``value``."""
+    poly = np.asarray(polygon_m, dtype=float)
+    # Pixel coordinates with integer values at cell centres (OpenCV's convention).
+    u = (poly[:, 0] - x_min_m) / resolution_m - 0.5
+    v = (y_max_m - poly[:, 1]) / resolution_m - 0.5
+    _rasterise_polygon(labels, np.stack([u, v], axis=1), value)
+
+
 def _rasterise_polygon(labels: np.ndarray, uv: np.ndarray, value: int) -> None:
     """Set ``labels`` to ``value`` on the cells whose centre (integer pixel coordinates) lies
-    inside polygon ``uv`` (M, 2, pixel coordinates). ``cv2.fillPoly`` fills the interior
-    quickly; cells within two pixels of an edge, where it can be off by a pixel, are decided
-    exactly with ``matplotlib.path.Path``. Works on the polygon's bounding box only."""
-    from matplotlib.path import Path as _Path
-
+    inside polygon ``uv`` (M, 2, pixel coordinates; even-odd rule). An exact scanline fill:
+    each edge's crossings of the rows of cell centres (half-open in the row, so a vertex counts
+    once), sorted along each row, pair up into the spans of cells inside. Works on the
+    polygon's bounding box only."""
     rows, cols = labels.shape
-    c0 = max(int(np.floor(uv[:, 0].min())) - 3, 0)
-    c1 = min(int(np.ceil(uv[:, 0].max())) + 4, cols)
-    r0 = max(int(np.floor(uv[:, 1].min())) - 3, 0)
-    r1 = min(int(np.ceil(uv[:, 1].max())) + 4, rows)
+    c0 = max(int(np.floor(uv[:, 0].min())), 0)
+    c1 = min(int(np.ceil(uv[:, 0].max())) + 1, cols)
+    r0 = max(int(np.floor(uv[:, 1].min())), 0)
+    r1 = min(int(np.ceil(uv[:, 1].max())) + 1, rows)
     if c1 <= c0 or r1 <= r0:
         return
-    local = uv - [c0, r0]
-    pts = np.round(local * float(1 << _SUBPIXEL_SHIFT)).astype(np.int32)
-    mask = np.zeros((r1 - r0, c1 - c0), dtype=np.uint8)
-    cv2.fillPoly(mask, [pts], 1, cv2.LINE_8, _SUBPIXEL_SHIFT)
-    band = np.zeros_like(mask)
-    cv2.polylines(band, [pts], True, 1, 5, cv2.LINE_8, _SUBPIXEL_SHIFT)
-    rr, cc = np.nonzero(band)
-    if rr.size:
-        mask[rr, cc] = _Path(local).contains_points(np.stack([cc, rr], axis=1).astype(float))
-    labels[r0:r1, c0:c1][mask.view(bool)] = value
-
-
-# --------------------------------------------------------------------------------- default map
-DEFAULT_BOUNDS_M = (-150.0, 150.0, -100.0, 100.0)
-"""Extent (x_min, x_max, y_min, y_max) [m] of the default map: the 260 m x 170 m slalom plus
-margin for the camera's view."""
-
-
-def default_terrains() -> dict[str, Terrain]:
-    """The terrains of the default map, by name.
-
-    The four quadrant terrains use the public PC-VFE simulator's friction values (patchy grass
-    0.3, brick 0.8, sand 0.45, concrete 0.6). The paper's Fig. 4 shows dry soil where the
-    simulator code says sand; here that quadrant is ``sand`` (texture ``sand``) and dry soil
-    appears in a transition strip. Transition strips: ``gravel`` (mu 0.55) along x = 0 and
-    ``dry_soil`` (mu 0.5) along y = 0.
-    """
-    return {
-        "patchy_grass": Terrain("patchy_grass", 0.30, "patchy_grass"),
-        "brick": Terrain("brick", 0.80, "brick"),
-        "sand": Terrain("sand", 0.45, "sand"),
-        "concrete": Terrain("concrete", 0.60, "concrete"),
-        "gravel": Terrain("gravel", 0.55, "gravel"),
-        "dry_soil": Terrain("dry_soil", 0.50, "dry_soil"),
-    }
-
-
-def _strip_edges(
-    half_width_m: float, extent_m: float, phase: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Edges of a transition strip centred on a coordinate axis, with gently wavy deterministic
-    edges (amplitude about 0.35 m): along-strip samples ``s`` [m] every 0.25 m over
-    ``[-extent_m, extent_m]``, and the lower / upper edge offsets across the strip [m] there
-    (linear in between)."""
-    s = np.linspace(-extent_m, extent_m, int(2 * extent_m / 0.25) + 1)
-
-    def wobble(s: np.ndarray, p: float) -> np.ndarray:
-        return 0.25 * np.sin(2 * np.pi * s / 7.3 + p) + 0.12 * np.sin(2 * np.pi * s / 2.9 + 2 * p)
-
-    return s, -half_width_m + wobble(s, phase), half_width_m + wobble(s, phase + 1.7)
-
-
-def _paint_strip(
-    labels: np.ndarray,
-    along: np.ndarray,
-    across: np.ndarray,
-    edges: tuple[np.ndarray, np.ndarray, np.ndarray],
-    value: int,
-    *,
-    rows_along: bool,
-) -> None:
-    """Set the cells whose centre lies between a strip's edges to ``value``. ``along`` are the
-    cell-centre coordinates along the strip (columns if ``rows_along`` is False, else rows),
-    ``across`` the ones across it. Only the band of cells the strip can reach is touched."""
-    s, lo, hi = edges
-    lo_at = np.interp(along, s, lo)
-    hi_at = np.interp(along, s, hi)
-    band = np.flatnonzero((across >= lo.min()) & (across <= hi.max()))
-    if band.size == 0:
-        return
-    b0, b1 = int(band[0]), int(band[-1]) + 1
-    c = across[b0:b1]
-    if rows_along:  # strip along y (rows): band of columns
-        mask = (c[None, :] >= lo_at[:, None]) & (c[None, :] <= hi_at[:, None])
-        labels[:, b0:b1][mask] = value
-    else:  # strip along x (columns): band of rows
-        mask = (c[:, None] >= lo_at[None, :]) & (c[:, None] <= hi_at[None, :])
-        labels[b0:b1, :][mask] = value
-
-
-def default_terrain_map(
-    *,
-    strip_width_m: float = 3.0,
-    resolution_m: float = 0.05,
-    outside: str | None = None,
-) -> TerrainMap:
-    """The paper's simulation layout, centred on the world origin, x in [-150, 150] m,
-    y in [-100, 100] m (``DEFAULT_BOUNDS_M``).
-
-    Quadrants (counter-clockwise, the order a counter-clockwise lap meets them starting east):
-    x > 0, y > 0 ``patchy_grass`` (mu 0.3); x < 0, y > 0 ``brick`` (0.8); x < 0, y < 0 ``sand``
-    (0.45); x > 0, y < 0 ``concrete`` (0.6). Transition strips ``strip_width_m`` wide (wavy
-    edges): ``gravel`` (0.55) along x = 0 and ``dry_soil`` (0.5) along y = 0, crossing at the
-    origin. A course around the origin (the 260 m x 170 m ``slalom``, or its predecessor's
-    120 m x 80 m at 1/5 scale, ``slalom_small``) crosses each quadrant for about a quarter of
-    its length and each strip twice.
-
-    At the default 5 cm raster the map is 6000 x 4000 cells (24 MB of labels). The raster is
-    built once per (strip width, resolution) and shared, read-only, by the maps returned.
-    """
-    if not (np.isfinite(strip_width_m) and strip_width_m >= 0):
-        raise ValueError(f"strip_width_m must be >= 0, got {strip_width_m!r}")
-    if not (np.isfinite(resolution_m) and resolution_m > 0):
-        raise ValueError(f"resolution_m must be positive, got {resolution_m!r}")
-    labels, terrains = _default_raster(float(strip_width_m), float(resolution_m))
-    x0, _, y0, _ = DEFAULT_BOUNDS_M
-    return TerrainMap.from_label_image(
-        labels, terrains, x_min_m=x0, y_min_m=y0, resolution_m=resolution_m, outside=outside
-    )
-
-
-@functools.lru_cache(maxsize=4)
-def _default_raster(strip_width_m: float, resolution_m: float) -> tuple[np.ndarray, list]:
-    """Label raster (read-only) and terrains of the default layout (see default_terrain_map).
-
-    A cell belongs to a region when its centre does (as in ``from_polygons``): the quadrants
-    are the signs of the centre's x and y, the strips the cells whose centre lies between the
-    strip's piecewise-linear edges (``dry_soil`` along y = 0 first, ``gravel`` along x = 0 over
-    it where they cross).
-    """
-    t = default_terrains()
-    x0, x1, y0, y1 = DEFAULT_BOUNDS_M
-    cols = int(round((x1 - x0) / resolution_m))
-    rows = int(round((y1 - y0) / resolution_m))
-    xc = x0 + (np.arange(cols) + 0.5) * resolution_m  # cell-centre x of each column
-    yc = y1 - (np.arange(rows) + 0.5) * resolution_m  # cell-centre y of each row (north first)
-    east = int(np.searchsorted(xc, 0.0))  # first column with x > 0
-    north = int(np.count_nonzero(yc > 0.0))  # rows 0..north-1 have y > 0
-    terrains = [t["patchy_grass"], t["brick"], t["sand"], t["concrete"]]
-    labels = np.empty((rows, cols), dtype=np.uint8)
-    labels[:north, east:] = 0  # patchy grass, x > 0, y > 0
-    labels[:north, :east] = 1  # brick, x < 0, y > 0
-    labels[north:, :east] = 2  # sand, x < 0, y < 0
-    labels[north:, east:] = 3  # concrete, x > 0, y < 0
-    if strip_width_m > 0:
-        half = 0.5 * strip_width_m
-        pad = 1.0
-        terrains += [t["dry_soil"], t["gravel"]]
-        dry = _strip_edges(half, x1 + pad, phase=0.3)
-        _paint_strip(labels, xc, yc, dry, 4, rows_along=False)
-        gravel = _strip_edges(half, y1 + pad, phase=1.1)
-        _paint_strip(labels, yc, xc, gravel, 5, rows_along=True)
-    labels.flags.writeable = False
-    return labels, terrains
+    u0, v0 = uv[:, 0], uv[:, 1]
+    u1, v1 = np.roll(u0, -1), np.roll(v0, -1)
+    keep = v0 != v1
+    u0, v0, u1, v1 = u0[keep], v0[keep], u1[keep], v1[keep]
+    first = np.clip(np.ceil(np.minimum(v0, v1)), r0, r1).astype(np.int64)
+    stop = np.clip(np.ceil(np.maximum(v0, v1)), r0, r1).astype(np.int64)
+    count = stop - first
+    edge = np.repeat(np.arange(u0.size), count)
+    row = first[edge] + (np.arange(edge.size) - np.repeat(np.cumsum(count) - count, count))
+    x = u0[edge] + (row - v0[edge]) * ((u1 - u0) / (v1 - v0))[edge]
+    col = np.clip(np.ceil(x), c0, c1).astype(np.int64) - c0
+    order = np.lexsort((col, row))
+    row, col = row[order], col[order]
+    # Consecutive crossings of a row pair up (even-odd): cells [col[2k], col[2k+1]) are inside.
+    starts, ends, span_rows = col[0::2], col[1::2], row[0::2]
+    block = labels[:, c0:c1]
+    for r, a, b in zip(span_rows.tolist(), starts.tolist(), ends.tolist(), strict=True):
+        if b > a:
+            block[r, a:b] = value

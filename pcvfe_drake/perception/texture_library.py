@@ -137,6 +137,21 @@ class TextureSet:
             self._images[name] = np.ascontiguousarray(image)
         return self
 
+    def with_files(self, files: dict[str, tuple[Path, float]]) -> TextureSet:
+        """A copy of this set plus image-file textures: ``{name: (image file, tile_m)}`` (a
+        photo of the ground used as a texture; the file is read when first drawn)."""
+        other = TextureSet.__new__(TextureSet)
+        other.folder = self.folder
+        other._entries = dict(self._entries)
+        other._images = dict(self._images)
+        other._mean = dict(self._mean)
+        for name, (path, tile_m) in files.items():
+            path = Path(path).resolve()
+            other._entries[name] = TextureEntry(
+                name, str(path), float("nan"), float(tile_m), "image file", ""
+            )
+        return other
+
     @property
     def names(self) -> list[str]:
         return list(self._entries)
@@ -150,7 +165,7 @@ class TextureSet:
         """RGB uint8 (H, W, 3) texture image."""
         entry = self.entry(name)
         if name not in self._images:
-            self._images[name] = load_rgb(self.folder / entry.file)
+            self._images[name] = load_rgb(Path(self.folder or ".") / entry.file)
         return self._images[name]
 
     def tile_m(self, name: str) -> float:

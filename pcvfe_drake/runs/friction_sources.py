@@ -58,7 +58,8 @@ class FixedFrictionSettings:
 
 @dataclass
 class LookupSettings:
-    """The ``lookup`` source's table (see ``pcvfe_drake.estimation.lookup``)."""
+    """The ``lookup`` source's table (see ``pcvfe_drake.estimation.lookup``): its mu per class
+    are the texture library's literature values, not the world's (nor a scenario's overrides)."""
 
     classes: list[str] = field(default_factory=lambda: list(PAPER_LOOKUP_CLASSES))
     """Labelled subset of the texture library: the classes the table knows."""

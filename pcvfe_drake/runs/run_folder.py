@@ -178,15 +178,13 @@ class RunRecord:
 
 def build_summary(record: RunRecord) -> dict[str, Any]:
     """``summary.json``'s content: :func:`summarize_run` plus the run's facts."""
-    from pcvfe_drake.runs.scenario import excluded_terrains
-
     scenario = record.scenario
     summary = summarize_run(
         record.log,
         scenario=scenario.name,
         wall_time_s=record.wall_time_s,
         terrain_mu={t.name: t.mu for t in record.terrain_map.terrains},
-        excluded_terrains=excluded_terrains(scenario),
+        excluded_terrains=record.terrain_map.transitions,
         course=record.course,
         estimate_table=record.estimate_table,
         interrupted=record.interrupted,

@@ -1,6 +1,7 @@
 """Scenario description of one closed-loop PC-VFE run (plain dataclasses, no pydrake).
 
-A scenario says which vehicle drives which course over which terrain layout, which truth model
+A scenario says which vehicle drives which course in which world (``pcvfe_drake.worlds``: terrains,
+their frictions, the course; docs/worlds.md), which truth model
 simulates it, the rates of every periodic part of the loop, the feature backend, the settings of
 clustering, fitter and controller, the seed and how long to run. Scenarios are YAML files; they
 are loaded into these dataclasses by ``pcvfe_drake.diagrams.scenario_io.load_scenario`` with
@@ -11,8 +12,8 @@ from ``dataclasses.fields`` and needs real types there, not strings.
 
 Shipped scenarios live in ``pcvfe_drake/data/scenarios/<name>.yaml``:
 
-- ``paper_sim`` (default): the paper's simulation: Ford Escort, slalom course, the four-terrain
-  layout, one lap, single-track truth, descriptor feature backend.
+- ``paper_sim`` (default): the paper's simulation: Ford Escort in the ``paper`` world (slalom
+  course, four terrain quadrants), one lap, single-track truth, descriptor feature backend.
 - ``paper_sim_mb``: the same with CommonRoad's multi-body model as truth.
 - ``roboracer``: the paper's RoboRacer (Table I) on the small-scale course.
 """
@@ -43,19 +44,19 @@ from pcvfe_drake.vehicle.mb_truth import FRICTION_SCALINGS
 from pcvfe_drake.vehicle.params import TRUTH_MODELS
 from pcvfe_drake.hardware.settings import HardwareSettings, hardware_problems
 from pcvfe_drake.vehicle.sensing import SensingConfig
+from pcvfe_drake.worlds.world_file import TerrainOverride, mu_problem
 
 __all__ = [
     "DEFAULT_SCENARIO",
     "DERIVED_FIELDS",
     "DESCRIPTOR_BACKEND",
     "SCENARIO_DIR",
+    "REPLACED_FIELDS",
     "TRUTH_MODELS",
     "FeatureSettings",
     "Rates",
     "Scenario",
     "SimulatorSettings",
-    "build_terrain_map",
-    "excluded_terrains",
     "resolve_scenario_path",
     "scenario_problems",
     "shipped_scenarios",
@@ -172,10 +173,15 @@ class Scenario:
     description: str = ""
     vehicle: str = "ford_escort"
     """Vehicle preset (see params.PRESETS) or a vehicle YAML file (relative to the scenario)."""
-    course: str = "slalom"
-    """Course name (see course.py)."""
-    terrain_layout: str = "paper"
-    """Terrain layout name (see terrain.py)."""
+    world: str = "paper"
+    """The world: a shipped world (``pcvfe_drake/data/worlds``: paper, paper_small,
+    paper_no_strips) or a world file (relative to the scenario); docs/worlds.md."""
+    terrains: dict[str, TerrainOverride] = field(default_factory=dict)
+    """Per-terrain changes on top of the world's (``{patchy_grass: {mu: 0.22}}``), so that one
+    world runs at many frictions. The truth, the oracle and the scores read them; the lookup
+    baseline keeps its own table."""
+    course: str = ""
+    """A course (shipped name or file) to drive instead of the world's ("": the world's)."""
     truth_model: str = "st"
     """Truth plant model: "st" (single track) or "mb" (CommonRoad multi-body)."""
     seed: int = 0
@@ -325,8 +331,11 @@ def scenario_problems(scenario: Scenario) -> list[str]:
     s = scenario
     need(bool(s.name.strip()), "name", s.name, "must not be empty")
     need(bool(s.vehicle.strip()), "vehicle", s.vehicle, "must name a preset or a YAML file")
-    need(bool(s.course.strip()), "course", s.course, "must name a course")
-    need(bool(s.terrain_layout.strip()), "terrain_layout", s.terrain_layout, "must name a layout")
+    need(bool(s.world.strip()), "world", s.world, "must name a world (shipped name or file)")
+    for name, change in s.terrains.items():
+        if change.mu is not None:
+            why = mu_problem(change.mu)
+            need(not why, f"terrains.{name}.mu", change.mu, why)
     need(
         s.truth_model in TRUTH_MODELS,
         "truth_model",
@@ -450,35 +459,8 @@ def scenario_problems(scenario: Scenario) -> list[str]:
     return problems
 
 
-# ------------------------------------------------------------------ building from a scenario
-TERRAIN_LAYOUTS: dict[str, dict] = {
-    "paper": {},
-    "paper_small": {"strip_width_m": 0.6},
-    "paper_no_strips": {"strip_width_m": 0.0},
+REPLACED_FIELDS: dict[str, str] = {
+    "terrain_layout": "replaced by 'world': a shipped world (paper, paper_small, "
+    "paper_no_strips) or a world file, see docs/worlds.md",
 }
-"""Terrain layouts by name: keyword arguments of ``terrain.default_terrain_map``. ``paper`` is
-the paper's four quadrants with 3 m transition strips; ``paper_small`` the same with 0.6 m
-strips for the 1/5-scale course; ``paper_no_strips`` without strips."""
-
-TRANSITION_TERRAINS = ("gravel", "dry_soil")
-"""Terrains of the paper layouts' transition strips: left out of the context scores."""
-
-
-def build_terrain_map(scenario: Scenario):
-    """The scenario's ``TerrainMap``; unknown layout names raise ValueError listing the known."""
-    from pcvfe_drake.perception.terrain import default_terrain_map
-
-    layout = scenario.terrain_layout
-    if layout not in TERRAIN_LAYOUTS:
-        raise ValueError(
-            f"scenario {scenario.name!r}: terrain_layout={layout!r} is unknown "
-            f"(known: {', '.join(sorted(TERRAIN_LAYOUTS))})"
-        )
-    return default_terrain_map(**TERRAIN_LAYOUTS[layout])
-
-
-def excluded_terrains(scenario: Scenario) -> tuple[str, ...]:
-    """Terrain names left out of the context scores (the layout's transition strips)."""
-    if TERRAIN_LAYOUTS.get(scenario.terrain_layout, {}).get("strip_width_m", 1.0) == 0.0:
-        return ()
-    return TRANSITION_TERRAINS
+"""Scenario fields that no longer exist, with what replaced them (the loader's error says it)."""

@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pcvfe_drake.control.course import load_course
 from pcvfe_drake.diagrams.run_simulation import simulate_summary
 from pcvfe_drake.diagrams.scenario_io import load_scenario
+from pcvfe_drake.diagrams.world_io import scenario_course
 
 SETTINGS = {
     "prior": {"fitter.unknown_context": "prior"},
@@ -66,7 +66,7 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     length = {"duration_s": 60.0} if args.quick else {"laps": 1.0}
-    course = load_course(load_scenario(args.scenario).course)
+    course = scenario_course(load_scenario(args.scenario))
     result: dict = {"scenario": args.scenario, "seed": args.seed}
     for key, overrides in SETTINGS.items():
         with tempfile.TemporaryDirectory() as tmp:

@@ -55,10 +55,10 @@ def test_shipped_courses_listed_and_slalom_is_the_papers_layout():
 
 
 def test_each_terrain_gets_40_s_and_the_lap_is_the_papers_length():
-    from pcvfe_drake.perception.terrain import default_terrain_map
+    from pcvfe_drake.diagrams.world_io import world_terrain_map
 
     c = load_course("slalom")
-    terrain = default_terrain_map()
+    terrain = world_terrain_map("paper")
     names = terrain.name_at(np.column_stack([c.x, c.y]))
     quadrants = {t.name for t in terrain.terrains if t.name not in ("gravel", "dry_soil")}
     assert len(quadrants) == 4

@@ -11,7 +11,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.lcm import LcmBuses
 
-from pcvfe_drake.control.course import initial_state, load_course
+from pcvfe_drake.control.course import initial_state
 from pcvfe_drake.diagrams.station import (
     SIM_ONLY_OUTPUTS,
     STATION_INPUTS,
@@ -19,6 +19,7 @@ from pcvfe_drake.diagrams.station import (
     MakeVehicleStation,
 )
 from pcvfe_drake.diagrams.vehicle_bridge import MakeVehicleBridge
+from pcvfe_drake.diagrams.world_io import scenario_course
 from pcvfe_drake.hardware.settings import LcmBusSettings
 from pcvfe_drake.hardware.tcpq_hub import HubProcess
 from pcvfe_drake.lcmtypes import lcmt_vehicle_actuation, lcmt_vehicle_state
@@ -102,7 +103,7 @@ def test_state_loss_makes_the_nmpc_brake_and_the_status_say_why():
     scenario = memq_scenario()
     lcm, buses = shared_buses()
     params = load_vehicle(scenario.vehicle)
-    course = load_course(scenario.course)
+    course = scenario_course(scenario)
     builder = DiagramBuilder()
     station = builder.AddNamedSystem(
         "station", MakeVehicleStation(scenario, hardware=True, lcm_buses=buses)

@@ -15,6 +15,7 @@ from pcvfe_drake.control.nmpc import NmpcController
 from pcvfe_drake.diagrams import run_simulation as run_module
 from pcvfe_drake.diagrams.run_simulation import RunFolder, run_simulation
 from pcvfe_drake.diagrams.scenario_io import load_scenario
+from pcvfe_drake.diagrams.world_io import scenario_course
 from pcvfe_drake.runs.drivelog import read_drive_log
 
 
@@ -31,7 +32,7 @@ def test_a_run_by_laps_stops_at_the_row_that_completes_them(tmp_path):
     s = result.summary
     assert s["stop_reason"] == "laps" and not s["interrupted"]
     log = read_drive_log(folder.drive_log)
-    course = load_course(scenario.course)
+    course = scenario_course(scenario)
     progress = course.unwrap_progress(course.project(log[["sx", "sy"]].to_numpy()).s)
     travelled = (progress - progress[0]) / course.length
     first = int(np.argmax(travelled >= 0.02))

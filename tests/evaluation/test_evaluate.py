@@ -27,8 +27,8 @@ sources:
   - name: kmpc
     overrides: {nmpc.model: ks}
   - name: broken
-    description: a layout no map has, so building the diagram raises on the worker
-    overrides: {terrain_layout: nowhere}
+    description: a world that does not exist, so building the diagram raises on the worker
+    overrides: {world: nowhere}
 seeds: 2
 duration_s: 3.0
 overrides: {camera.noise_std: 2.0}

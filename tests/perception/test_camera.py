@@ -1,8 +1,9 @@
 import numpy as np
 import pytest
 
+from pcvfe_drake.diagrams.world_io import world_terrain_map
 from pcvfe_drake.perception.camera import CameraConfig, DownwardCamera
-from pcvfe_drake.perception.terrain import Terrain, TerrainMap, default_terrain_map
+from pcvfe_drake.perception.terrain import Terrain, TerrainMap
 from pcvfe_drake.perception.texture_library import TextureSet
 
 BLUE, RED = (20, 40, 220), (220, 30, 30)
@@ -10,7 +11,7 @@ BLUE, RED = (20, 40, 220), (220, 30, 30)
 
 @pytest.fixture(scope="module")
 def m():
-    return default_terrain_map()
+    return world_terrain_map("paper")
 
 
 def half_plane_map():

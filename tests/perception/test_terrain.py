@@ -2,19 +2,16 @@ import numpy as np
 import pytest
 from matplotlib.path import Path
 
+from pcvfe_drake.diagrams.world_io import load_world, world_terrain_map
 from pcvfe_drake.perception.ground_render import render_topdown
-from pcvfe_drake.perception.terrain import (
-    Terrain,
-    TerrainMap,
-    default_terrain_map,
-    default_terrains,
-)
+from pcvfe_drake.perception.terrain import Terrain, TerrainMap
 from pcvfe_drake.perception.texture_library import TextureSet
+from pcvfe_drake.worlds.build import strip_polygon
 
 
 @pytest.fixture(scope="module")
 def default_map():
-    return default_terrain_map()
+    return world_terrain_map("paper")
 
 
 def solid_textures(names, colors):
@@ -81,19 +78,13 @@ def test_a_lap_of_a_course_crosses_every_quadrant_for_a_quarter(default_map):
 
 def test_default_map_strips_are_the_cells_whose_centre_is_inside_the_strip_polygon(default_map):
     # Exact point-in-polygon (matplotlib) of each wavy strip's polygon at raster cell centres,
-    # against the labels of the default map (gravel painted over dry soil where they cross).
-    from pcvfe_drake.perception.terrain import _strip_edges
-
+    # against the labels of the paper world (gravel painted over dry soil where they cross).
     res = default_map.resolution_m
     rng = np.random.default_rng(7)
-    for name, extent, phase, along_x in (
-        ("dry_soil", 151.0, 0.3, True),
-        ("gravel", 101.0, 1.1, False),
-    ):
-        s, lo, hi = _strip_edges(1.5, extent, phase)
-        poly = np.concatenate([np.stack([s, lo], 1), np.stack([s[::-1], hi[::-1]], 1)])
-        if not along_x:
-            poly = poly[:, ::-1]
+    spec, _ = load_world("paper")
+    for strip in spec.strips:
+        name, along_x = strip.terrain, strip.start[1] == strip.end[1]
+        poly = strip_polygon(strip)
         cols = rng.integers(0, default_map.labels.shape[1], 4000)
         rows = rng.integers(0, default_map.labels.shape[0], 4000)
         if along_x:  # rows near y = 0
@@ -113,19 +104,14 @@ def test_default_map_strips_are_the_cells_whose_centre_is_inside_the_strip_polyg
         assert inside.sum() > 500
 
 
-def test_default_map_raster_is_built_once_and_read_only():
-    a = default_terrain_map()
-    b = default_terrain_map()
-    assert a is not b and a.labels is b.labels  # one shared raster per (strip, resolution)
-    assert not a.labels.flags.writeable
-    assert default_terrain_map(strip_width_m=0.0).names == [
+def test_default_map_raster_is_read_only(default_map):
+    assert not default_map.labels.flags.writeable
+    assert world_terrain_map("paper_no_strips").names == [
         "patchy_grass",
         "brick",
         "sand",
         "concrete",
     ]
-    with pytest.raises(ValueError, match="resolution_m"):
-        default_terrain_map(resolution_m=0.0)
 
 
 def test_scalar_and_batch_lookups_agree(default_map):
@@ -253,8 +239,8 @@ def test_topdown_render_shows_each_terrain_where_the_map_has_it(default_map):
     assert tuple(flat[70, 210]) == colors[0]  # x = 60.5, y = 29.5 -> patchy grass
 
 
-def test_default_terrains_are_the_public_simulator_values():
-    t = default_terrains()
+def test_paper_world_terrains_are_the_public_simulator_values(default_map):
+    t = {terrain.name: terrain for terrain in default_map.terrains}
     assert {n: t[n].mu for n in ("patchy_grass", "brick", "sand", "concrete")} == {
         "patchy_grass": 0.3,
         "brick": 0.8,

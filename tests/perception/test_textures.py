@@ -3,8 +3,9 @@ import importlib.util
 import numpy as np
 import pytest
 
-from pcvfe_drake.perception.terrain import default_terrains
+from pcvfe_drake.diagrams.world_io import load_world
 from pcvfe_drake.perception.texture_library import TextureSet, read_index, textures_dir
+from pcvfe_drake.worlds.world_file import shipped_worlds
 
 
 def load_script():
@@ -24,9 +25,10 @@ def test_index_lists_at_least_ten_square_rgb_textures():
         assert img.dtype == np.uint8 and img.shape[2] == 3
         assert img.shape[0] == img.shape[1] >= 512
         assert 0 < e.mu <= 1.5 and e.tile_m > 0 and e.provenance and e.method
-    # the default map's terrains all have a texture
-    for t in default_terrains().values():
-        textures.entry(t.texture)
+    # the shipped worlds' terrains all have a shipped texture
+    for name in shipped_worlds():
+        for t in load_world(name)[0].terrains:
+            textures.entry(t.texture)
 
 
 def test_textures_tile_without_seams():

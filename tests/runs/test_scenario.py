@@ -15,8 +15,6 @@ from pcvfe_drake.perception.camera import CameraConfig
 from pcvfe_drake.runs.scenario import (
     DEFAULT_SCENARIO,
     Scenario,
-    build_terrain_map,
-    excluded_terrains,
     resolve_scenario_path,
     shipped_scenarios,
 )
@@ -40,20 +38,19 @@ def test_shipped_scenarios_load_with_their_values():
     assert {"paper_sim", "paper_sim_mb", "roboracer"} <= set(shipped_scenarios())
     default = load_scenario(None)
     assert default.name == DEFAULT_SCENARIO == "paper_sim"
-    assert (default.vehicle, default.course, default.truth_model) == ("ford_escort", "slalom", "st")
+    assert (default.vehicle, default.world, default.truth_model) == ("ford_escort", "paper", "st")
     assert default.laps == 1.0 and default.duration_s is None
     assert default.features.backend == "descriptor" and not default.uses_clip
     mb = load_scenario("paper_sim_mb")
     assert mb.truth_model == "mb"
     rr = load_scenario("roboracer")
-    assert (rr.vehicle, rr.course, rr.terrain_layout) == (
-        "roboracer",
-        "slalom_small",
-        "paper_small",
-    )
+    assert (rr.vehicle, rr.world, rr.course) == ("roboracer", "paper_small", "")
     assert rr.camera.height_m == 0.5
+    from pcvfe_drake.diagrams.world_io import scenario_course
+
+    assert scenario_course(rr).name == "slalom_small"
+    assert scenario_course(default).name == "slalom"
     for s in (default, mb, rr):
-        assert build_terrain_map(s).names[:4] == ["patchy_grass", "brick", "sand", "concrete"]
         # One log row per NMPC update (the logged input is held over each row); the clustering
         # assigns each camera frame 1 ms after it is taken, in the same camera period.
         assert s.rates.log_period_s <= s.rates.nmpc_period_s
@@ -194,6 +191,7 @@ def test_malformed_scenarios_name_file_and_field(tmp_path, text, message):
 
 def test_unknown_names_are_clear_errors(tmp_path):
     from pcvfe_drake.diagrams.scenario_io import load_scenario
+    from pcvfe_drake.diagrams.world_io import scenario_world
 
     with pytest.raises(FileNotFoundError, match="neither a file nor a shipped scenario"):
         resolve_scenario_path("no_such_scenario")
@@ -201,8 +199,11 @@ def test_unknown_names_are_clear_errors(tmp_path):
     path.write_text("vehicle: my_car.yaml\n")
     with pytest.raises(FileNotFoundError, match="field 'vehicle'"):
         load_scenario(path)
-    with pytest.raises(ValueError, match="terrain_layout='moon'"):
-        build_terrain_map(Scenario(terrain_layout="moon"))
+    with pytest.raises(FileNotFoundError, match="world 'moon' is neither a file nor a shipped"):
+        scenario_world(Scenario(world="moon"))
+    path.write_text("terrain_layout: paper\n")
+    with pytest.raises(ValueError, match="field 'terrain_layout' was replaced by 'world'"):
+        load_scenario(path)
 
 
 def test_run_length_overrides():
@@ -213,5 +214,3 @@ def test_run_length_overrides():
     assert by_laps.stop_time_s() == s.max_duration_s
     with pytest.raises(ValueError, match="either"):
         s.with_run_length(laps=1, duration_s=3)
-    assert excluded_terrains(s) == ("gravel", "dry_soil")
-    assert excluded_terrains(Scenario(terrain_layout="paper_no_strips")) == ()

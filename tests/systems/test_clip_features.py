@@ -10,9 +10,9 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
+from pcvfe_drake.diagrams.world_io import world_terrain_map
 from pcvfe_drake.perception.camera import DownwardCamera
 from pcvfe_drake.perception.features import ClipFeatureExtractor, DescriptorExtractor
-from pcvfe_drake.perception.terrain import default_terrain_map
 from pcvfe_drake.systems.clip_features import ClipFeatures
 from pcvfe_drake.systems.texture_camera import TextureCamera, to_drake_image
 
@@ -27,7 +27,7 @@ def load_tiny_clip_helpers():
 
 @pytest.fixture(scope="module")
 def frames():
-    cam = DownwardCamera(default_terrain_map())
+    cam = DownwardCamera(world_terrain_map("paper"))
     return [cam.render(30, 20, 0.3), cam.render(-30, 20, 0.3)]
 
 
@@ -98,7 +98,7 @@ def test_black_frame_gives_nan_and_bad_frame_raises(frames):
 
 
 def test_camera_to_features_in_a_diagram():
-    terrain = default_terrain_map()
+    terrain = world_terrain_map("paper")
     builder = DiagramBuilder()
     source = builder.AddSystem(ConstantVectorSource(np.array([-30.0, -20.0, 0, 5.0, 2.0, 0, 0])))
     camera = builder.AddNamedSystem("camera", TextureCamera(terrain))

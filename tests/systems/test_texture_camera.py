@@ -4,14 +4,14 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
+from pcvfe_drake.diagrams.world_io import world_terrain_map
 from pcvfe_drake.perception.camera import CameraConfig
-from pcvfe_drake.perception.terrain import default_terrain_map
 from pcvfe_drake.systems.texture_camera import TextureCamera
 
 
 @pytest.fixture(scope="module")
 def terrain():
-    return default_terrain_map()
+    return world_terrain_map("paper")
 
 
 def state(x=30.0, y=20.0, v=6.0, psi=0.3):

@@ -12,7 +12,7 @@ from pydrake.systems.primitives import ConstantVectorSource
 from vehiclemodels.parameters_vehicle1 import parameters_vehicle1
 from vehiclemodels.vehicle_dynamics_mb import vehicle_dynamics_mb
 
-from pcvfe_drake.perception.terrain import default_terrain_map
+from pcvfe_drake.diagrams.world_io import world_terrain_map
 from pcvfe_drake.systems.vehicle_plant import VehiclePlant
 from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
 from pcvfe_drake.vehicle.params import ford_escort, roboracer
@@ -24,7 +24,7 @@ SPOTS = {"patchy_grass": (30.0, 30.0), "brick": (-30.0, 30.0), "sand": (-30.0, -
 
 @pytest.fixture(scope="module")
 def terrain_map():
-    return default_terrain_map()
+    return world_terrain_map("paper")
 
 
 def test_ports_and_no_direct_feedthrough(terrain_map):

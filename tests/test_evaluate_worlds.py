@@ -1,0 +1,97 @@
+"""`pcvfe evaluate` over worlds: listed and generated worlds make a world axis, and the report
+gives each source's median and worst world (a tiny grid on an in-process Dask cluster)."""
+
+import pandas as pd
+import pytest
+
+from pcvfe_drake.diagrams.experiment_io import experiment_from_yaml_text, load_experiment, run_specs
+from pcvfe_drake.evaluation.report import build_report
+from pcvfe_drake.evaluation.runner import open_client, run_sweep
+from pcvfe_drake.evaluation.store import ResultStore
+
+WORLDS = """
+name: worlds
+scenarios: [roboracer]
+sources:
+  - name: oracle
+    overrides: {estimator: oracle}
+  - name: fixed
+    overrides: {estimator: fixed}
+seeds: 1
+duration_s: 1.5
+worlds:
+  names: [paper_small]
+  generate: {count: 2, seed: 100, mu_range: [0.3, 0.9], terrains: 3}
+"""
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory):
+    root = tmp_path_factory.mktemp("evaluate_worlds")
+    path = root / "worlds.yaml"
+    path.write_text(WORLDS)
+    exp, path = load_experiment(path)
+    specs = run_specs(exp, path, worlds_dir=root / "out" / "worlds")
+    store = ResultStore(root / "out")
+    store.start(exp.to_dict(), {"command": "test"})
+    with open_client(1, processes=False) as client:
+        stats = run_sweep(specs, store, client, progress=False)
+    return dict(root=root, specs=specs, store=store, stats=stats)
+
+
+def test_the_grid_is_world_by_source_by_seed(sweep):
+    specs = sweep["specs"]
+    worlds = ["paper_small", "generated_s0100", "generated_s0101"]
+    assert sorted({s.world for s in specs}) == sorted(worlds)
+    assert len(specs) == 3 * 2 * 1
+    assert {s.run_id for s in specs} >= {"roboracer-generated_s0100__oracle__s000"}
+    by_world = {s.world: s.scenario for s in specs if s.source == "oracle"}
+    assert by_world["paper_small"]["world"] == "paper_small"
+    generated = by_world["generated_s0100"]["world"]
+    assert (
+        generated.endswith("worlds/generated_s0100.yaml")
+        and by_world["paper_small"]["course"] == ""
+    )
+    assert (sweep["root"] / "out" / "worlds" / "generated_s0101_course.yaml").is_file()
+
+
+def test_runs_are_stored_per_world_and_the_report_gives_median_and_worst_world(sweep):
+    assert sweep["stats"].failed == 0
+    runs = sweep["store"].table("runs")
+    assert set(runs["world"]) == {"paper_small", "generated_s0100", "generated_s0101"}
+    md, _ = build_report(sweep["store"].root)
+    text = md.read_text()
+    assert "## Over worlds" in text and "3 worlds" in text
+    speed = {r["source"]: r for r in _world_rows(runs, "mean_speed_mps")}
+    per_world = runs[runs["source"] == "oracle"].groupby("world")["mean_speed_mps"].mean()
+    assert speed["oracle"]["worst_world"] == per_world.idxmin()
+    assert speed["oracle"]["median"] == pytest.approx(per_world.median())
+    assert f"| oracle | 3 | {_fmt(per_world.median())} |" in text.replace(
+        "mean speed [m/s] (higher is better) ", ""
+    )
+
+
+def _world_rows(runs: pd.DataFrame, column: str):
+    from pcvfe_drake.evaluation.report import world_table
+    from pcvfe_drake.evaluation.tables import METRICS
+
+    metric = next(m for m in METRICS if m.column == column)
+    return world_table(runs, metric, ["oracle", "fixed"])
+
+
+def _fmt(x):
+    from pcvfe_drake.evaluation.report import _fmt as fmt
+
+    return fmt(x)
+
+
+def test_bad_world_settings_are_named(tmp_path):
+    bad = WORLDS.replace("count: 2", "count: 0")
+    with pytest.raises(ValueError, match=r"worlds.generate.count=0: must be an integer >= 1"):
+        experiment_from_yaml_text(bad, "exp.yaml")
+    bad = WORLDS.replace("names: [paper_small]", "names: [atlantis]")
+    path = tmp_path / "exp.yaml"
+    path.write_text(bad)
+    exp, path = load_experiment(path)
+    with pytest.raises(ValueError, match=r"worlds.names\[0\]: world 'atlantis' is neither"):
+        run_specs(exp, path, worlds_dir=tmp_path / "w")
