@@ -175,6 +175,23 @@ def run(args: argparse.Namespace) -> int:
     for message in result.write_errors:
         print(f"  not written: {message}")
     print(f"total {time.perf_counter() - t0:.1f} s")
+    return run_exit_code(result, folder)
+
+
+def run_exit_code(result, folder) -> int:
+    """The exit status of a finished run, after reporting its internal errors on stderr:
+    130 interrupted, :data:`pcvfe_drake.cli.INTERNAL_ERROR_EXIT` when writing its outputs failed
+    in the project's own code, 1 when the simulation stopped on an error, else 0."""
+    import sys
+
+    from pcvfe_drake.cli import INTERNAL_ERROR_EXIT
+    from pcvfe_drake.runs.run_folder import internal_error_report
+
+    report = internal_error_report(result, folder)
+    if report:
+        print(report, file=sys.stderr)
     if result.summary.get("interrupted") or result.held_signals:
         return 130
+    if result.internal_errors:
+        return INTERNAL_ERROR_EXIT
     return 1 if result.summary.get("error") else 0

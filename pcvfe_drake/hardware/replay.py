@@ -19,6 +19,7 @@ capture times with the run's camera period. A drive log imported from a bag
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,6 +48,11 @@ class ReplayLog:
     source: str = ""
     true_states: np.ndarray | None = None
     """(N, 7) the simulated run's true state (``true_*`` columns; None: the log has none)."""
+    feature_t_s: np.ndarray | None = None
+    """(K,) capture times of the camera frames whose features the log holds (None: none)."""
+    features: np.ndarray | None = None
+    """(K, D) the features computed in the run from those frames (the ``f_00``... columns):
+    a replay feeds them to the clustering as they were, so it needs no saved image."""
 
     def __post_init__(self) -> None:
         if len(self.t_s) == 0:
@@ -88,7 +94,8 @@ class ReplayLog:
         frames = len(self.frame_paths)
         frame_dt = np.diff(self.frame_t_s)
         frame_period = float(np.median(frame_dt)) if len(frame_dt) else math.nan
-        if frames < camera_frames - 1:
+        logged = self.logged_feature_frames(camera_period_s)
+        if logged is None and frames < camera_frames - 1:
             reasons.append(
                 f"{frames} of {camera_frames} camera frames saved (one every "
                 f"{frame_period:g} s): the clustering sees no image between them"
@@ -99,8 +106,32 @@ class ReplayLog:
             "frame_period_s": frame_period,
             "frames": frames,
             "camera_frames": camera_frames,
+            "feature_frames": 0 if self.features is None else len(self.features),
+            "features": "logged" if logged is not None else "images",
             "reasons": reasons,
         }
+
+    def logged_feature_frames(self, camera_period_s: float) -> int | None:
+        """How many camera frames' features the log holds when it holds those of every frame
+        at ``camera_period_s`` (then a replay uses them instead of the images), else None."""
+        if self.features is None or not len(self.features):
+            return None
+        camera_frames = int(self.duration_s / camera_period_s + 1e-6) + 1
+        if len(self.features) < camera_frames - 1:
+            return None
+        if np.any(np.diff(self.feature_t_s) > camera_period_s * (1 + 1e-6)):
+            return None
+        return len(self.features)
+
+    def features_at(self, t_s: float) -> np.ndarray:
+        """The logged features of the newest frame captured strictly before ``t_s`` (the
+        first from its own capture time on, as :meth:`frame_at`; NaN before it)."""
+        k = int(np.searchsorted(self.feature_t_s, t_s - _EPS_S, side="left")) - 1
+        if k < 0 and t_s >= self.feature_t_s[0] - _EPS_S:
+            k = 0
+        if k < 0:
+            return np.full(self.features.shape[1], math.nan)
+        return self.features[k]
 
     def _row_at(self, t_s: float) -> int:
         return max(0, int(np.searchsorted(self.t_s, t_s + _EPS_S, side="right")) - 1)
@@ -174,6 +205,7 @@ class ReplayLog:
         frame_t = np.asarray(frame_t, dtype=float)
         # Two rows may carry the same capture (the first two of a run): keep the first.
         keep = np.concatenate([[True], np.diff(frame_t) > _EPS_S]) if len(frame_t) else []
+        feature_t, features = _logged_features(log, camera_period_s)
         return cls(
             t_s=t,
             states=states,
@@ -184,6 +216,8 @@ class ReplayLog:
             terrain_index=terrain_index,
             source=source,
             true_states=true_states,
+            feature_t_s=feature_t,
+            features=features,
         )
 
     @classmethod
@@ -202,6 +236,26 @@ class ReplayLog:
         """A drive log file (e.g. from ``pcvfe import-bag``): frames at their rows' times."""
         path = Path(path)
         return cls.from_frame(read_drive_log(path), path.parent, source=str(path))
+
+
+def _logged_features(
+    log: pd.DataFrame, camera_period_s: float | None
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Capture times and features of the frames whose features a run logged (``f_00``...
+    columns, each row holding those of the frame taken before it): one per capture, rows
+    without finite features skipped; (None, None) without such columns or a camera period."""
+    columns = [c for c in log.columns if re.fullmatch(r"f_\d+", str(c))]
+    columns.sort(key=lambda c: int(c[2:]))
+    if not columns or camera_period_s is None:
+        return None, None
+    values = log[columns].to_numpy(float)
+    capture = np.array([capture_time(r, camera_period_s) for r in log["t"].to_numpy(float)])
+    finite = np.all(np.isfinite(values), axis=1)
+    capture, values = capture[finite], values[finite]
+    if not len(capture):
+        return None, None
+    first = np.concatenate([[True], np.diff(capture) > _EPS_S])
+    return capture[first], values[first]
 
 
 def capture_time(row_t_s: float, camera_period_s: float | None) -> float:
