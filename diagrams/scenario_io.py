@@ -26,6 +26,7 @@ import yaml
 from pydrake.common.yaml import yaml_load_typed
 
 from pcvfe_drake.runs.scenario import DERIVED_FIELDS, Scenario, resolve_scenario_path
+from pcvfe_drake.runs.scenario_files import resolve_file_field
 from pcvfe_drake.vehicle.params import PRESETS
 
 _YAML12_FLOAT = re.compile(r"^[-+]?(\.[0-9]+|[0-9]+(\.[0-9]*)?)([eE][-+]?[0-9]+)?$")
@@ -165,30 +166,48 @@ def load_scenario(path_or_name: str | Path | None = None, *overrides: str | Path
     """Load a scenario from a YAML file or a shipped scenario name (None: the default), then
     each of ``overrides`` (files or shipped names) on top of it, in order.
 
-    A ``vehicle`` that is not a preset name is a vehicle YAML file; a relative path is taken
-    relative to the scenario file that names it and stored as an absolute path.
+    A ``vehicle`` that is not a preset, a ``course`` that is not a shipped course and a
+    ``world`` that is not a shipped name are files: a relative path is taken relative to the
+    scenario file that names it (``resolve_file_field``) and stored as an absolute path.
     """
     scenario = None
     for layer in (path_or_name, *overrides):
         path = resolve_scenario_path(layer)
-        before = scenario.vehicle if scenario is not None else None
+        before = scenario
         text = read_yaml_file(path)
         scenario = scenario_from_yaml_text(text, source=str(path), defaults=scenario)
-        if scenario.vehicle not in PRESETS and scenario.vehicle != before:
-            scenario = _resolve_vehicle(scenario, path)
+        scenario = _resolve_files(scenario, before, path)
     return scenario
 
 
-def _resolve_vehicle(scenario: Scenario, path: Path) -> Scenario:
-    vehicle_path = Path(scenario.vehicle).expanduser()
-    if not vehicle_path.is_absolute():
-        vehicle_path = path.parent / vehicle_path
-    if not vehicle_path.is_file():
-        raise FileNotFoundError(
-            f"{path}: field 'vehicle'={scenario.vehicle!r} is neither a preset "
-            f"({', '.join(sorted(PRESETS))}) nor a file ({vehicle_path})"
-        )
-    return dataclasses.replace(scenario, vehicle=str(vehicle_path.resolve()))
+def _is_shipped_name(field: str, value: str) -> bool:
+    """Whether ``value`` of ``field`` names something shipped (not a file)."""
+    if field == "vehicle":
+        return value in PRESETS
+    if field == "course":
+        from pcvfe_drake.control.course import course_names
+
+        return value in course_names()
+    # Other path fields (a world): a name has no folder and no file suffix.
+    return not (Path(value).suffix or "/" in value or "\\" in value)
+
+
+PATH_FIELDS = ("vehicle", "course", "world")
+"""Scenario fields that name a file when they do not name something shipped."""
+
+
+def _resolve_files(scenario: Scenario, before: Scenario | None, path: Path) -> Scenario:
+    """``scenario`` with the path fields that the layer ``path`` set resolved against it."""
+    changes = {}
+    for field in PATH_FIELDS:
+        value = getattr(scenario, field, None)
+        if not isinstance(value, str) or not value.strip():
+            continue
+        if before is not None and getattr(before, field, None) == value:
+            continue  # set by an earlier layer (already resolved there)
+        if not _is_shipped_name(field, value):
+            changes[field] = resolve_file_field(value, path, field)
+    return dataclasses.replace(scenario, **changes) if changes else scenario
 
 
 def save_scenario(scenario: Scenario, path: str | Path) -> Path:

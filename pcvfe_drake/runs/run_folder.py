@@ -28,9 +28,11 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import traceback
 from dataclasses import dataclass, field
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +50,22 @@ RUN_FILES = ("drive_log.csv", "summary.json", "playback.html", "scenario.yaml", 
 """Files a run writes into its folder."""
 RUN_DIRS = ("figures", "frames")
 """Folders a run writes into its folder."""
+
+
+DEFAULT_RUNS_DIR = Path("runs")
+"""Where ``pcvfe simulate`` puts a run without ``--out`` (relative to the working directory)."""
+_UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
+MAX_NAME_CHARS = 80
+"""Longest folder-name part taken from a scenario name (file systems allow 255 bytes)."""
+
+
+def run_folder_name(tag: str, when: datetime) -> str:
+    """The default run folder's name for ``tag`` (the scenario's name, and its estimator): one
+    path component whatever the name holds (separators, ``..``, newlines and other characters
+    outside ``A-Z a-z 0-9 . _ -`` become ``_``, dots and ``_`` at the ends are dropped), so the
+    folder stays in :data:`DEFAULT_RUNS_DIR`; then the time."""
+    safe = _UNSAFE.sub("_", tag)[:MAX_NAME_CHARS].strip("._") or "run"
+    return f"{safe}-{when:%Y%m%d-%H%M%S}"
 
 
 class RunFolderError(ValueError):
