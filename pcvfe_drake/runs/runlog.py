@@ -28,6 +28,7 @@ from pcvfe_drake.vehicle.single_track import INPUT_NAMES, NX, STATE_NAMES
 ESTIMATE_COLUMNS = ("mu_hat", "C_Sf_hat", "C_Sr_hat")
 
 
+
 class RunLogWriteError(OSError):
     """The drive log (or a camera frame) could not be written; the message names the path and
     the reason. The rows stay in memory (the summary still sees them); nothing more is written
@@ -145,9 +146,9 @@ class RunLog:
             float(mu_true),
             int(round(float(context_id))),
             *np.asarray(theta_hat, dtype=float).reshape(3).tolist(),
-            *(np.full(NX, np.nan) if true_state is None else np.asarray(true_state, float))
-            .reshape(NX)
-            .tolist(),
+            *(
+                np.full(NX, np.nan) if true_state is None else np.asarray(true_state, float)
+            ).reshape(NX).tolist(),
             *features.tolist(),
             image,
         ]

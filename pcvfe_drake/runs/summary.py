@@ -317,7 +317,9 @@ def summarize_run(
     summary["scored_on_truth"] = drive_metrics.has_truth(log)
     summary.update(course_tracking(truth, course))
     summary["friction_utilisation"] = drive_metrics.friction_utilisation(truth)
-    summary["mu_error_after_entry"] = drive_metrics.mu_error_after_settling(log, excluded_terrains)
+    summary["mu_error_after_entry"] = drive_metrics.mu_error_after_settling(
+        log, excluded_terrains
+    )
     first_fit = {
         int(r["id"]): float(r["first_fit_s"])
         for r in (estimate_table or [])
