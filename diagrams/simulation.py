@@ -242,7 +242,10 @@ def MakeSimulation(
     run_log = RunLog(
         log_path, terrain_map.names, feature_dim, frame_period_s=rates.frame_log_period_s
     )
-    logger = builder.AddNamedSystem("run_logger", RunLogger(run_log, rates.log_period_s))
+    logger = builder.AddNamedSystem(
+        "run_logger",
+        RunLogger(run_log, rates.log_period_s, sample_period_s=rates.fitter_sample_period_s),
+    )
     sources = {
         "state": state,
         "actuation": applied,

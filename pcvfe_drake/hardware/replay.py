@@ -14,12 +14,19 @@ newest camera tick strictly before r (the run logger reads the camera just befor
 update at r; at r = 0 the initial frame), so :meth:`from_run_folder` maps frames back to their
 capture times with the run's camera period. A drive log imported from a bag
 (``pcvfe import-bag``) has one row per frame at its capture time (``frame_times="row"``).
+
+A run folder holds more than the rows: the features of every camera frame (the drive log's
+``f_00``... columns, each row holding those of the frame taken before it) and the state and
+input at the fitter's sampling rate (``fitter_samples.npz``). With them a replay feeds the
+clustering and the fitter what they had in the run (``features_at``, and ``state_at`` /
+``actuation_before`` from the samples), whatever the log and frame rates.
 """
 
 from __future__ import annotations
 
 import math
 import re
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,6 +34,7 @@ import numpy as np
 import pandas as pd
 
 from pcvfe_drake.runs.drivelog import TRUE_STATE_COLUMNS, read_drive_log
+from pcvfe_drake.runs.runlog import SAMPLES_FILE
 from pcvfe_drake.vehicle.single_track import INPUT_NAMES, STATE_NAMES
 
 _EPS_S = 1e-9
@@ -53,6 +61,11 @@ class ReplayLog:
     features: np.ndarray | None = None
     """(K, D) the features computed in the run from those frames (the ``f_00``... columns):
     a replay feeds them to the clustering as they were, so it needs no saved image."""
+    sample_t_s: np.ndarray | None = None
+    """(S,) times of the state and input kept at the fitter's sampling rate (a run folder's
+    ``fitter_samples.npz``; None: none), used for ``state_at`` and ``actuation_before``."""
+    sample_states: np.ndarray | None = None
+    sample_actuations: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if len(self.t_s) == 0:
@@ -82,7 +95,7 @@ class ReplayLog:
         frames in between are blank: features NaN, context noise), so contexts and estimates
         differ.
         """
-        dt = np.diff(self.t_s)
+        dt = np.diff(self.sample_t_s if self.sample_t_s is not None else self.t_s)
         log_period = float(np.median(dt)) if len(dt) else math.nan
         reasons = []
         if not (log_period <= sample_period_s * (1 + 1e-6)):
@@ -136,10 +149,23 @@ class ReplayLog:
     def _row_at(self, t_s: float) -> int:
         return max(0, int(np.searchsorted(self.t_s, t_s + _EPS_S, side="right")) - 1)
 
+    def _sample_at(self, t_s: float) -> int:
+        """The newest fitter sample at or before ``t_s`` (-1: none, or no samples)."""
+        if self.sample_t_s is None:
+            return -1
+        return int(np.searchsorted(self.sample_t_s, t_s + _EPS_S, side="right")) - 1
+
     def state_at(self, t_s: float) -> np.ndarray:
-        return self.states[self._row_at(t_s)]
+        k = self._sample_at(t_s)
+        return self.sample_states[k] if k >= 0 else self.states[self._row_at(t_s)]
 
     def actuation_before(self, t_s: float) -> np.ndarray:
+        """The input applied just before ``t_s``: the one the fitter read at the newest sample
+        at or before ``t_s`` (read before that instant's updates), else the newest row's
+        strictly before ``t_s``."""
+        k = self._sample_at(t_s)
+        if k >= 0:
+            return self.sample_actuations[k]
         k = int(np.searchsorted(self.t_s, t_s - _EPS_S, side="left")) - 1
         return self.actuations[k] if k >= 0 else np.zeros(self.actuations.shape[1])
 
@@ -227,15 +253,42 @@ class ReplayLog:
         path = folder / "drive_log.csv"
         if not path.is_file():
             raise FileNotFoundError(f"replay: {folder} has no drive_log.csv (not a run folder?)")
-        return cls.from_frame(
+        log = cls.from_frame(
             read_drive_log(path), folder, camera_period_s=camera_period_s, source=str(folder)
         )
+        samples = folder / SAMPLES_FILE
+        if samples.is_file():
+            log.sample_t_s, log.sample_states, log.sample_actuations = read_samples(samples)
+        return log
 
     @classmethod
     def from_drive_log(cls, path: str | Path) -> ReplayLog:
         """A drive log file (e.g. from ``pcvfe import-bag``): frames at their rows' times."""
         path = Path(path)
         return cls.from_frame(read_drive_log(path), path.parent, source=str(path))
+
+
+def read_samples(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(t_s, state, actuation)`` of a run's :data:`SAMPLES_FILE`; a ValueError naming the
+    file when it cannot be read or its arrays do not fit together."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            t, x, u = (np.asarray(data[k], dtype=float) for k in ("t_s", "state", "actuation"))
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        raise ValueError(f"replay: {path}: not a readable samples file ({exc})") from exc
+    ok = (
+        t.ndim == 1
+        and x.shape == (t.size, len(STATE_NAMES))
+        and u.shape == (t.size, len(INPUT_NAMES))
+        and np.all(np.isfinite(t))
+        and np.all(np.diff(t) > 0)
+    )
+    if not ok:
+        raise ValueError(
+            f"replay: {path}: arrays t_s {t.shape}, state {x.shape}, actuation {u.shape} do not "
+            "fit together (increasing times, 7 states and 2 inputs per sample)"
+        )
+    return t, x, u
 
 
 def _logged_features(

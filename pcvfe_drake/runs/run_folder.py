@@ -16,6 +16,7 @@ has one place where it becomes a message naming the path and the reason:
 A run folder holds::
 
     drive_log.csv    the drive log, appended as the run goes (pcvfe_drake.runs.runlog)
+    fitter_samples.npz  state and input at the fitter's sampling rate (for pcvfe replay)
     frames/          camera frames referenced by the log's image column
     scenario.yaml    the scenario as run (every field, so the run can be repeated)
     summary.json     pcvfe_drake.runs.summary.summarize_run plus run facts (below)
@@ -42,11 +43,19 @@ import pandas as pd
 from pcvfe_drake.json_numbers import finite_or_none
 from pcvfe_drake.runs.figures import write_figures
 from pcvfe_drake.runs.output_paths import check_output_dir, describe_os_error
+from pcvfe_drake.runs.runlog import SAMPLES_FILE
 from pcvfe_drake.runs.summary import summarize_run
 
 INTERNAL_ERROR_FILE = "internal_error.txt"
 """Tracebacks of failures of the project's own code while the outputs were written."""
-RUN_FILES = ("drive_log.csv", "summary.json", "playback.html", "scenario.yaml", INTERNAL_ERROR_FILE)
+RUN_FILES = (
+    "drive_log.csv",
+    SAMPLES_FILE,
+    "summary.json",
+    "playback.html",
+    "scenario.yaml",
+    INTERNAL_ERROR_FILE,
+)
 """Files a run writes into its folder."""
 RUN_DIRS = ("figures", "frames")
 """Folders a run writes into its folder."""
