@@ -89,9 +89,8 @@ class Rates:
     input and biases such a fit)."""
     frame_log_period_s: float = 2.0
     """Period at which camera frames are saved with the drive log (``frames/``, for the
-    figures). ``pcvfe replay`` needs every frame to rerun the perception: set it to
-    ``camera_period_s`` (and ``log_period_s`` to ``fitter_sample_period_s``) for a run that
-    replays exactly (docs/hardware.md)."""
+    figures). ``pcvfe replay`` does not need every frame: the drive log holds the features of
+    every frame (docs/hardware.md, Replay)."""
     view_period_s: float = 0.1
     """Period of the Meshcat view's updates and of its recording's frames (10 Hz)."""
     clustering_frame_offset_s: float = 0.001
