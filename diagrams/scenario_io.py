@@ -27,7 +27,7 @@ from pydrake.common.yaml import yaml_load_typed
 
 from pcvfe_drake.runs.scenario import DERIVED_FIELDS, Scenario, resolve_scenario_path
 from pcvfe_drake.runs.scenario_files import resolve_file_field
-from pcvfe_drake.vehicle.params import PRESETS
+from pcvfe_drake.vehicle.params import PRESETS, load_vehicle
 
 _YAML12_FLOAT = re.compile(r"^[-+]?(\.[0-9]+|[0-9]+(\.[0-9]*)?)([eE][-+]?[0-9]+)?$")
 """A number in YAML 1.2's core schema (PyYAML's YAML 1.1 needs a dot before an exponent)."""
@@ -177,6 +177,8 @@ def load_scenario(path_or_name: str | Path | None = None, *overrides: str | Path
         text = read_yaml_file(path)
         scenario = scenario_from_yaml_text(text, source=str(path), defaults=scenario)
         scenario = _resolve_files(scenario, before, path)
+    if scenario.vehicle not in PRESETS:
+        load_vehicle(scenario.vehicle)  # its fields checked now, before any run starts
     return scenario
 
 
