@@ -31,7 +31,8 @@ from pcvfe_drake.runs.scenario import (
     Scenario,
     resolve_scenario_path,
 )
-from pcvfe_drake.vehicle.params import PRESETS
+from pcvfe_drake.runs.scenario_files import resolve_file_field
+from pcvfe_drake.vehicle.params import PRESETS, load_vehicle
 
 _YAML12_FLOAT = re.compile(r"^[-+]?(\.[0-9]+|[0-9]+(\.[0-9]*)?)([eE][-+]?[0-9]+)?$")
 """A number in YAML 1.2's core schema (PyYAML's YAML 1.1 needs a dot before an exponent)."""
@@ -179,44 +180,50 @@ def load_scenario(path_or_name: str | Path | None = None, *overrides: str | Path
     """Load a scenario from a YAML file or a shipped scenario name (None: the default), then
     each of ``overrides`` (files or shipped names) on top of it, in order.
 
-    A ``vehicle`` that is not a preset name is a vehicle YAML file; a relative path is taken
-    relative to the scenario file that names it and stored as an absolute path; so is a
-    ``world`` or ``course`` file that lies relative to the scenario.
+    A ``vehicle`` that is not a preset, a ``course`` that is not a shipped course and a
+    ``world`` that is not a shipped name are files: a relative path is taken relative to the
+    scenario file that names it (``resolve_file_field``) and stored as an absolute path.
     """
     scenario = None
     for layer in (path_or_name, *overrides):
         path = resolve_scenario_path(layer)
-        before = scenario if scenario is not None else Scenario()
+        before = scenario
         text = read_yaml_file(path)
         scenario = scenario_from_yaml_text(text, source=str(path), defaults=scenario)
-        if scenario.vehicle not in PRESETS and scenario.vehicle != before.vehicle:
-            scenario = _resolve_vehicle(scenario, path)
-        for key in ("world", "course"):
-            if getattr(scenario, key) != getattr(before, key):
-                scenario = _resolve_relative(scenario, key, path)
+        scenario = _resolve_files(scenario, before, path)
+    if scenario.vehicle not in PRESETS:
+        load_vehicle(scenario.vehicle)  # its fields checked now, before any run starts
     return scenario
 
 
-def _resolve_relative(scenario: Scenario, key: str, path: Path) -> Scenario:
-    """``scenario.<key>`` (a world or course) as an absolute path when it names a file relative
-    to the scenario file ``path`` (shipped names and other values are left as they are)."""
-    value = getattr(scenario, key)
-    candidate = Path(value).expanduser()
-    if value and not candidate.is_absolute() and (path.parent / candidate).is_file():
-        return dataclasses.replace(scenario, **{key: str((path.parent / candidate).resolve())})
-    return scenario
+def _is_shipped_name(field: str, value: str) -> bool:
+    """Whether ``value`` of ``field`` names something shipped (not a file)."""
+    if field == "vehicle":
+        return value in PRESETS
+    if field == "course":
+        from pcvfe_drake.control.course import course_names
+
+        return value in course_names()
+    # Other path fields (a world): a name has no folder and no file suffix.
+    return not (Path(value).suffix or "/" in value or "\\" in value)
 
 
-def _resolve_vehicle(scenario: Scenario, path: Path) -> Scenario:
-    vehicle_path = Path(scenario.vehicle).expanduser()
-    if not vehicle_path.is_absolute():
-        vehicle_path = path.parent / vehicle_path
-    if not vehicle_path.is_file():
-        raise FileNotFoundError(
-            f"{path}: field 'vehicle'={scenario.vehicle!r} is neither a preset "
-            f"({', '.join(sorted(PRESETS))}) nor a file ({vehicle_path})"
-        )
-    return dataclasses.replace(scenario, vehicle=str(vehicle_path.resolve()))
+PATH_FIELDS = ("vehicle", "course", "world")
+"""Scenario fields that name a file when they do not name something shipped."""
+
+
+def _resolve_files(scenario: Scenario, before: Scenario | None, path: Path) -> Scenario:
+    """``scenario`` with the path fields that the layer ``path`` set resolved against it."""
+    changes = {}
+    for field in PATH_FIELDS:
+        value = getattr(scenario, field, None)
+        if not isinstance(value, str) or not value.strip():
+            continue
+        if before is not None and getattr(before, field, None) == value:
+            continue  # set by an earlier layer (already resolved there)
+        if not _is_shipped_name(field, value):
+            changes[field] = resolve_file_field(value, path, field)
+    return dataclasses.replace(scenario, **changes) if changes else scenario
 
 
 def save_scenario(scenario: Scenario, path: str | Path) -> Path:

@@ -72,8 +72,9 @@ def nmpc_config(scenario: Scenario) -> NmpcConfig:
 
 
 def _add_friction_source(builder, scenario: Scenario, params, station, features, actuation):
-    """Add the scenario's friction source (``scenario.estimator``); returns its ``theta_hat``
-    output and the port logged as the run's ``context`` column.
+    """Add the scenario's friction source (``scenario.estimator``), reading the ``features``
+    output port; returns its ``theta_hat`` output and the port logged as the run's ``context``
+    column.
 
     ``pcvfe``: ``clustering`` (ContextClustering) and ``fitter`` (ContextFitter), the context id
     from the clustering. ``oracle``: ``friction_source`` (OracleFriction on ``true_mu``).
@@ -84,7 +85,7 @@ def _add_friction_source(builder, scenario: Scenario, params, station, features,
     """
     rates = scenario.rates
     kind = scenario.estimator
-    feature_dim = features.GetOutputPort("features").size()
+    feature_dim = features.size()
     if kind == "pcvfe":
         clustering = builder.AddNamedSystem(
             "clustering",
@@ -105,7 +106,7 @@ def _add_friction_source(builder, scenario: Scenario, params, station, features,
                 config=scenario.fit_config(),
             ),
         )
-        builder.Connect(features.GetOutputPort("features"), clustering.GetInputPort("features"))
+        builder.Connect(features, clustering.GetInputPort("features"))
         builder.Connect(station.GetOutputPort("state"), fitter.GetInputPort("state"))
         builder.Connect(actuation, fitter.GetInputPort("actuation"))
         builder.Connect(clustering.GetOutputPort("context_id"), fitter.GetInputPort("context_id"))
@@ -137,7 +138,7 @@ def _add_friction_source(builder, scenario: Scenario, params, station, features,
                 offset_s=rates.clustering_frame_offset_s,
             ),
         )
-        builder.Connect(features.GetOutputPort("features"), source.GetInputPort("features"))
+        builder.Connect(features, source.GetInputPort("features"))
         return source.GetOutputPort("theta_hat"), source.GetOutputPort("terrain_class")
     if kind == "oracle":
         if not station.HasOutputPort("true_mu"):
@@ -224,9 +225,17 @@ def MakeSimulation(
         if station.HasOutputPort("logged_actuation")
         else nmpc.GetOutputPort("actuation")
     )
-    theta_hat, context_id = _add_friction_source(
-        builder, scenario, params, station, features, applied
-    )
+    # What the perception saw: features of the camera's images, or on a replay of a run the
+    # features that run computed (its drive log holds those of every frame, its frames/ not).
+    seen = features.GetOutputPort("features")
+    if station.HasOutputPort("logged_features"):
+        seen = station.GetOutputPort("logged_features")
+        if seen.size() != feature_dim:
+            raise ValueError(
+                f"replay: the log holds {seen.size()} features per frame, the scenario's "
+                f"feature backend {feature_dim}"
+            )
+    theta_hat, context_id = _add_friction_source(builder, scenario, params, station, seen, applied)
     builder.Connect(state, nmpc.GetInputPort("state"))
     builder.Connect(theta_hat, nmpc.GetInputPort("theta_hat"))
     builder.Connect(nmpc.GetOutputPort("actuation"), station.GetInputPort("actuation"))
@@ -234,11 +243,14 @@ def MakeSimulation(
     run_log = RunLog(
         log_path, terrain_map.names, feature_dim, frame_period_s=rates.frame_log_period_s
     )
-    logger = builder.AddNamedSystem("run_logger", RunLogger(run_log, rates.log_period_s))
+    logger = builder.AddNamedSystem(
+        "run_logger",
+        RunLogger(run_log, rates.log_period_s, sample_period_s=rates.fitter_sample_period_s),
+    )
     sources = {
         "state": state,
         "actuation": applied,
-        "features": features.GetOutputPort("features"),
+        "features": seen,
         "context_id": context_id,
         "theta_hat": theta_hat,
         "image": station.GetOutputPort("image"),

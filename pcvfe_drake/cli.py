@@ -37,6 +37,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 STDOUT_NAME = "<standard output>"
 
+INTERNAL_ERROR_EXIT = 70
+"""Exit status of a failure of the project's own code (a bug, not the user's input; BSD's
+EX_SOFTWARE): the traceback goes to stderr, after one line saying so."""
+
 
 class _NamedStdout:
     """stdout whose write errors (a full disk, a closed pipe) carry the name of the stream."""
@@ -94,11 +98,23 @@ def _run(argv: list[str] | None) -> int:
     except ValueError as exc:
         print(f"pcvfe {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except Exception as exc:  # noqa: BLE001 - a bug: say so, with its traceback
+        import traceback
+
+        traceback.print_exc(file=sys.stderr)
+        print(
+            f"pcvfe {args.command}: internal error (a bug in pcvfe, not your input): "
+            f"{type(exc).__name__}: {exc}",
+            file=sys.stderr,
+        )
+        return INTERNAL_ERROR_EXIT
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run one ``pcvfe`` command; bad input and OS errors become one line on stderr (exit 2),
-    Ctrl-C at any moment (also while the command modules are being imported) exit 130."""
+    any other exception is an internal error (its traceback, then one line; exit
+    :data:`INTERNAL_ERROR_EXIT`), Ctrl-C at any moment (also while the command modules are being
+    imported) exit 130."""
     stdout = sys.stdout
     sys.stdout = _NamedStdout(stdout)
     try:

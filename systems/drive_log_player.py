@@ -32,6 +32,7 @@ class DriveLogPlayer(LeafSystem):
         - true_mu
         - true_terrain
         - true_state
+        - features
 
     Ports:
         actuation: input (2), accepted and not used: a recorded drive cannot be steered.
@@ -43,12 +44,21 @@ class DriveLogPlayer(LeafSystem):
             time (``ReplayLog.frame_at``; blank before the first).
         true_mu, true_terrain: outputs (1) only when the log has truth (``mu_true``).
         true_state: output (7) only when the log has the true state (``true_*`` columns).
+        features: output (D) only with ``logged_features``: the features the run computed
+            from the newest frame captured before the context time (``ReplayLog.features_at``).
 
     Pure output calcs of the context time (no state, no events). Frames are read from disk
     when first needed and the last ``FRAME_CACHE`` kept (a memo of files, not simulation state).
     """
 
-    def __init__(self, log: ReplayLog, *, width_px: int = 224, height_px: int = 224) -> None:
+    def __init__(
+        self,
+        log: ReplayLog,
+        *,
+        width_px: int = 224,
+        height_px: int = 224,
+        logged_features: bool = False,
+    ) -> None:
         super().__init__()
         self.log = log
         self._blank = ImageRgba8U(int(width_px), int(height_px))
@@ -63,6 +73,10 @@ class DriveLogPlayer(LeafSystem):
             self.DeclareVectorOutputPort("true_terrain", 1, self._calc_true_terrain)
         if log.true_states is not None:
             self.DeclareVectorOutputPort("true_state", NX, self._calc_true_state)
+        if logged_features:
+            if log.features is None:
+                raise ValueError(f"DriveLogPlayer: {log.source} holds no logged features")
+            self.DeclareVectorOutputPort("features", log.features.shape[1], self._calc_features)
         self._load = lru_cache(maxsize=FRAME_CACHE)(self._read_frame)
 
     def _read_frame(self, index: int) -> ImageRgba8U:
@@ -90,3 +104,6 @@ class DriveLogPlayer(LeafSystem):
 
     def _calc_true_terrain(self, context: Context, output: BasicVector) -> None:
         output.SetFromVector([self.log.truth_at(context.get_time())[1]])
+
+    def _calc_features(self, context: Context, output: BasicVector) -> None:
+        output.SetFromVector(self.log.features_at(context.get_time()))

@@ -38,7 +38,11 @@ class RunLogger(LeafSystem):
     ``true_state`` (7, sim-only, optional) is the true state, logged as the ``true_sx`` ...
     ``true_beta`` columns when connected (``state`` is then the measured one).
 
-    Rate: one periodic publish event every ``period_s`` (the scenario's log period). The RunLog
+    Rate: one periodic publish event every ``period_s`` (the scenario's log period), and with
+    ``sample_period_s`` a second one at that period (the fitter's sampling) that keeps the
+    ``state`` and the ``actuation`` it reads (``RunLog.add_sample``: the values the fitter's
+    update at the same instant reads, since a publish at t sees the state before the updates at
+    t), so a replay can feed the fitter exactly what it had. The RunLog
     is the run's output sink, owned by the caller (its rows are written to disk in chunks, so an
     interrupted run keeps what it had); call :meth:`finish` and then ``run_log.close()`` after
     the last AdvanceTo.
@@ -53,10 +57,13 @@ class RunLogger(LeafSystem):
     the row's own time.
     """
 
-    def __init__(self, run_log: RunLog, period_s: float) -> None:
+    def __init__(
+        self, run_log: RunLog, period_s: float, *, sample_period_s: float | None = None
+    ) -> None:
         super().__init__()
-        if not (np.isfinite(period_s) and period_s > 0):
-            raise ValueError(f"RunLogger: period_s must be > 0, got {period_s!r}")
+        for name, value in (("period_s", period_s), ("sample_period_s", sample_period_s)):
+            if value is not None and not (np.isfinite(value) and value > 0):
+                raise ValueError(f"RunLogger: {name} must be > 0, got {value!r}")
         self.run_log = run_log
         self._state_port = self.DeclareVectorInputPort("state", NX)
         self._actuation_port = self.DeclareVectorInputPort("actuation", NU)
@@ -68,6 +75,10 @@ class RunLogger(LeafSystem):
         self._true_state_port = self.DeclareVectorInputPort("true_state", NX)
         self._image_port = self.DeclareAbstractInputPort("image", AbstractValue.Make(ImageRgba8U()))
         self.DeclarePeriodicPublishEvent(period_sec=period_s, offset_sec=0.0, publish=self._log)
+        if sample_period_s is not None:
+            self.DeclarePeriodicPublishEvent(
+                period_sec=sample_period_s, offset_sec=0.0, publish=self._sample
+            )
         # The row waiting for the input applied from it (see "Input timing"); an output sink's
         # bookkeeping like the RunLog itself, not part of the simulated state.
         self._held_row: dict | None = None
@@ -97,6 +108,13 @@ class RunLogger(LeafSystem):
             ),
             "image_rgb": image,
         }
+
+    def _sample(self, context) -> None:
+        self.run_log.add_sample(
+            context.get_time(),
+            self._state_port.Eval(context),
+            self._actuation_port.Eval(context),
+        )
 
     @staticmethod
     def _optional(port, context, default: float) -> float:

@@ -9,6 +9,7 @@ import sys
 from pcvfe_drake.models.data import EXCERPTS, load
 from pcvfe_drake.models.effects import get_effect, known_effects
 from pcvfe_drake.runs.output_paths import check_output_dir, write_failed
+from pcvfe_drake.runs.resample import check_resample_rate
 from pcvfe_drake.vehicle.params import load_vehicle
 
 
@@ -112,6 +113,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.out:
         check_output_dir(args.out)
+    if args.resample is not None:
+        check_resample_rate(args.resample)  # bounded before any work
     for path in args.effects_file:
         load_effects_file(path)
     add = [get_effect(e).name for e in args.add]  # unknown names fail before any work

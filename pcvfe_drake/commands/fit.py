@@ -23,7 +23,7 @@ from pcvfe_drake.estimation.fit_options import (
 )
 from pcvfe_drake.estimation.fitting import fit_contexts
 from pcvfe_drake.runs.drivelog import read_drive_log
-from pcvfe_drake.runs.resample import resample_log
+from pcvfe_drake.runs.resample import check_resample_rate, resample_log
 from pcvfe_drake.vehicle.params import THETA_NAMES, load_vehicle
 
 
@@ -186,6 +186,8 @@ def _fmt(value: float, digits: int = 4) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.resample is not None:
+        check_resample_rate(args.resample)  # bounded before any work
     if args.effects:
         return run_effects(args)
     params = load_vehicle(args.vehicle)

@@ -27,14 +27,25 @@ def register(subparsers) -> None:
     parser.add_argument(
         "--out", type=Path, required=True, help="drive log to write (.csv/.parquet)"
     )
+    parser.add_argument(
+        "--lenient",
+        action="store_true",
+        help="import a bag damaged partway from what can be read, and report the rows and the "
+        "time span lost (without it such a bag is refused)",
+    )
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from pcvfe_drake.hardware.bag_import import import_bag, load_mapping
+    from pcvfe_drake.hardware.bag_import import BagLoss, import_bag, load_mapping
 
-    log = import_bag(args.bag, load_mapping(args.mapping), args.out)
+    loss = BagLoss()
+    log = import_bag(
+        args.bag, load_mapping(args.mapping), args.out, lenient=args.lenient, loss=loss
+    )
     frames = int((log["image"] != "").sum()) if "image" in log.columns else 0
     duration = float(log["t"].iloc[-1]) if len(log) else 0.0
     print(f"{args.out}: {len(log)} rows over {duration:.2f} s, {frames} camera frames")
+    if loss.partial:
+        print(f"--lenient: partial import of {args.bag}: {loss.describe()}")
     return 0

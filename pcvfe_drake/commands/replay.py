@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -21,8 +22,10 @@ def register(subparsers) -> None:
             "clustering, fitter and NMPC as `simulate`, and write a run folder like it. SOURCE "
             "is a run folder of `pcvfe simulate` / `pcvfe replay` (its scenario.yaml is used) "
             "or a drive log file, e.g. from `pcvfe import-bag` (give --scenario). A run replays "
-            "to the same context ids and estimates when it saved every frame and logged at the "
-            "fitter's sampling rate (docs/hardware.md)."
+            "to the same context ids when its drive log holds the features of every camera frame "
+            "(a run folder's does, at the default rates), and to the same estimates when it "
+            "also logged at the fitter's sampling rate (docs/hardware.md). A replay that stops "
+            "early says why on stderr and exits 1."
         ),
     )
     parser.add_argument("source", type=Path, help="run folder or drive log (.csv/.parquet)")
@@ -40,6 +43,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pcvfe_drake.commands.simulate import run_exit_code
     from pcvfe_drake.diagrams.replay_station import MakeReplayStation
     from pcvfe_drake.diagrams.run_simulation import RunFolder, StartLocalMeshcat, run_simulation
     from pcvfe_drake.diagrams.scenario_io import load_scenario, save_scenario
@@ -83,8 +87,16 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         station=MakeReplayStation(scenario, log),
     )
+    error = result.summary.get("error")
     print()
+    if error:
+        print(f"PARTIAL REPLAY: stopped at t = {result.summary.get('sim_time_s', 0.0):.2f} s of "
+              f"{log.duration_s:.2f} s; the summary covers only that part")  # fmt: skip
     print(summary_table(result.summary))
-    print(f"\nreplayed {source} ({log.duration_s:.2f} s, {len(log.frame_paths)} frames) into "
-          f"{args.out} in {time.perf_counter() - t0:.1f} s")  # fmt: skip
-    return 1 if result.summary.get("error") else 0
+    print(f"\nreplayed {source} ({log.duration_s:.2f} s, {len(log.frame_paths)} frames, "
+          f"features from the {fidelity['features']}) into {args.out} in "
+          f"{time.perf_counter() - t0:.1f} s")  # fmt: skip
+    if error:
+        print(f"pcvfe replay: error: the replay of {source} stopped early: {error}",
+              file=sys.stderr)  # fmt: skip
+    return run_exit_code(result, RunFolder(args.out))

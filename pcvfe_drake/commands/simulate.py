@@ -107,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
 
     from pcvfe_drake.diagrams.run_simulation import StartLocalMeshcat, run_simulation
     from pcvfe_drake.diagrams.scenario_io import load_scenario
-    from pcvfe_drake.runs.run_folder import RunFolder
+    from pcvfe_drake.runs.run_folder import DEFAULT_RUNS_DIR, RunFolder, run_folder_name
 
     scenario = load_scenario(args.scenario, *args.overrides)
     if args.laps is not None or args.duration is not None:
@@ -116,11 +116,11 @@ def run(args: argparse.Namespace) -> int:
         scenario = dataclasses.replace(scenario, seed=args.seed)
     if args.estimator is not None:
         scenario = dataclasses.replace(scenario, estimator=args.estimator)
-        scenario.validate(f"scenario {args.scenario!r}")
+    scenario.validate(f"scenario {args.scenario!r}")  # with the command line's changes
     tag = scenario.name
     if scenario.estimator != "pcvfe":
         tag += f"-{scenario.estimator}"
-    out = args.out or Path("runs") / f"{tag}-{datetime.now():%Y%m%d-%H%M%S}"
+    out = args.out or DEFAULT_RUNS_DIR / run_folder_name(tag, datetime.now())
     folder = RunFolder(out)
     removed = folder.prepare(overwrite=args.overwrite)
     if removed:
@@ -175,6 +175,23 @@ def run(args: argparse.Namespace) -> int:
     for message in result.write_errors:
         print(f"  not written: {message}")
     print(f"total {time.perf_counter() - t0:.1f} s")
+    return run_exit_code(result, folder)
+
+
+def run_exit_code(result, folder) -> int:
+    """The exit status of a finished run, after reporting its internal errors on stderr:
+    130 interrupted, :data:`pcvfe_drake.cli.INTERNAL_ERROR_EXIT` when writing its outputs failed
+    in the project's own code, 1 when the simulation stopped on an error, else 0."""
+    import sys
+
+    from pcvfe_drake.cli import INTERNAL_ERROR_EXIT
+    from pcvfe_drake.runs.run_folder import internal_error_report
+
+    report = internal_error_report(result, folder)
+    if report:
+        print(report, file=sys.stderr)
     if result.summary.get("interrupted") or result.held_signals:
         return 130
+    if result.internal_errors:
+        return INTERNAL_ERROR_EXIT
     return 1 if result.summary.get("error") else 0

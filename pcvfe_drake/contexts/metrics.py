@@ -166,7 +166,8 @@ def terrain_visits(true_labels: np.ndarray, include: np.ndarray) -> list[Visit]:
     visits: list[Visit] = []
     idx = np.flatnonzero(include)
     start = None
-    for a, b in zip(idx, np.append(idx[1:], -1), strict=True):
+    # Each included sample beside the next one (-1 after the last); none included: no visits.
+    for a, b in zip(idx, np.append(idx[1:], -1)[: idx.size], strict=True):
         if start is None:
             start = a
         if b < 0 or labels[b] != labels[a]:

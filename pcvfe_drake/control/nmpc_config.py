@@ -12,6 +12,11 @@ MODELS = ("st", "ks")
 """Prediction models: ``"st"`` single track with theta_hat, ``"ks"`` kinematic (KMPC)."""
 
 
+MAX_HORIZON = 400
+"""Most prediction steps: 400 steps of 50 ms look 20 s ahead, farther than any braking the
+course needs, while the QP's size and solve time grow with every step."""
+
+
 @dataclass
 class NmpcConfig:
     """Settings of the tracking NMPC (SI units; scales are Bryson-rule tolerances: the weight of
@@ -113,6 +118,18 @@ class NmpcConfig:
                 raise ValueError(f"NmpcConfig.{name}={getattr(self, name)!r} must be {rule}")
 
         need(int(self.horizon) >= 2, "horizon", ">= 2")
+        need(
+            int(self.horizon) <= MAX_HORIZON,
+            "horizon",
+            f"<= {MAX_HORIZON} steps (its QP would have {int(self.horizon) * 9} variables, and "
+            "its time and memory grow with each step)",
+        )
+        need(
+            self.max_speed_mps is None
+            or (math.isfinite(self.max_speed_mps) and self.max_speed_mps >= 0),
+            "max_speed_mps",
+            ">= 0 m/s (0 or None: the course's planned speed)",
+        )
         need(self.dt_s > 0, "dt_s", "> 0")
         need(self.model in MODELS, "model", f"one of {MODELS}")
         for name in (

@@ -31,7 +31,7 @@ import yaml
 
 from pcvfe_drake.evaluation import plots
 from pcvfe_drake.evaluation.stats import LEVEL, mean_ci, paired_differences
-from pcvfe_drake.evaluation.store import ResultStore
+from pcvfe_drake.evaluation.store import ResultsFolderError, ResultStore
 from pcvfe_drake.evaluation.tables import METRICS, MU_TOLERANCE, terrain_rows
 
 
@@ -152,7 +152,12 @@ def _scenario_maps(store: ResultStore, runs: pd.DataFrame) -> dict:
         path = store.run_dir(group["run_id"].iloc[0]) / "scenario.yaml"
         if not path.is_file():
             continue
-        raw = yaml.safe_load(path.read_text()) or {}
+        try:
+            raw = yaml.safe_load(path.read_text()) or {}
+        except (yaml.YAMLError, UnicodeDecodeError):
+            continue  # no map for this scenario (the failure map draws without it)
+        if not isinstance(raw, dict):
+            continue
         try:
             overrides = {
                 name: TerrainOverride(**change)
@@ -393,10 +398,19 @@ def build_report(root: str | Path) -> tuple[Path, Path]:
     if len(done):
         sc0 = sorted(done["scenario"].unique())[0]
         logs = {}
+        no_log = []
         for r in done[(done["scenario"] == sc0) & (done["seed"] == plot_seed)].itertuples():
-            log = store.drive_log(r.run_id)
+            try:
+                log = store.drive_log(r.run_id)
+            except ResultsFolderError as exc:  # one damaged run: the rest is still drawn
+                no_log.append(f"{r.run_id} ({exc})")
+                continue
             if log is not None:
                 logs[r.source] = log
+            else:
+                no_log.append(f"{r.run_id} (missing)")
+        if no_log:
+            doc.p(f"Drive logs not drawn over time: {'; '.join(no_log)}.")
         if logs:
             title = f"mu_hat over time, scenario {sc0}, seed {plot_seed}"
             mu = plots.plot_mu_over_time(logs, sources, title, store.figures / "mu_over_time.png")

@@ -35,6 +35,42 @@ TABLES = ("runs", "laps", "contexts", "failures")
 """The tables of a results folder (``<name>.parquet``)."""
 
 
+TABLE_COLUMNS = {
+    "runs": ("run_id", "scenario", "source", "seed", "spec_hash", "status", "error"),
+    "laps": ("run_id", "source", "seed"),
+    "contexts": ("run_id", "source", "seed"),
+    "failures": ("run_id", "source", "seed"),
+}
+"""Columns each table has whatever the runs did (the report reads them)."""
+
+
+class ResultsFolderError(ValueError):
+    """A file of a results folder cannot be read or is not what the folder writes; the
+    message names the file."""
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
+
+
+def _read_table(path: Path) -> pd.DataFrame:
+    """A Parquet table of the folder; a ``ResultsFolderError`` naming it when unreadable or
+    (a results table) without its columns."""
+    try:
+        table = pd.read_parquet(path)
+    except Exception as exc:  # noqa: BLE001 - pyarrow raises several kinds for a damaged file
+        raise ResultsFolderError(
+            f"{path}: not a readable Parquet table ({_one_line(exc)})"
+        ) from exc
+    required = () if path.name == "drive_log.parquet" else TABLE_COLUMNS.get(path.stem, ())
+    missing = [c for c in required if c not in table.columns] if len(table.columns) else []
+    if missing:
+        raise ResultsFolderError(
+            f"{path}: not a results table of pcvfe evaluate (no column(s) {', '.join(missing)})"
+        )
+    return table
+
+
 def _write_atomic(path: Path, write) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     write(tmp)
@@ -61,12 +97,15 @@ class ResultStore:
         return self.table_path("runs").is_file()
 
     def table(self, name: str) -> pd.DataFrame:
-        """A stored table (empty DataFrame when absent)."""
+        """A stored table (empty DataFrame when absent). A table that cannot be read, or that
+        lacks a column every row of it has (:data:`TABLE_COLUMNS`), is a ``ResultsFolderError``
+        naming the file."""
         if self._tables is None:
-            self._tables = {}
+            tables = {}
             for n in TABLES:
                 p = self.table_path(n)
-                self._tables[n] = pd.read_parquet(p) if p.is_file() else pd.DataFrame()
+                tables[n] = _read_table(p) if p.is_file() else pd.DataFrame()
+            self._tables = tables
         return self._tables[name]
 
     def done(self) -> dict[str, str]:
@@ -83,16 +122,35 @@ class ResultStore:
         return [s for s in specs if done.get(s.run_id) != s.spec_hash]
 
     def drive_log(self, run_id: str) -> pd.DataFrame | None:
+        """A run's drive log (None when absent); unreadable: ``ResultsFolderError``."""
         p = self.run_dir(run_id) / "drive_log.parquet"
-        return pd.read_parquet(p) if p.is_file() else None
+        return _read_table(p) if p.is_file() else None
 
     def experiment_dict(self) -> dict:
+        """The experiment as run ({} when absent); not a YAML mapping: ``ResultsFolderError``."""
         p = self.root / "experiment.yaml"
-        return yaml.safe_load(p.read_text()) if p.is_file() else {}
+        if not p.is_file():
+            return {}
+        try:
+            data = yaml.safe_load(p.read_text())
+        except (yaml.YAMLError, UnicodeDecodeError) as exc:
+            raise ResultsFolderError(f"{p}: not valid YAML ({_one_line(exc)})") from exc
+        if not isinstance(data, dict):
+            raise ResultsFolderError(f"{p}: not an experiment (a YAML mapping of fields)")
+        return data
 
     def environment(self) -> dict:
+        """The client's environment ({} when absent); not a JSON object: ``ResultsFolderError``."""
         p = self.root / "environment.json"
-        return json.loads(p.read_text()) if p.is_file() else {}
+        if not p.is_file():
+            return {}
+        try:
+            data = json.loads(p.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ResultsFolderError(f"{p}: not valid JSON ({_one_line(exc)})") from exc
+        if not isinstance(data, dict):
+            raise ResultsFolderError(f"{p}: not a JSON object")
+        return data
 
     # ------------------------------------------------------------------ writing
     def start(self, experiment: Mapping[str, Any], environment: Mapping[str, Any]) -> None:

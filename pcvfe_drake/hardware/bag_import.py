@@ -188,17 +188,110 @@ def image_rgb(msg) -> np.ndarray:
     return np.ascontiguousarray(rgb)
 
 
-def read_bag(bag: str | Path, mapping: BagMapping, frames_dir: Path | None) -> pd.DataFrame:
+class BagError(ValueError):
+    """A bag that cannot be imported (damaged, not a bag, a mapped topic missing, or damaged
+    partway with ``lenient`` off); the message names the bag and the problem in one line."""
+
+
+@dataclass
+class BagLoss:
+    """What a partial import lost: per mapped role, the messages the bag's metadata counts and
+    those read; the spans without odometry [s, recording time from the first odometry message,
+    which is the log's ``t`` up to the stamps' offset]; why."""
+
+    expected: dict[str, int] = field(default_factory=dict)
+    read: dict[str, int] = field(default_factory=dict)
+    lost_spans_s: list[tuple[float, float]] = field(default_factory=list)
+    reason: str = ""
+
+    @property
+    def partial(self) -> bool:
+        return bool(self.reason) or any(self.read.get(k, 0) < n for k, n in self.expected.items())
+
+    @property
+    def lost_rows(self) -> int:
+        """Odometry messages (drive-log rows) lost."""
+        return max(0, self.expected.get("odometry", 0) - self.read.get("odometry", 0))
+
+    def describe(self) -> str:
+        """One line: the rows and the time span lost, the roles short of messages, why."""
+        short = [
+            f"{role} {self.read.get(role, 0)} of {n}"
+            for role, n in self.expected.items()
+            if self.read.get(role, 0) < n
+        ]
+        spans = ", ".join(f"{a:.2f}-{b:.2f} s" for a, b in self.lost_spans_s)
+        lost = sum(b - a for a, b in self.lost_spans_s)
+        text = f"{self.lost_rows} rows lost ({lost:.2f} s of odometry: {spans or 'none'})"
+        if short:
+            text += f"; messages read: {', '.join(short)}"
+        if self.reason:
+            text += f"; {self.reason}"
+        return text
+
+
+def _damage(exc: BaseException) -> str:
+    """The problem behind an exception of the bag reader or the message decoder, in words."""
+    from rosbags.rosbag2 import ReaderError
+    from rosbags.serde import SerdeError
+
+    text = " ".join(str(exc).split())  # one line (a YAML error quotes the file over several)
+    if isinstance(exc, ReaderError):
+        return f"not a readable ROS 2 bag: {text}"
+    if isinstance(exc, SerdeError):
+        return f"a message cannot be decoded (damaged data): {text}"
+    return f"the storage file is damaged ({type(exc).__name__}: {text})"
+
+
+def _lost_spans(t_s: np.ndarray, start_s: float, end_s: float) -> list[tuple[float, float]]:
+    """Spans of [start_s, end_s] (recording time, one clock with ``t_s``) without odometry: gaps
+    of more than ``GAP_STEPS`` median steps, and the head and tail missing."""
+    if len(t_s) < 2:
+        return [(start_s, end_s)] if end_s > start_s else []
+    step = float(np.median(np.diff(t_s)))
+    gap = GAP_STEPS * step
+    spans = []
+    if t_s[0] - start_s > gap:
+        spans.append((start_s, float(t_s[0])))
+    for a, b in zip(t_s[:-1], t_s[1:], strict=True):
+        if b - a > gap:
+            spans.append((float(a), float(b)))
+    if end_s - t_s[-1] > gap:
+        spans.append((float(t_s[-1]), end_s))
+    return spans
+
+
+GAP_STEPS = 5.0
+"""A step between odometry messages longer than this many median steps is a loss."""
+
+
+def read_bag(
+    bag: str | Path,
+    mapping: BagMapping,
+    frames_dir: Path | None,
+    *,
+    lenient: bool = False,
+    loss: BagLoss | None = None,
+) -> pd.DataFrame:
     """The drive log of ``bag`` (a ROS 2 bag folder, sqlite3 or MCAP) under ``mapping``; frames
-    are written to ``frames_dir`` (None: no frames)."""
+    are written to ``frames_dir`` (None: no frames).
+
+    A damaged bag is a :class:`BagError` naming it and the problem: one that cannot be opened
+    (metadata.yaml missing or not YAML, storage files missing, not a database), a mapped topic
+    that is not in it, and one damaged partway (fewer messages than its metadata counts, a
+    message that cannot be decoded, a storage error after some messages). With ``lenient`` a
+    bag damaged partway is imported from what could be read (undecodable messages skipped),
+    and ``loss`` (when given) receives what was lost: rows, time spans, messages per role."""
     from rosbags.rosbag2 import Reader
 
     bag = Path(bag)
     if not bag.exists():
         raise FileNotFoundError(f"bag {bag}: no such file or folder")
+    loss = loss if loss is not None else BagLoss()
     store = typestore()
     use_header = mapping.time == "header"
     odo, imu, drive, images = [], [], [], []
+    odo_bag_s: list[float] = []
     roles = {
         mapping.odometry.topic: "odometry",
         mapping.imu.topic: "imu",
@@ -206,41 +299,94 @@ def read_bag(bag: str | Path, mapping: BagMapping, frames_dir: Path | None) -> p
         mapping.image.topic: "image",
     }
     roles.pop("", None)
-    with Reader(bag) as reader:
+    try:
+        reader = Reader(bag)
+        reader.open()
+    except FileNotFoundError as exc:
+        raise BagError(f"bag {bag}: not a ROS 2 bag (no metadata.yaml beside its data)") from exc
+    except Exception as exc:  # noqa: BLE001 - rosbags raises many kinds for a damaged bag
+        raise BagError(f"bag {bag}: {_damage(exc)}") from exc
+    try:
         present = {c.topic for c in reader.connections}
         if mapping.odometry.topic not in present:
-            raise ValueError(
+            raise BagError(
                 f"bag {bag}: no odometry topic {mapping.odometry.topic!r} (topics: "
                 f"{', '.join(sorted(present))}); name it in the mapping"
             )
+        missing = sorted(topic for topic in roles if topic not in present)
+        if missing:
+            raise BagError(
+                f"bag {bag}: mapped topic(s) {', '.join(map(repr, missing))} not in the bag "
+                f"(topics: {', '.join(sorted(present))}); name the right topic in the mapping, "
+                "or set it to '' to leave that role out"
+            )
         connections = [c for c in reader.connections if c.topic in roles]
+        for c in connections:
+            role = roles[c.topic]
+            loss.expected[role] = loss.expected.get(role, 0) + int(c.msgcount)
+        start_s, end_s = reader.start_time * 1e-9, reader.end_time * 1e-9
         n_image = 0
-        for connection, ns, raw in reader.messages(connections=connections):
-            msg = store.deserialize_cdr(raw, connection.msgtype)
-            t = _stamp_s(msg, ns, use_header)
-            role = roles[connection.topic]
-            if role == "odometry":
-                p, tw = msg.pose.pose, msg.twist.twist
-                odo.append(
-                    (
-                        t,
-                        p.position.x,
-                        p.position.y,
-                        yaw_of(p.orientation),
-                        tw.linear.x,
-                        tw.linear.y,
-                        tw.angular.z,
-                    )  # fmt: skip
-                )
-            elif role == "imu":
-                imu.append((t, msg.angular_velocity.z))
-            elif role == "drive":
-                d = msg.drive
-                drive.append((t, d.steering_angle, d.steering_angle_velocity, d.acceleration))
-            elif role == "image" and frames_dir is not None:
-                if n_image % mapping.image.every == 0:
-                    images.append((t, image_rgb(msg)))
-                n_image += 1
+        undecodable = 0
+        try:
+            for connection, ns, raw in reader.messages(connections=connections):
+                role = roles[connection.topic]
+                try:
+                    msg = store.deserialize_cdr(raw, connection.msgtype)
+                except Exception as exc:  # noqa: BLE001 - a damaged message
+                    if not lenient:
+                        raise BagError(
+                            f"bag {bag}: {_damage(exc)} ({role} message at bag time "
+                            f"{ns * 1e-9 - start_s:.3f} s); --lenient imports the rest"
+                        ) from exc
+                    undecodable += 1
+                    continue
+                loss.read[role] = loss.read.get(role, 0) + 1
+                t = _stamp_s(msg, ns, use_header)
+                if role == "odometry":
+                    p, tw = msg.pose.pose, msg.twist.twist
+                    odo.append(
+                        (
+                            t,
+                            p.position.x,
+                            p.position.y,
+                            yaw_of(p.orientation),
+                            tw.linear.x,
+                            tw.linear.y,
+                            tw.angular.z,
+                        )  # fmt: skip
+                    )
+                    odo_bag_s.append(ns * 1e-9)
+                elif role == "imu":
+                    imu.append((t, msg.angular_velocity.z))
+                elif role == "drive":
+                    d = msg.drive
+                    drive.append((t, d.steering_angle, d.steering_angle_velocity, d.acceleration))
+                elif role == "image" and frames_dir is not None:
+                    if n_image % mapping.image.every == 0:
+                        images.append((t, image_rgb(msg)))
+                    n_image += 1
+        except BagError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - the storage fails partway
+            loss.reason = f"reading stopped: {_damage(exc)}"
+            if not odo:
+                raise BagError(f"bag {bag}: {_damage(exc)}") from exc
+        if undecodable:
+            loss.reason = "; ".join(
+                filter(None, [loss.reason, f"{undecodable} message(s) could not be decoded"])
+            )
+    finally:
+        reader.close()
+    if not odo:
+        raise BagError(f"bag {bag}: the odometry topic {mapping.odometry.topic!r} has no messages")
+    t_bag = np.sort(np.asarray(odo_bag_s))
+    first = t_bag[0]
+    loss.lost_spans_s = [(a - first, b - first) for a, b in _lost_spans(t_bag, start_s, end_s)]
+    if loss.partial and not lenient:
+        raise BagError(
+            f"bag {bag}: damaged or incomplete, a partial import is refused: "
+            f"{loss.describe()}; --lenient imports what could be read"
+        )
     return assemble(np.array(odo), np.array(imu), np.array(drive), images, mapping, frames_dir)
 
 
@@ -309,13 +455,27 @@ def assemble(odo, imu, drive, images, mapping: BagMapping, frames_dir: Path | No
     return log
 
 
-def import_bag(bag: str | Path, mapping: BagMapping, out: str | Path) -> pd.DataFrame:
+def import_bag(
+    bag: str | Path,
+    mapping: BagMapping,
+    out: str | Path,
+    *,
+    lenient: bool = False,
+    loss: BagLoss | None = None,
+) -> pd.DataFrame:
     """Read ``bag`` and write the drive log ``out`` (CSV or Parquet by suffix) with its frames
-    in ``frames/`` beside it; returns the log (validated on writing)."""
+    in ``frames/`` beside it; returns the log (validated on writing). ``lenient`` and ``loss``:
+    see :func:`read_bag` (nothing is written when the bag is refused)."""
     from pcvfe_drake.runs.drivelog import write_drive_log
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    log = read_bag(bag, mapping, out.parent / "frames" if mapping.image.topic else None)
+    log = read_bag(
+        bag,
+        mapping,
+        out.parent / "frames" if mapping.image.topic else None,
+        lenient=lenient,
+        loss=loss,
+    )
     write_drive_log(log, out)
     return log

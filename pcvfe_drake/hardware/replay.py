@@ -14,11 +14,19 @@ newest camera tick strictly before r (the run logger reads the camera just befor
 update at r; at r = 0 the initial frame), so :meth:`from_run_folder` maps frames back to their
 capture times with the run's camera period. A drive log imported from a bag
 (``pcvfe import-bag``) has one row per frame at its capture time (``frame_times="row"``).
+
+A run folder holds more than the rows: the features of every camera frame (the drive log's
+``f_00``... columns, each row holding those of the frame taken before it) and the state and
+input at the fitter's sampling rate (``fitter_samples.npz``). With them a replay feeds the
+clustering and the fitter what they had in the run (``features_at``, and ``state_at`` /
+``actuation_before`` from the samples), whatever the log and frame rates.
 """
 
 from __future__ import annotations
 
 import math
+import re
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +34,7 @@ import numpy as np
 import pandas as pd
 
 from pcvfe_drake.runs.drivelog import TRUE_STATE_COLUMNS, read_drive_log
+from pcvfe_drake.runs.runlog import SAMPLES_FILE
 from pcvfe_drake.vehicle.single_track import INPUT_NAMES, STATE_NAMES
 
 _EPS_S = 1e-9
@@ -47,6 +56,16 @@ class ReplayLog:
     source: str = ""
     true_states: np.ndarray | None = None
     """(N, 7) the simulated run's true state (``true_*`` columns; None: the log has none)."""
+    feature_t_s: np.ndarray | None = None
+    """(K,) capture times of the camera frames whose features the log holds (None: none)."""
+    features: np.ndarray | None = None
+    """(K, D) the features computed in the run from those frames (the ``f_00``... columns):
+    a replay feeds them to the clustering as they were, so it needs no saved image."""
+    sample_t_s: np.ndarray | None = None
+    """(S,) times of the state and input kept at the fitter's sampling rate (a run folder's
+    ``fitter_samples.npz``; None: none), used for ``state_at`` and ``actuation_before``."""
+    sample_states: np.ndarray | None = None
+    sample_actuations: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if len(self.t_s) == 0:
@@ -76,7 +95,7 @@ class ReplayLog:
         frames in between are blank: features NaN, context noise), so contexts and estimates
         differ.
         """
-        dt = np.diff(self.t_s)
+        dt = np.diff(self.sample_t_s if self.sample_t_s is not None else self.t_s)
         log_period = float(np.median(dt)) if len(dt) else math.nan
         reasons = []
         if not (log_period <= sample_period_s * (1 + 1e-6)):
@@ -88,7 +107,8 @@ class ReplayLog:
         frames = len(self.frame_paths)
         frame_dt = np.diff(self.frame_t_s)
         frame_period = float(np.median(frame_dt)) if len(frame_dt) else math.nan
-        if frames < camera_frames - 1:
+        logged = self.logged_feature_frames(camera_period_s)
+        if logged is None and frames < camera_frames - 1:
             reasons.append(
                 f"{frames} of {camera_frames} camera frames saved (one every "
                 f"{frame_period:g} s): the clustering sees no image between them"
@@ -99,16 +119,53 @@ class ReplayLog:
             "frame_period_s": frame_period,
             "frames": frames,
             "camera_frames": camera_frames,
+            "feature_frames": 0 if self.features is None else len(self.features),
+            "features": "logged" if logged is not None else "images",
             "reasons": reasons,
         }
+
+    def logged_feature_frames(self, camera_period_s: float) -> int | None:
+        """How many camera frames' features the log holds when it holds those of every frame
+        at ``camera_period_s`` (then a replay uses them instead of the images), else None."""
+        if self.features is None or not len(self.features):
+            return None
+        camera_frames = int(self.duration_s / camera_period_s + 1e-6) + 1
+        if len(self.features) < camera_frames - 1:
+            return None
+        if np.any(np.diff(self.feature_t_s) > camera_period_s * (1 + 1e-6)):
+            return None
+        return len(self.features)
+
+    def features_at(self, t_s: float) -> np.ndarray:
+        """The logged features of the newest frame captured strictly before ``t_s`` (the
+        first from its own capture time on, as :meth:`frame_at`; NaN before it)."""
+        k = int(np.searchsorted(self.feature_t_s, t_s - _EPS_S, side="left")) - 1
+        if k < 0 and t_s >= self.feature_t_s[0] - _EPS_S:
+            k = 0
+        if k < 0:
+            return np.full(self.features.shape[1], math.nan)
+        return self.features[k]
 
     def _row_at(self, t_s: float) -> int:
         return max(0, int(np.searchsorted(self.t_s, t_s + _EPS_S, side="right")) - 1)
 
+    def _sample_at(self, t_s: float) -> int:
+        """The newest fitter sample at or before ``t_s`` (-1: none, or no samples)."""
+        if self.sample_t_s is None:
+            return -1
+        return int(np.searchsorted(self.sample_t_s, t_s + _EPS_S, side="right")) - 1
+
     def state_at(self, t_s: float) -> np.ndarray:
-        return self.states[self._row_at(t_s)]
+        k = self._sample_at(t_s)
+        return self.sample_states[k] if k >= 0 else self.states[self._row_at(t_s)]
 
     def actuation_before(self, t_s: float) -> np.ndarray:
+        """The input applied just before ``t_s``: the one the fitter read at the newest sample
+        at or before ``t_s`` (read before that instant's updates), else the newest row's
+        strictly before ``t_s``."""
+        k = self._sample_at(t_s)
+        if k >= 0:
+            return self.sample_actuations[k]
         k = int(np.searchsorted(self.t_s, t_s - _EPS_S, side="left")) - 1
         return self.actuations[k] if k >= 0 else np.zeros(self.actuations.shape[1])
 
@@ -174,6 +231,7 @@ class ReplayLog:
         frame_t = np.asarray(frame_t, dtype=float)
         # Two rows may carry the same capture (the first two of a run): keep the first.
         keep = np.concatenate([[True], np.diff(frame_t) > _EPS_S]) if len(frame_t) else []
+        feature_t, features = _logged_features(log, camera_period_s)
         return cls(
             t_s=t,
             states=states,
@@ -184,6 +242,8 @@ class ReplayLog:
             terrain_index=terrain_index,
             source=source,
             true_states=true_states,
+            feature_t_s=feature_t,
+            features=features,
         )
 
     @classmethod
@@ -193,15 +253,62 @@ class ReplayLog:
         path = folder / "drive_log.csv"
         if not path.is_file():
             raise FileNotFoundError(f"replay: {folder} has no drive_log.csv (not a run folder?)")
-        return cls.from_frame(
+        log = cls.from_frame(
             read_drive_log(path), folder, camera_period_s=camera_period_s, source=str(folder)
         )
+        samples = folder / SAMPLES_FILE
+        if samples.is_file():
+            log.sample_t_s, log.sample_states, log.sample_actuations = read_samples(samples)
+        return log
 
     @classmethod
     def from_drive_log(cls, path: str | Path) -> ReplayLog:
         """A drive log file (e.g. from ``pcvfe import-bag``): frames at their rows' times."""
         path = Path(path)
         return cls.from_frame(read_drive_log(path), path.parent, source=str(path))
+
+
+def read_samples(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(t_s, state, actuation)`` of a run's :data:`SAMPLES_FILE`; a ValueError naming the
+    file when it cannot be read or its arrays do not fit together."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            t, x, u = (np.asarray(data[k], dtype=float) for k in ("t_s", "state", "actuation"))
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        raise ValueError(f"replay: {path}: not a readable samples file ({exc})") from exc
+    ok = (
+        t.ndim == 1
+        and x.shape == (t.size, len(STATE_NAMES))
+        and u.shape == (t.size, len(INPUT_NAMES))
+        and np.all(np.isfinite(t))
+        and np.all(np.diff(t) > 0)
+    )
+    if not ok:
+        raise ValueError(
+            f"replay: {path}: arrays t_s {t.shape}, state {x.shape}, actuation {u.shape} do not "
+            "fit together (increasing times, 7 states and 2 inputs per sample)"
+        )
+    return t, x, u
+
+
+def _logged_features(
+    log: pd.DataFrame, camera_period_s: float | None
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Capture times and features of the frames whose features a run logged (``f_00``...
+    columns, each row holding those of the frame taken before it): one per capture, rows
+    without finite features skipped; (None, None) without such columns or a camera period."""
+    columns = [c for c in log.columns if re.fullmatch(r"f_\d+", str(c))]
+    columns.sort(key=lambda c: int(c[2:]))
+    if not columns or camera_period_s is None:
+        return None, None
+    values = log[columns].to_numpy(float)
+    capture = np.array([capture_time(r, camera_period_s) for r in log["t"].to_numpy(float)])
+    finite = np.all(np.isfinite(values), axis=1)
+    capture, values = capture[finite], values[finite]
+    if not len(capture):
+        return None, None
+    first = np.concatenate([[True], np.diff(capture) > _EPS_S])
+    return capture[first], values[first]
 
 
 def capture_time(row_t_s: float, camera_period_s: float | None) -> float:

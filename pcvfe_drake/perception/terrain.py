@@ -43,6 +43,32 @@ class Terrain:
             raise ValueError(f"Terrain {self.name!r}: texture must be a name, got {self.texture!r}")
 
 
+MAX_RASTER_CELLS = 50_000_000
+"""Most cells of a terrain raster (one byte each: 50 MB, a 350 m square at 5 cm): a larger
+world or a finer resolution is refused before the raster is allocated."""
+
+
+def raster_shape(
+    bounds_m: tuple[float, float, float, float], resolution_m: float
+) -> tuple[int, int]:
+    """(rows, cols) of the raster of ``bounds_m = (x_min, x_max, y_min, y_max)`` at
+    ``resolution_m`` metres per cell; a ValueError with the cells and memory it implies when
+    that exceeds :data:`MAX_RASTER_CELLS`."""
+    x_min, x_max, y_min, y_max = (float(b) for b in bounds_m)
+    if not (np.isfinite(resolution_m) and resolution_m > 0):
+        raise ValueError(f"resolution_m must be positive, got {resolution_m!r}")
+    cols_f = round((x_max - x_min) / resolution_m)
+    rows_f = round((y_max - y_min) / resolution_m)
+    cells = float(cols_f) * float(rows_f)
+    if cells > MAX_RASTER_CELLS:
+        raise ValueError(
+            f"resolution_m={resolution_m!r} over {x_max - x_min:g} m x {y_max - y_min:g} m is "
+            f"{cells:.3g} cells (~{cells / 1e6:.3g} MB), more than {MAX_RASTER_CELLS:.3g}: "
+            "use a coarser resolution or a smaller world"
+        )
+    return int(rows_f), int(cols_f)
+
+
 class TerrainMap:
     """Label raster of terrains over a world rectangle, with vectorised look-ups.
 
@@ -172,10 +198,7 @@ class TerrainMap:
         x_min, x_max, y_min, y_max = (float(b) for b in bounds_m)
         if not (x_max > x_min and y_max > y_min):
             raise ValueError(f"bounds_m must be (x_min, x_max, y_min, y_max), got {bounds_m}")
-        if not (np.isfinite(resolution_m) and resolution_m > 0):
-            raise ValueError(f"resolution_m must be positive, got {resolution_m!r}")
-        cols = int(round((x_max - x_min) / resolution_m))
-        rows = int(round((y_max - y_min) / resolution_m))
+        rows, cols = raster_shape(bounds_m, resolution_m)
         labels = np.full((rows, cols), UNKNOWN, dtype=np.uint8)
         terrains: list[Terrain] = []
         index: dict[str, int] = {}

@@ -16,33 +16,65 @@ has one place where it becomes a message naming the path and the reason:
 A run folder holds::
 
     drive_log.csv    the drive log, appended as the run goes (pcvfe_drake.runs.runlog)
+    fitter_samples.npz  state and input at the fitter's sampling rate (for pcvfe replay)
     frames/          camera frames referenced by the log's image column
     scenario.yaml    the scenario as run (every field, so the run can be repeated)
     summary.json     pcvfe_drake.runs.summary.summarize_run plus run facts (below)
     playback.html    the Meshcat recording (with a Meshcat)
     figures/         the paper's Fig. 4, 5, 7 (pcvfe_drake.runs.figures)
+    internal_error.txt  only after a failure of the scoring or the figures (a bug): tracebacks
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
+import traceback
 from dataclasses import dataclass, field
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from pcvfe_drake.json_numbers import finite_or_none
 from pcvfe_drake.runs.figures import write_figures
 from pcvfe_drake.runs.output_paths import check_output_dir, describe_os_error
+from pcvfe_drake.runs.runlog import SAMPLES_FILE
 from pcvfe_drake.runs.summary import summarize_run
 
-RUN_FILES = ("drive_log.csv", "summary.json", "playback.html", "scenario.yaml")
+INTERNAL_ERROR_FILE = "internal_error.txt"
+"""Tracebacks of failures of the project's own code while the outputs were written."""
+RUN_FILES = (
+    "drive_log.csv",
+    SAMPLES_FILE,
+    "summary.json",
+    "playback.html",
+    "scenario.yaml",
+    INTERNAL_ERROR_FILE,
+)
 """Files a run writes into its folder."""
 RUN_DIRS = ("figures", "frames")
 """Folders a run writes into its folder."""
+
+
+DEFAULT_RUNS_DIR = Path("runs")
+"""Where ``pcvfe simulate`` puts a run without ``--out`` (relative to the working directory)."""
+_UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
+MAX_NAME_CHARS = 80
+"""Longest folder-name part taken from a scenario name (file systems allow 255 bytes)."""
+
+
+def run_folder_name(tag: str, when: datetime) -> str:
+    """The default run folder's name for ``tag`` (the scenario's name, and its estimator): one
+    path component whatever the name holds (separators, ``..``, newlines and other characters
+    outside ``A-Z a-z 0-9 . _ -`` become ``_``, dots and ``_`` at the ends are dropped), so the
+    folder stays in :data:`DEFAULT_RUNS_DIR`; then the time."""
+    safe = _UNSAFE.sub("_", tag)[:MAX_NAME_CHARS].strip("._") or "run"
+    return f"{safe}-{when:%Y%m%d-%H%M%S}"
 
 
 class RunFolderError(ValueError):
@@ -68,6 +100,7 @@ class RunFolder:
         self.figures = self.root / "figures"
         self.frames = self.root / "frames"
         self.scenario = self.root / "scenario.yaml"
+        self.internal_error = self.root / INTERNAL_ERROR_FILE
 
     def run_entries(self) -> list[Path]:
         """The entries of a previous run in the folder (files of :data:`RUN_FILES`, folders of
@@ -113,7 +146,9 @@ class RunFolder:
             probe.write_text("")
             probe.unlink()
         except OSError as exc:
-            raise RunFolderError(f"cannot write into the run folder {os_error_text(exc, root)}") from exc
+            raise RunFolderError(
+                f"cannot write into the run folder {os_error_text(exc, root)}"
+            ) from exc
         return removed
 
     def write_text(self, path: Path, text: str) -> None:
@@ -145,6 +180,8 @@ class SimulationResult:
     """Ctrl-C / SIGTERM received while the outputs were written (held back until they were)."""
     log: Any = None
     """The run log as a pandas DataFrame (drive-log columns, ``final_context`` included)."""
+    internal_errors: list = field(default_factory=list)
+    """:class:`InternalError` of each failure of the scoring or the figures (a bug)."""
 
 
 @dataclass
@@ -189,9 +226,36 @@ def build_summary(record: RunRecord) -> dict[str, Any]:
         estimate_table=record.estimate_table,
         interrupted=record.interrupted,
     )
+    summary.update(run_facts(record, summary["sim_time_s"]))
+    return summary
+
+
+def unscored_summary(record: RunRecord) -> dict[str, Any]:
+    """What ``summary.json`` holds when scoring failed: the facts that need no scoring (rows,
+    time span, how the run ended, the fitter's final table) and none of the scores."""
+    t = record.log["t"].to_numpy(float) if "t" in record.log.columns else np.array([])
+    t = t[np.isfinite(t)]
+    sim_time = float(t[-1] - t[0]) if t.size else 0.0
+    summary: dict[str, Any] = {
+        "scenario": record.scenario.name,
+        "interrupted": bool(record.interrupted),
+        "sim_time_s": sim_time,
+        "wall_time_s": float(record.wall_time_s),
+        "log_rows": len(record.log),
+        "scored": False,
+        "estimate_table": record.estimate_table,
+    }
+    summary.update(run_facts(record, sim_time))
+    return summary
+
+
+def run_facts(record: RunRecord, sim_time_s: float) -> dict[str, Any]:
+    """The run's facts beside the scores (settings, how it ended, the station, the NMPC)."""
+    scenario = record.scenario
+    summary: dict[str, Any] = {}
     cpu = record.cpu_time_s
     summary["cpu_time_s"] = cpu
-    summary["realtime_factor_cpu"] = summary["sim_time_s"] / cpu if cpu > 0 else None
+    summary["realtime_factor_cpu"] = sim_time_s / cpu if cpu > 0 else None
     summary["truth_model"] = scenario.truth_model
     summary["feature_backend"] = scenario.features.backend
     summary["seed"] = scenario.seed
@@ -212,6 +276,48 @@ def build_summary(record: RunRecord) -> dict[str, Any]:
     return summary
 
 
+def json_ready(value: Any) -> Any:
+    """``value`` with NaN and infinities as None, numpy scalars as Python numbers (what
+    ``json.dumps(..., allow_nan=False)`` accepts), in nested dicts, lists and tuples."""
+    if isinstance(value, dict):
+        return {str(k): json_ready(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_ready(v) for v in value]
+    if isinstance(value, bool | np.bool_):
+        return bool(value)
+    if isinstance(value, int | np.integer):
+        return int(value)
+    if isinstance(value, float | np.floating):
+        return finite_or_none(value)
+    return value
+
+
+@dataclass
+class InternalError:
+    """A failure of the project's own code while the outputs were written (a bug, not the
+    user's input): the stage (``"summary"``, ``"figures"``), the exception and its traceback."""
+
+    stage: str
+    message: str
+    traceback: str
+
+    def to_dict(self, traceback_file: str | None) -> dict[str, Any]:
+        out: dict[str, Any] = {"stage": self.stage, "message": self.message}
+        if traceback_file is not None:
+            out["traceback_file"] = traceback_file
+        else:
+            out["traceback"] = self.traceback
+        return out
+
+
+def _internal_error(stage: str, exc: BaseException) -> InternalError:
+    return InternalError(
+        stage=stage,
+        message=f"{type(exc).__name__}: {exc}",
+        traceback="".join(traceback.format_exception(exc)),
+    )
+
+
 def write_run_outputs(
     record: RunRecord,
     folder: RunFolder | None,
@@ -221,16 +327,60 @@ def write_run_outputs(
 ) -> SimulationResult:
     """Summarize ``record`` and write playback, figures and ``summary.json`` into ``folder``
     (None: summarize only). Never raises for an OS error: each failed write is reported in
-    ``summary["write_errors"]`` (and the result's ``write_errors``) and the rest is written."""
-    summary = build_summary(record)
+    ``summary["write_errors"]`` (and the result's ``write_errors``) and the rest is written.
+
+    A failure of the scoring or of the figures (any other exception: a bug of this project,
+    whatever the run did) does not lose the run either: ``summary.json`` is written with what
+    could be computed (:func:`unscored_summary` when the scores failed) and
+    ``summary["internal_errors"]`` lists each failure; its traceback goes to
+    :data:`INTERNAL_ERROR_FILE` in the folder (the result's ``internal_errors`` too, for the
+    command to report)."""
+    internal: list[InternalError] = []
+    try:
+        summary = build_summary(record)
+    except Exception as exc:  # noqa: BLE001 - any bug in scoring must not lose the run
+        internal.append(_internal_error("summary", exc))
+        summary = unscored_summary(record)
     result = SimulationResult(
         summary=summary,
         log_errors=list(record.log_errors),
         write_errors=list(record.write_errors),
         log=record.log,
     )
-    if folder is None:
-        return result
+    if folder is not None:
+        _write_files(record, folder, result, internal, playback_html, reference_xy)
+    result.internal_errors = internal
+    if internal:
+        tb_file = None
+        if folder is not None:
+            text = "\n".join(f"[{e.stage}]\n{e.traceback}" for e in internal)
+            try:
+                folder.write_text(folder.internal_error, text)
+                tb_file = folder.internal_error.name
+            except RunFolderError as exc:
+                result.write_errors.append(str(exc))
+        summary["internal_errors"] = [e.to_dict(tb_file) for e in internal]
+    if result.write_errors:
+        summary["write_errors"] = list(result.write_errors)
+    if folder is not None:
+        try:
+            text = json.dumps(json_ready(summary), indent=2, allow_nan=False)
+            folder.write_text(folder.summary, text)
+        except RunFolderError as exc:
+            result.write_errors.append(str(exc))
+    return result
+
+
+def _write_files(
+    record: RunRecord,
+    folder: RunFolder,
+    result: SimulationResult,
+    internal: list[InternalError],
+    playback_html: str | None,
+    reference_xy: np.ndarray | None,
+) -> None:
+    """Playback and figures into ``folder``; ``result.summary["files"]`` lists what exists."""
+    summary = result.summary
     if playback_html is not None:
         try:
             folder.write_text(folder.playback, playback_html)
@@ -239,21 +389,26 @@ def write_run_outputs(
             result.write_errors.append(str(exc))
     terrain_map = record.terrain_map
     x0, x1, y0, y1 = terrain_map.bounds_m
-    try:
-        from pcvfe_drake.perception.ground_render import render_topdown
+    if not internal:  # the figures draw from the scores
+        try:
+            from pcvfe_drake.perception.ground_render import render_topdown
 
-        map_image = render_topdown(terrain_map, px_per_m=2.0)
-        result.figures = write_figures(
-            record.log,
-            folder.figures,
-            summary,
-            map_image=map_image,
-            map_bounds_m=(x0, x1, y0, y1),
-            reference_xy=reference_xy,
-            log_dir=folder.root,
-        )
-    except OSError as exc:
-        result.write_errors.append(f"cannot write the figures: {os_error_text(exc, folder.figures)}")
+            map_image = render_topdown(terrain_map, px_per_m=2.0)
+            result.figures = write_figures(
+                record.log,
+                folder.figures,
+                summary,
+                map_image=map_image,
+                map_bounds_m=(x0, x1, y0, y1),
+                reference_xy=reference_xy,
+                log_dir=folder.root,
+            )
+        except OSError as exc:
+            result.write_errors.append(
+                f"cannot write the figures: {os_error_text(exc, folder.figures)}"
+            )
+        except Exception as exc:  # noqa: BLE001 - a bug in a figure must not lose the summary
+            internal.append(_internal_error("figures", exc))
     if result.figures.get("fig7_reidentification", "") is None:
         result.figure_notes["fig7_reidentification"] = "no re-identification in this run"
     summary["files"] = {
@@ -264,10 +419,31 @@ def write_run_outputs(
             for k, v in result.figures.items()
         },
     }
-    if result.write_errors:
-        summary["write_errors"] = list(result.write_errors)
-    try:
-        folder.write_text(folder.summary, json.dumps(summary, indent=2, allow_nan=False))
-    except RunFolderError as exc:
-        result.write_errors.append(str(exc))
-    return result
+
+
+def internal_error_report(result: SimulationResult, folder: RunFolder | None) -> str:
+    """The lines a command prints (to stderr) for the result's internal errors: what failed,
+    where its traceback is, and what was still written."""
+    if not result.internal_errors:
+        return ""
+    lines = []
+    for e in result.internal_errors:
+        lines.append(f"internal error while writing the {e.stage} (a bug, not your input): "
+                     f"{e.message}")  # fmt: skip
+    if folder is None:
+        lines.append(result.internal_errors[0].traceback.rstrip())
+        return "\n".join(lines)
+    written = [
+        p.name
+        for p in (folder.drive_log, folder.scenario, folder.playback, folder.summary)
+        if p.exists()
+    ]
+    written += [f"figures/{Path(v).name}" for v in result.figures.values() if v]
+    scored = result.summary.get("scored", True)
+    lines.append(
+        f"  still written in {folder.root}: {', '.join(written) or 'nothing'}"
+        + ("" if scored else " (summary.json without scores)")
+    )
+    if folder.internal_error.exists():
+        lines.append(f"  traceback: {folder.internal_error}")
+    return "\n".join(lines)

@@ -12,6 +12,11 @@ noise), ``mu_hat``, ``C_Sf_hat``, ``C_Sr_hat`` (the estimate the controller was 
 ``true_sx`` ... ``true_beta`` (sim-only true state; the state columns are the measured state), the
 features ``f_00``... and ``image`` (path of a saved camera frame relative to the log's folder,
 empty on rows without one; a frame is saved every ``frame_period_s``).
+
+Beside the rows, :meth:`RunLog.add_sample` keeps the state and the input at the fitter's
+sampling rate (what the fitter read), written at :meth:`RunLog.close` to ``SAMPLES_FILE``
+(compressed, beside the drive log): with the drive log's features of every camera frame, what
+``pcvfe replay`` needs to rerun the estimator exactly at any log rate.
 """
 
 from __future__ import annotations
@@ -26,7 +31,8 @@ from pcvfe_drake.runs.drivelog import TRUE_STATE_COLUMNS, DriveLogError, DriveLo
 from pcvfe_drake.vehicle.single_track import INPUT_NAMES, NX, STATE_NAMES
 
 ESTIMATE_COLUMNS = ("mu_hat", "C_Sf_hat", "C_Sr_hat")
-
+SAMPLES_FILE = "fitter_samples.npz"
+"""The state and input at the fitter's sampling rate (arrays ``t_s``, ``state``, ``actuation``)."""
 
 
 class RunLogWriteError(OSError):
@@ -89,6 +95,7 @@ class RunLog:
         self.write_error: str | None = None
         """Why the log stopped being written to disk (``"path: reason"``), or None."""
         self._writer = DriveLogWriter(self.path) if self.path is not None else None
+        self._samples: list[list[float]] = []
         self.frame_dir = self.path.parent / "frames" if self.path is not None else None
 
     def __len__(self) -> int:
@@ -146,9 +153,9 @@ class RunLog:
             float(mu_true),
             int(round(float(context_id))),
             *np.asarray(theta_hat, dtype=float).reshape(3).tolist(),
-            *(
-                np.full(NX, np.nan) if true_state is None else np.asarray(true_state, float)
-            ).reshape(NX).tolist(),
+            *(np.full(NX, np.nan) if true_state is None else np.asarray(true_state, float))
+            .reshape(NX)
+            .tolist(),
             *features.tolist(),
             image,
         ]
@@ -156,6 +163,26 @@ class RunLog:
         self._pending.append(row)
         if len(self._pending) >= self.chunk_rows:
             self.flush()
+
+    def add_sample(self, t_s: float, state: np.ndarray, actuation: np.ndarray) -> None:
+        """Keep the state (7) and the input (2) read at ``t_s`` at the fitter's sampling rate."""
+        self._samples.append([float(t_s), *np.asarray(state, float), *np.asarray(actuation, float)])
+
+    def write_samples(self) -> None:
+        """Write the samples to :data:`SAMPLES_FILE` beside the drive log (none: nothing);
+        an OS error is noted in ``write_error`` (the drive log stays valid without it)."""
+        if self.path is None or not self._samples or self.write_error is not None:
+            return
+        values = np.asarray(self._samples, dtype=float)
+        path = self.path.parent / SAMPLES_FILE
+        try:
+            np.savez_compressed(
+                path, t_s=values[:, 0], state=values[:, 1 : 1 + NX], actuation=values[:, 1 + NX :]
+            )
+        except OSError as exc:
+            from pcvfe_drake.runs.run_folder import os_error_text
+
+            self.write_error = f"cannot write {os_error_text(exc, path)}"
 
     def flush(self) -> None:
         """Append the pending rows to the CSV file now. A chunk the drive-log format rejects
@@ -186,11 +213,13 @@ class RunLog:
         raise RunLogWriteError(exc.errno, self.write_error) from exc
 
     def close(self) -> None:
-        """Write the pending rows and close the file (idempotent)."""
+        """Write the pending rows and close the file, then the samples (idempotent)."""
         try:
             self.flush()
         except RunLogWriteError:
             return  # noted in write_error
+        self.write_samples()
+        self._samples = []
         writer, self._writer = self._writer, None
         if writer is not None:
             try:

@@ -27,8 +27,10 @@ from pcvfe_drake.contexts.clustering_params import ClusteringParams
 from pcvfe_drake.control.nmpc_config import NmpcConfig
 from pcvfe_drake.estimation.context_estimator import LiveFitConfig
 from pcvfe_drake.estimation.ukf import UkfConfig
+from pcvfe_drake.hardware.settings import HardwareSettings, hardware_problems
 from pcvfe_drake.perception.camera import CameraConfig
 from pcvfe_drake.perception.features import DESCRIPTOR_BACKEND
+from pcvfe_drake.runs.bounds import scenario_bound_problems
 from pcvfe_drake.runs.friction_sources import (
     FixedFrictionSettings,
     LookupSettings,
@@ -42,7 +44,6 @@ from pcvfe_drake.runs.scenario_files import (
 )
 from pcvfe_drake.vehicle.mb_truth import FRICTION_SCALINGS
 from pcvfe_drake.vehicle.params import TRUTH_MODELS
-from pcvfe_drake.hardware.settings import HardwareSettings, hardware_problems
 from pcvfe_drake.vehicle.sensing import SensingConfig
 from pcvfe_drake.worlds.world_file import TerrainOverride, mu_problem
 
@@ -89,9 +90,8 @@ class Rates:
     input and biases such a fit)."""
     frame_log_period_s: float = 2.0
     """Period at which camera frames are saved with the drive log (``frames/``, for the
-    figures). ``pcvfe replay`` needs every frame to rerun the perception: set it to
-    ``camera_period_s`` (and ``log_period_s`` to ``fitter_sample_period_s``) for a run that
-    replays exactly (docs/hardware.md)."""
+    figures). ``pcvfe replay`` does not need every frame: the drive log holds the features of
+    every frame (docs/hardware.md, Replay)."""
     view_period_s: float = 0.1
     """Period of the Meshcat view's updates and of its recording's frames (10 Hz)."""
     clustering_frame_offset_s: float = 0.001
@@ -164,9 +164,9 @@ class Scenario:
     """One closed-loop run. Every field has a default; YAML files name only what they change.
 
     ``camera``, ``clustering``, ``fitter``, ``nmpc`` and ``ukf`` are the core's own configs
-    (``CameraConfig``, ``ClusteringParams``, ``LiveFitConfig``, ``NmpcConfig``, ``UkfConfig``): their fields,
-    defaults, documentation and validation are those of the core, in one place. The camera's
-    scenario default switches the realistic effects on (see ``_scenario_camera``).
+    (``CameraConfig``, ``ClusteringParams``, ``LiveFitConfig``, ``NmpcConfig``, ``UkfConfig``):
+    their fields, defaults, documentation and validation are those of the core, in one place.
+    The camera's scenario default switches the realistic effects on (see ``_scenario_camera``).
     """
 
     name: str = DEFAULT_SCENARIO
@@ -456,6 +456,7 @@ def scenario_problems(scenario: Scenario) -> list[str]:
         "must be an integer >= 1",
     )
     problems.extend(hardware_problems(s.hardware))
+    problems.extend(scenario_bound_problems(s))
     return problems
 
 

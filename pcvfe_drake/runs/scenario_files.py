@@ -44,3 +44,20 @@ def resolve_scenario_path(path_or_name: str | Path | None) -> Path:
         f"scenario {str(path_or_name)!r} is neither a file nor a shipped scenario "
         f"(shipped: {', '.join(shipped_scenarios())})"
     )
+
+
+def resolve_file_field(value: str, named_in: Path, field: str) -> str:
+    """A file path written in the scenario file ``named_in`` (field ``field``) as an absolute
+    path: a relative path is taken relative to that file's folder (not the working directory),
+    so a scenario and the files it names move together and a run folder's ``scenario.yaml``
+    (which stores the absolute path) runs from any directory. Raises FileNotFoundError naming
+    the scenario file, the field and the path tried when it is not a file."""
+    path = Path(value).expanduser()
+    if not path.is_absolute():
+        path = Path(named_in).parent / path
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"{named_in}: field {field!r}={value!r} is not a file ({path}; a relative path is "
+            "taken relative to the scenario file)"
+        )
+    return str(path.resolve())

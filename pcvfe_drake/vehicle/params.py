@@ -33,6 +33,67 @@ model (``mb_truth.py``): the scenario's ``truth_model`` and ``VehiclePlant``'s `
 """Order of the friction parameter vector theta used everywhere in the project."""
 
 
+PHYSICAL_RANGES: dict[str, tuple[float, float]] = {
+    "m": (0.1, 1e5),
+    "I_z": (1e-4, 1e7),
+    "lf": (0.01, 10.0),
+    "lr": (0.01, 10.0),
+    "h": (0.0, 3.0),
+    "mu": (0.01, 3.0),
+    "C_Sf": (0.01, 100.0),
+    "C_Sr": (0.01, 100.0),
+    "delta_min": (-1.6, 0.0),
+    "delta_max": (0.0, 1.6),
+    "delta_dot_min": (-7.0, 0.0),
+    "delta_dot_max": (0.0, 7.0),
+    "v_min": (-100.0, 0.0),
+    "v_max": (0.0, 100.0),
+    "v_switch": (0.01, 100.0),
+    "a_max": (0.01, 50.0),
+    "length": (0.05, 30.0),
+    "width": (0.05, 5.0),
+    "g": (1.0, 30.0),
+}
+"""Plausible range of every vehicle field [SI units], inclusive: from a 1/10-scale car to a
+truck. Beyond them a value is a wrong unit or a typo (a steering limit in degrees, a centre of
+gravity in cm, g = 0): the drive-log format's unit checks use the same magnitudes (steering
+within 1.6 rad, steering rates within 7 rad/s, speeds within 100 m/s, accelerations within
+5 g, mu within 3), and g spans the Moon (1.6) to Jupiter (25)."""
+
+
+def vehicle_problems(p: VehicleParams) -> list[str]:
+    """Every field of ``p`` outside its type or :data:`PHYSICAL_RANGES`, and the pairs out of
+    order, as ``"field=value: reason"`` strings."""
+    out = []
+    for f in dataclasses.fields(p):
+        if f.name == "name":
+            continue
+        value = getattr(p, f.name)
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            out.append(f"{f.name}={value!r} must be a number")
+            continue
+        if not math.isfinite(value):
+            out.append(f"{f.name}={value!r} is not finite")
+            continue
+        lo, hi = PHYSICAL_RANGES[f.name]
+        if not lo <= value <= hi:
+            out.append(f"{f.name}={value!r} is outside the physical range [{lo:g}, {hi:g}]")
+    if out:
+        return out
+    for lo, hi in (
+        ("delta_min", "delta_max"),
+        ("delta_dot_min", "delta_dot_max"),
+        ("v_min", "v_max"),
+    ):
+        if not getattr(p, lo) < getattr(p, hi):
+            out.append(f"{lo}={getattr(p, lo)!r} must be below {hi}={getattr(p, hi)!r}")
+    if p.lf + p.lr > p.length:
+        out.append(
+            f"lf + lr={p.lf + p.lr:g} m (the wheelbase) must fit within length={p.length:g} m"
+        )
+    return out
+
+
 @dataclass(frozen=True)
 class VehicleParams:
     """Parameters of the CommonRoad single-track model (reference point: centre of gravity).
@@ -79,34 +140,9 @@ class VehicleParams:
     g: float = G_MPS2
 
     def __post_init__(self) -> None:
-        for field in dataclasses.fields(self):
-            if field.name == "name":
-                continue
-            value = getattr(self, field.name)
-            if not isinstance(value, int | float) or not math.isfinite(value):
-                raise ValueError(
-                    f"VehicleParams '{self.name}': {field.name}={value!r} is not finite"
-                )
-        positive = ("m", "I_z", "lf", "lr", "C_Sf", "C_Sr", "a_max", "v_switch", "length", "width")
-        for key in positive:
-            if getattr(self, key) <= 0:
-                raise ValueError(
-                    f"VehicleParams '{self.name}': {key}={getattr(self, key)!r} must be > 0"
-                )
-        if self.mu <= 0:
-            raise ValueError(f"VehicleParams '{self.name}': mu={self.mu!r} must be > 0")
-        if self.h < 0:
-            raise ValueError(f"VehicleParams '{self.name}': h={self.h!r} must be >= 0")
-        for lo, hi in (
-            ("delta_min", "delta_max"),
-            ("delta_dot_min", "delta_dot_max"),
-            ("v_min", "v_max"),
-        ):
-            if not getattr(self, lo) < getattr(self, hi):
-                raise ValueError(
-                    f"VehicleParams '{self.name}': {lo}={getattr(self, lo)!r} must be below "
-                    f"{hi}={getattr(self, hi)!r}"
-                )
+        problems = vehicle_problems(self)
+        if problems:
+            raise ValueError(f"VehicleParams '{self.name}': " + "; ".join(problems))
 
     @property
     def L(self) -> float:
@@ -143,6 +179,13 @@ class VehicleParams:
         )
         if missing:
             raise ValueError(f"missing vehicle parameter(s) {missing}")
+        wrong = [
+            f"{k}={v!r} must be a number"
+            for k, v in data.items()
+            if k != "name" and (isinstance(v, bool) or not isinstance(v, int | float))
+        ]
+        if wrong:
+            raise ValueError("; ".join(wrong))
         values = {k: (v if k == "name" else float(v)) for k, v in data.items()}
         return cls(**values)
 
