@@ -18,7 +18,7 @@ from pcvfe_drake.vehicle.single_track import STATE_NAMES
 from pcvfe_drake.workbench.compare import public
 from pcvfe_drake.workbench.data import DriveData
 from pcvfe_drake.workbench.excitation import require_excitation
-from pcvfe_drake.workbench.figures import all_figures
+from pcvfe_drake.workbench.figures import CAPTIONS, all_figures
 from pcvfe_drake.workbench.ranking import DiagnoseConfig, Workbench
 from pcvfe_drake.workbench.residuals import breakdowns, whiteness
 
@@ -111,9 +111,11 @@ def _html(report: dict, pngs: list[str], folder: Path) -> str:
     imgs = ""
     for name in pngs:
         b64 = base64.b64encode((folder / name).read_bytes()).decode()
+        caption = CAPTIONS.get(name, "")
         imgs += (
-            f'<figure><img alt="{html.escape(name)}" src="data:image/png;base64,{b64}"/>'
-            f"<figcaption>{html.escape(name)}</figcaption></figure>"
+            f'<figure id="{html.escape(name.removesuffix(".png"))}"><img alt="{html.escape(name)}"'
+            f' src="data:image/png;base64,{b64}"/><figcaption><b>{html.escape(name)}</b>: '
+            f"{html.escape(caption)}</figcaption></figure>"
         )
     base = report["baseline"]
     verdict = report["verdict"]
