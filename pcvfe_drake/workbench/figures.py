@@ -123,12 +123,13 @@ def error_over_log(wb, before, after, label_after: str, folder: Path) -> str:
     plt = _plt()
     data = wb.data
     fig, ax = plt.subplots(figsize=(10, 3.2))
+    if after is None:  # the final model is the baseline: drawn dashed on top of it
+        after, label_after = before, "final model (= baseline: no effect added)"
     for fit, color, label in ((before, "C0", "baseline"), (after, "C3", label_after)):
-        if fit is None:
-            continue
         starts, excess = whole_log_excess(wb, fit)
         t = data.t[starts + wb.h_eval // 2]
-        ax.plot(t, np.sqrt(np.maximum(excess, 0.0)), color=color, lw=0.9, label=label)
+        ls = "--" if fit is before and color == "C3" else "-"
+        ax.plot(t, np.sqrt(np.maximum(excess, 0.0)), color=color, lw=0.9, ls=ls, label=label)
     # contexts shaded, held-out blocks hatched
     ctx = data.context
     change = np.flatnonzero(np.diff(ctx)) + 1

@@ -171,13 +171,13 @@ def hot_span(excess: np.ndarray, starts: np.ndarray, horizon: int, data: DriveDa
 
 
 def span_phrase(span: dict | None, contexts: int) -> str:
-    """``"the largest part (37 % of the excess) at t 40.1-52.3 s, around (12, -30) m, on sand"``
-    ("" without a span)."""
+    """``"the largest part of the held-out excess (37%) at t 40.1-52.3 s, around (12, -30) m, on
+    sand"`` ("" without a span)."""
     if span is None:
         return ""
     on = f", on {span['context']}" if contexts > 1 else ""
     return (
-        f"the largest part ({span['share']:.0%} of the excess) at t {span['t0_s']:.1f}-"
+        f"the largest part of the held-out excess ({span['share']:.0%}) at t {span['t0_s']:.1f}-"
         f"{span['t1_s']:.1f} s, around ({span['sx_m']:.0f}, {span['sy_m']:.0f}) m{on}"
     )
 
