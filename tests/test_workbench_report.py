@@ -6,11 +6,13 @@ import json
 import shutil
 import subprocess
 
+import matplotlib.image as mpimg
 import numpy as np
 import pytest
 
 from pcvfe_drake.workbench import synth
 from pcvfe_drake.workbench.data import prepare
+from pcvfe_drake.workbench.figures import CAPTIONS
 from pcvfe_drake.workbench.report import diagnose, write_report
 
 PNGS = [
@@ -51,6 +53,13 @@ def test_report_has_every_picture_and_the_loop(report_dir):
     html = (out / "report.html").read_text()
     assert html.count("data:image/png;base64,") == len(PNGS)
     assert 'id="verdict"' in html and "The loop" in html
+    # every figure is captioned with what to look for
+    assert set(CAPTIONS) == set(PNGS)
+    for png in PNGS:
+        assert f"<b>{png}</b>: {CAPTIONS[png]}" in html and "Look for" in CAPTIONS[png], png
+    # the course map: the baseline's failures beside what remains (two panels side by side)
+    height, width = mpimg.imread(out / "error_map.png").shape[:2]
+    assert width > 2 * height
 
 
 def _chromium() -> str | None:
@@ -94,7 +103,5 @@ def test_report_renders_in_headless_chromium(report_dir, tmp_path):
         capture_output=True,
         timeout=90,
     )
-    import matplotlib.image as mpimg
-
     img = mpimg.imread(shot)
     assert img.shape[0] >= 2000 and img.std() > 0.05  # a rendered page, not a blank one

@@ -253,7 +253,7 @@ def mu_headline(mu: float, std: float, judged: dict, fitted: bool = True) -> dic
         return {
             "kind": "no_fit",
             "mu_at_least": bound if math.isfinite(bound) else None,
-            "reason": "too little data to fit, or the fit diverged",
+            "reason": "too little data: nothing fitted, or a fit the data do not determine",
             "text": f"no fit ({at_least})",
         }
     if judged["identifiable"]:
@@ -270,6 +270,15 @@ def mu_headline(mu: float, std: float, judged: dict, fitted: bool = True) -> dic
         "reason": reason,
         "text": f"{at_least}, not identifiable",
     }
+
+
+NOISE_LABELS = ("-1", "unknown")
+"""Labels of the run log's ``context`` column for frames no context claimed (noise, empty)."""
+NOISE_HEADLINE = {
+    "kind": "noise",
+    "text": "noise",
+    "reason": "samples no context claimed (several terrains): not a context, no answer",
+}
 
 
 def _context_column(log: pd.DataFrame, choice: str | None) -> str | None:
@@ -327,8 +336,12 @@ def run_effects(args: argparse.Namespace, model: FitModel) -> int:
         covariance=args.covariance,
         model_error_rel=model_error_rel,
     )
-    for c in out["contexts"].values():
-        c["headline"] = mu_headline(c["theta"]["mu"], c["mu_std"], c)
+    for label, c in out["contexts"].items():
+        # no finite std: the data (too few samples) leave mu where it started, nothing fitted
+        fitted = c["mu_std"] is not None and math.isfinite(c["mu_std"])
+        c["headline"] = mu_headline(c["theta"]["mu"], c["mu_std"], c, fitted)
+        if column == "context" and label in NOISE_LABELS:
+            c["headline"] = NOISE_HEADLINE
     out = {
         "log": str(path),
         "model": model.source,
