@@ -101,8 +101,10 @@ def test_a_bad_scenario_is_a_named_error(tmp_path, capsys):
 def test_headline_words():
     judged = {"mu_lower_bound": 0.31, "near_limit": False, "identifiable": False}
     assert mu_headline(0.93, 0.03, judged)["text"] == "mu >= 0.310, not identifiable"
-    near = {"mu_lower_bound": 0.4, "near_limit": True, "identifiable": False}
-    assert "std" in mu_headline(0.45, 0.2, near)["reason"]
+    near = {"mu_lower_bound": 0.4, "near_limit": True, "identifiable": False, "mu_std_data": 0.07}
+    assert mu_headline(0.45, 0.2, near, limit=0.05)["reason"] == (
+        "the data leave a std of 0.07, above 0.05"
+    )
     peak = {**near, "below_used": True}
     assert "below the friction" in mu_headline(0.35, 0.01, peak)["reason"]
     assert mu_headline(1.05, float("nan"), judged, fitted=False)["kind"] == "no_fit"

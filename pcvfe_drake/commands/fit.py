@@ -242,11 +242,15 @@ def default_fit_model(log: Path, scenario: str | Path | None = None) -> FitModel
     )
 
 
-def mu_headline(mu: float, std: float, judged: dict, fitted: bool = True) -> dict:
+def mu_headline(
+    mu: float, std: float, judged: dict, fitted: bool = True, limit: float = math.nan
+) -> dict:
     """A context's answer: ``{"kind": "estimate", "mu", "std"}`` where mu is identifiable, else
     ``{"kind": "lower_bound", "mu_at_least", "reason"}``: the friction the data used, which the
     car had at least (the converged fit is not a friction there); ``{"kind": "no_fit"}`` where
-    nothing was fitted (``fitted`` False: too little data; mu is the prior). Each has ``text``."""
+    nothing was fitted (``fitted`` False: too little data; mu is the prior). Each has ``text``.
+    ``limit``: the identifiable std, judged on ``judged["mu_std_data"]`` (the std the data
+    leave, without the model-error budget) where given, else ``std``."""
     bound = judged["mu_lower_bound"]
     at_least = f"mu >= {bound:.3f}" if math.isfinite(bound) else "no bound"
     if not fitted:
@@ -263,7 +267,8 @@ def mu_headline(mu: float, std: float, judged: dict, fitted: bool = True) -> dic
     elif not judged["near_limit"]:
         reason = f"the data never came near the limit (used {_fmt(bound, 3)}, fit {mu:.3g})"
     else:
-        reason = f"std {_fmt(std, 2)} above the identifiable limit"
+        data_std = judged.get("mu_std_data", std)
+        reason = f"the data leave a std of {_fmt(data_std, 2)}, above {_fmt(limit, 2)}"
     return {
         "kind": "lower_bound",
         "mu_at_least": bound if math.isfinite(bound) else None,
@@ -279,6 +284,12 @@ NOISE_HEADLINE = {
     "text": "noise",
     "reason": "samples no context claimed (several terrains): not a context, no answer",
 }
+
+
+def _note(model: FitModel, args: argparse.Namespace) -> None:
+    """The fallback model's note, once the log has been read (not with ``--json``)."""
+    if model.note and not args.json:
+        print(f"note: fitting {model.note}")
 
 
 def _context_column(log: pd.DataFrame, choice: str | None) -> str | None:
@@ -319,6 +330,7 @@ def run_effects(args: argparse.Namespace, model: FitModel) -> int:
     log = read_drive_log(path, max_gap_s=None)
     if args.resample is not None:
         log = resample_log(log, args.resample, source=str(path))
+    _note(model, args)
     column = _context_column(log, args.context_column)
     if column is None:
         log = log.drop(columns=[c for c in ("context", "terrain") if c in log.columns])
@@ -339,7 +351,11 @@ def run_effects(args: argparse.Namespace, model: FitModel) -> int:
     for label, c in out["contexts"].items():
         # no finite std: the data (too few samples) leave mu where it started, nothing fitted
         fitted = c["mu_std"] is not None and math.isfinite(c["mu_std"])
-        c["headline"] = mu_headline(c["theta"]["mu"], c["mu_std"], c, fitted)
+        if fitted:
+            c["mu_std_data"] = without_model_error(c["theta"]["mu"], c["mu_std"], model_error_rel)
+        c["headline"] = mu_headline(
+            c["theta"]["mu"], c["mu_std"], c, fitted, fitter.identifiable_std
+        )
         if column == "context" and label in NOISE_LABELS:
             c["headline"] = NOISE_HEADLINE
     out = {
@@ -408,8 +424,6 @@ def run(args: argparse.Namespace) -> int:
         )
     else:
         model = default_fit_model(args.log, args.scenario)
-    if model.note and not args.json:
-        print(f"note: fitting {model.note}")
     if model.effects:
         return run_effects(args, model)
     fitter = model.fitter
@@ -427,6 +441,7 @@ def run(args: argparse.Namespace) -> int:
     log = read_drive_log(path, validate=not args.lenient, max_gap_s=math.inf)
     if args.resample is not None:
         log = resample_log(log, args.resample, source=str(path))
+    _note(model, args)
     column = _context_column(log, args.context_column)
     split = windows_from_log(
         log,
@@ -547,6 +562,7 @@ def _judge(log: pd.DataFrame, column, results: dict, fitter, model_error_rel: fl
             fitter.near_limit_fraction,
             fitter.identifiable_std,
         )
+        judged["mu_std_data"] = data_std
         used = judged["mu_lower_bound"]
         fitted = result.status not in (STATUS_TOO_LITTLE_DATA, STATUS_DIVERGED)
         judged["identifiable"] = judged["identifiable"] and fitted
@@ -557,6 +573,6 @@ def _judge(log: pd.DataFrame, column, results: dict, fitter, model_error_rel: fl
         else:
             interval = [used, None]
         judged["mu_interval_95"] = interval
-        judged["headline"] = mu_headline(mu, std, judged, fitted)
+        judged["headline"] = mu_headline(mu, std, judged, fitted, fitter.identifiable_std)
         out[label] = judged
     return out
