@@ -10,7 +10,7 @@ import matplotlib.image as mpimg
 import numpy as np
 import pytest
 
-from pcvfe_drake.workbench import synth
+from pcvfe_drake.workbench import figures, synth
 from pcvfe_drake.workbench.data import prepare
 from pcvfe_drake.workbench.figures import CAPTIONS
 from pcvfe_drake.workbench.report import diagnose, write_report
@@ -37,11 +37,11 @@ def report_dir(tmp_path_factory):
     report, wb = diagnose(prepare(df, "two contexts"), candidates=["drag", "gyro_bias"])
     out = tmp_path_factory.mktemp("rep") / "report"
     write_report(report, wb, out)
-    return out, report
+    return out, report, wb
 
 
 def test_report_has_every_picture_and_the_loop(report_dir):
-    out, report = report_dir
+    out, report, _ = report_dir
     for png in PNGS:
         assert (out / png).stat().st_size > 2000, png
     saved = json.loads((out / "report.json").read_text())
@@ -74,7 +74,7 @@ def _chromium() -> str | None:
     _chromium() is None, reason="no headless Chromium (apt-get install -y chromium)"
 )
 def test_report_renders_in_headless_chromium(report_dir, tmp_path):
-    out, report = report_dir
+    out, report, _ = report_dir
     # a copy with a probe script: the page title reports how many images decoded
     probe = (
         (out / "report.html")
@@ -105,3 +105,21 @@ def test_report_renders_in_headless_chromium(report_dir, tmp_path):
     )
     img = mpimg.imread(shot)
     assert img.shape[0] >= 2000 and img.std() > 0.05  # a rendered page, not a blank one
+
+
+def test_overlay_shows_measured_baseline_and_final_model(report_dir, tmp_path, monkeypatch):
+    _, report, wb = report_dir
+    drawn = {}
+
+    def keep(fig, folder, name):
+        drawn[name] = fig
+        return name
+
+    monkeypatch.setattr(figures, "_save", keep)
+    figures.all_figures(report, wb, tmp_path)
+    for ax in drawn["overlay.png"].axes:
+        labels = [line.get_label() for line in ax.lines if not line.get_label().startswith("_")]
+        if labels:
+            assert labels == ["measured", "baseline", "final model (+ drag)"]
+    legend = [t.get_text() for t in drawn["overlay.png"].axes[0].get_legend().get_texts()]
+    assert legend == ["measured", "baseline", "final model (+ drag)"]

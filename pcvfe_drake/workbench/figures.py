@@ -320,7 +320,7 @@ def all_figures(report: dict, wb, folder: Path) -> list[str]:
     final_eval = getattr(wb, "final_eval", None)
     label = "+ " + " + ".join(final.model.effect_names) if final and final.model.effects else ""
     has_after = bool(label)
-    if has_after and "_free_run" not in final_eval:
+    if has_after and not final_eval.get("_free_run"):  # the loop evaluates without free runs
         final_eval = wb.evaluate(final)
     names = [selection_path(report, folder)]
     names.append(error_over_log(wb, wb.baseline, final if has_after else None, label, folder))
