@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import html as html_text
 import json
 import shutil
 import subprocess
@@ -56,7 +57,8 @@ def test_report_has_every_picture_and_the_loop(report_dir):
     # every figure is captioned with what to look for
     assert set(CAPTIONS) == set(PNGS)
     for png in PNGS:
-        assert f"<b>{png}</b>: {CAPTIONS[png]}" in html and "Look for" in CAPTIONS[png], png
+        caption = html_text.escape(CAPTIONS[png])
+        assert f"<b>{png}</b>: {caption}" in html and "Look for" in caption, png
     # the course map: the baseline's failures beside what remains (two panels side by side)
     height, width = mpimg.imread(out / "error_map.png").shape[:2]
     assert width > 2 * height

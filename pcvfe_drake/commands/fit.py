@@ -286,6 +286,13 @@ NOISE_HEADLINE = {
 }
 
 
+def _json(obj) -> str:
+    """One JSON object: non-finite numbers as null (strict JSON), numpy scalars as numbers."""
+    from pcvfe_drake.workbench.report import to_jsonable
+
+    return json.dumps(to_jsonable(obj), default=lambda v: None, allow_nan=False)
+
+
 def _note(model: FitModel, args: argparse.Namespace) -> None:
     """The fallback model's note, once the log has been read (not with ``--json``)."""
     if model.note and not args.json:
@@ -367,7 +374,7 @@ def run_effects(args: argparse.Namespace, model: FitModel) -> int:
         **out,
     }
     if args.json:
-        print(json.dumps(out, default=lambda v: None))
+        print(_json(out))
         return 0
     names = ", ".join(
         s.name
@@ -475,7 +482,7 @@ def run(args: argparse.Namespace) -> int:
             entry.update(judged[label])
             contexts[str(label)] = entry
         print(
-            json.dumps(
+            _json(
                 {
                     "log": str(path),
                     "model": model.source,
@@ -500,7 +507,6 @@ def run(args: argparse.Namespace) -> int:
                     "windows_skipped": split.skipped,
                     "contexts": contexts,
                 },
-                default=lambda v: None,
             )
         )
         return 0
