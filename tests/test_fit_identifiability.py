@@ -9,18 +9,18 @@ import pandas as pd
 import pytest
 
 from pcvfe_drake.cli import main
-from pcvfe_drake.commands.fit import default_fit_model, mu_headline
+from pcvfe_drake.commands.fit import default_fit_model, distrust, mu_headline
 from pcvfe_drake.estimation.synthetic_drive import drive_frame, s_curve_drive
 from pcvfe_drake.vehicle.params import ford_escort
 
 
 @pytest.fixture(scope="module")
 def log_path(tmp_path_factory):
-    """ST truth, 100 Hz, 6 s each: sand (mu 0.45) in a wide slalom that uses ~0.5 g, brick
+    """ST truth, 100 Hz, 6 s each: sand (mu 0.45) in a wide slalom that uses ~0.42 g, brick
     (mu 0.8), 2 s later, in a gentle one that uses ~0.1 g: sand's mu is identifiable, brick's
     is not."""
     params = ford_escort()
-    t, s_sand, u_sand = s_curve_drive(params, 0.45, duration_s=6.0, delta_amp_rad=0.2)
+    t, s_sand, u_sand = s_curve_drive(params, 0.45, duration_s=6.0, delta_amp_rad=0.15)
     _, s_brick, u_brick = s_curve_drive(params, 0.8, duration_s=6.0, delta_amp_rad=0.04)
     sand = drive_frame(t, s_sand[0], u_sand[0], terrain="sand", mu_true=0.45)
     brick = drive_frame(t + t[-1] + 2.0, s_brick[0], u_brick[0], terrain="brick", mu_true=0.8)
@@ -47,6 +47,19 @@ def test_headline_is_the_estimate_or_a_bound_that_holds(log_path, capsys):
     assert 0.03 < head["mu_at_least"] <= 0.8
     assert brick["mu_interval_95"] == [head["mu_at_least"], None]
     assert "never came near the limit" in head["reason"]
+
+
+def test_a_fit_below_the_friction_used_is_not_the_friction(tmp_path, capsys):
+    """The ST truth's linear tyre has no limit: a slalom at ~0.56 g on mu 0.45 converges on
+    0.45, which the car cannot have had; the answer is the friction used."""
+    t, states, inputs = s_curve_drive(ford_escort(), 0.45, duration_s=6.0, delta_amp_rad=0.2)
+    path = tmp_path / "drive.csv"
+    drive_frame(t, states[0], inputs[0]).to_csv(path, index=False)
+    assert main(["fit", str(path), "--json"]) == 0
+    (entry,) = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["contexts"].values()
+    assert entry["converged"] and abs(entry["theta"]["mu"] - 0.45) < 0.01
+    assert entry["below_used"] and not entry["identifiable"]
+    assert entry["headline"]["kind"] == "lower_bound" and entry["headline"]["mu_at_least"] > 0.5
 
 
 def test_table_prints_not_identifiable_and_the_fallback_note(log_path, capsys):
@@ -115,3 +128,26 @@ def test_headline_words():
         "std": 0.01,
         "text": "0.450 +- 0.01",
     }
+
+
+def test_a_fit_the_quality_checks_reject_is_not_the_friction(tmp_path, capsys):
+    """A sign-flipped steering column: the fit converges with mu on its bound."""
+    t, states, inputs = s_curve_drive(ford_escort(), 0.45, duration_s=6.0, delta_amp_rad=0.15)
+    df = drive_frame(t, states[0], inputs[0])
+    df["delta"] = -df["delta"]
+    path = tmp_path / "flipped.csv"
+    df.to_csv(path, index=False)
+    assert main(["fit", str(path), "--lenient", "--json"]) == 0
+    (entry,) = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["contexts"].values()
+    assert entry["status"] == "converged" and entry["distrust"]
+    assert entry["headline"]["kind"] == "lower_bound" and not entry["identifiable"]
+    assert "not trustworthy" in entry["headline"]["reason"]
+
+
+def test_fit_quality_verdicts():
+    assert distrust({"at_bound": ["mu"], "loss_noise_ratio": 1.0}) == "mu on its bound"
+    assert "loss is 12 x" in distrust({"at_bound": [], "loss_noise_ratio": 12.0})
+    poor = {"loss_noise_ratio": 1.0, "fit_percent": {"psi_dot": 30.0, "beta": 90.0}}
+    assert distrust(poor) == "poor fit of psi_dot (30 %)"
+    good = {"at_bound": [], "loss_noise_ratio": 2.0, "fit_percent": {"psi_dot": 95.0}}
+    assert distrust(good) is None
