@@ -9,7 +9,8 @@ import pandas as pd
 import pytest
 
 from pcvfe_drake.cli import main
-from pcvfe_drake.commands.fit import default_fit_model, distrust, mu_headline
+from pcvfe_drake.commands.fit import default_fit_model
+from pcvfe_drake.estimation.fit_answer import distrust, mu_headline
 from pcvfe_drake.estimation.synthetic_drive import drive_frame, s_curve_drive
 from pcvfe_drake.vehicle.params import ford_escort
 

@@ -3,12 +3,12 @@
 The model is the one the live estimator uses (:func:`default_fit_model`): a run folder's own
 ``scenario.yaml`` fitter (its effect model, if any), a scenario named with ``--scenario``, or
 else the single-track model. Each context's headline states mu as the friction and is judged
-as the live estimator judges a friction peak (:func:`judge_friction`) and by the fit-quality
-checks (:func:`distrust`): an identifiable mu is printed with its std; where the data never
-came near the friction limit, the std is too large, the fit lies below the friction used or
-does not explain the data, the headline is the lower bound, the lateral friction the data
-used, with the words "not identifiable": a fit that converged on such data is a stiffness
-scale or a prior, not the friction."""
+as the live estimator judges a friction peak and by the fit-quality checks
+(``pcvfe_drake.estimation.fit_answer``): an identifiable mu is printed with its std; where
+the data never came near the friction limit, the std is too large, the fit lies below the
+friction used or does not explain the data, the headline is the lower bound, the lateral
+friction the data used, with the words "not identifiable": a fit that converged on such data
+is a stiffness scale or a prior, not the friction."""
 
 from __future__ import annotations
 
@@ -23,6 +23,7 @@ import pandas as pd
 import yaml
 
 from pcvfe_drake.estimation.estimate_table import Z95
+from pcvfe_drake.estimation.fit_answer import distrust, judge_friction, mu_headline
 from pcvfe_drake.estimation.fit_dataset import (
     DEFAULT_HORIZON,
     DEFAULT_MAX_WINDOWS,
@@ -244,43 +245,6 @@ def default_fit_model(log: Path, scenario: str | Path | None = None) -> FitModel
     )
 
 
-def mu_headline(
-    mu: float, std: float, judged: dict, fitted: bool = True, limit: float = math.nan
-) -> dict:
-    """A context's answer: ``{"kind": "estimate", "mu", "std"}`` where mu is identifiable, else
-    ``{"kind": "lower_bound", "mu_at_least", "reason"}``: the friction the data used, which the
-    car had at least (the converged fit is not a friction there); ``{"kind": "no_fit"}`` where
-    nothing was fitted (``fitted`` False: too little data; mu is the prior). Each has ``text``.
-    ``limit``: the identifiable std, judged on ``judged["mu_std_data"]`` (the std the data
-    leave, without the model-error budget) where given, else ``std``."""
-    bound = judged["mu_lower_bound"]
-    at_least = f"mu >= {bound:.3f}" if math.isfinite(bound) else "no bound"
-    if not fitted:
-        return {
-            "kind": "no_fit",
-            "mu_at_least": bound if math.isfinite(bound) else None,
-            "reason": "no std: too little data, or mu on its bound (the data do not determine it)",
-            "text": f"no fit ({at_least})",
-        }
-    if judged["identifiable"]:
-        return {"kind": "estimate", "mu": mu, "std": std, "text": f"{mu:.3f} +- {std:.2g}"}
-    if judged.get("distrust"):
-        reason = f"the fit is not trustworthy ({judged['distrust']}; fit {mu:.3g})"
-    elif judged.get("below_used"):
-        reason = f"the fitted peak {mu:.3g} is below the friction the data used"
-    elif not judged["near_limit"]:
-        reason = f"the data never came near the limit (used {_fmt(bound, 3)}, fit {mu:.3g})"
-    else:
-        data_std = judged.get("mu_std_data", std)
-        reason = f"the data leave a std of {_fmt(data_std, 2)}, above {_fmt(limit, 2)}"
-    return {
-        "kind": "lower_bound",
-        "mu_at_least": bound if math.isfinite(bound) else None,
-        "reason": reason,
-        "text": f"{at_least}, not identifiable",
-    }
-
-
 NOISE_LABELS = ("-1", "unknown")
 """Labels of the run log's ``context`` column for frames no context claimed (noise, empty)."""
 NOISE_HEADLINE = {
@@ -367,7 +331,16 @@ def run_effects(args: argparse.Namespace, model: FitModel) -> int:
         if fitted and not out["mu_is_peak"]:  # fit_log judged a stiffness scale: as a friction
             rows = data.context == k
             mu = c["theta"]["mu"]
-            c.update(judge_friction(data.t[rows], data.x[rows], mu, c["mu_std_data"], fitter))
+            c.update(
+                judge_friction(
+                    data.t[rows],
+                    data.x[rows],
+                    mu,
+                    c["mu_std_data"],
+                    fitter.near_limit_fraction,
+                    fitter.identifiable_std,
+                )
+            )
             used, std = c["mu_lower_bound"], c["mu_std"]
             two_sided = c["near_limit"] or not math.isfinite(used)
             c["mu_interval_95"] = [mu - Z95 * std, mu + Z95 * std] if two_sided else [used, None]
@@ -559,9 +532,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _judge(log: pd.DataFrame, column, results: dict, fitter, model_error_rel: float) -> dict:
-    """Per context: :func:`judge_friction` of the single-track fit on the context's rows (the
-    std the data leave), its fit-quality verdict (:func:`distrust`), the headline and the 95 %
-    interval (``ContextEstimate.mu_interval_95``'s rule)."""
+    """Per context: ``fit_answer.judge_friction`` of the single-track fit on the context's rows
+    (the std the data leave), its fit-quality verdict (``fit_answer.distrust``), the headline
+    and the 95 % interval (``ContextEstimate.mu_interval_95``'s rule)."""
     t = log["t"].to_numpy(dtype=float)
     states = log[["sx", "sy", "delta", "v", "psi", "psi_dot", "beta"]].to_numpy(dtype=float)
     out = {}
@@ -569,7 +542,14 @@ def _judge(log: pd.DataFrame, column, results: dict, fitter, model_error_rel: fl
         rows = _rows_of(log, column, label) & np.all(np.isfinite(states), axis=1)
         mu, std = float(result.theta[0]), float(result.std[0])
         data_std = without_model_error(mu, std, model_error_rel)
-        judged = judge_friction(t[rows], states[rows], mu, data_std, fitter)
+        judged = judge_friction(
+            t[rows],
+            states[rows],
+            mu,
+            data_std,
+            fitter.near_limit_fraction,
+            fitter.identifiable_std,
+        )
         judged["mu_std_data"] = data_std
         used = judged["mu_lower_bound"]
         fitted = result.status not in (STATUS_TOO_LITTLE_DATA, STATUS_DIVERGED)
@@ -585,44 +565,3 @@ def _judge(log: pd.DataFrame, column, results: dict, fitter, model_error_rel: fl
         judged["headline"] = mu_headline(mu, std, judged, fitted, fitter.identifiable_std)
         out[label] = judged
     return out
-
-
-def judge_friction(t, states, mu: float, data_std: float, fitter, share: float = math.nan):
-    """Whether ``mu +- data_std`` is the friction of a context's data (``t`` [s], ``states``
-    (N, 7)): the live estimator's judgement of a friction peak (``effect_fit.identifiability``
-    with ``peak=True``, its ``near_limit_fraction`` and ``identifiable_std``), whatever the
-    model. The headline states mu as the friction: only the lateral friction used bounds it (in
-    the project's ``lateral_peak`` worlds mu is the lateral peak alone, and braking and
-    driving use the longitudinal one), and a fit below that bound is impossible for a friction,
-    whatever a linear tyre makes of it (its mu is a stiffness scale)."""
-    from pcvfe_drake.estimation.effect_fit import identifiability
-
-    return identifiability(
-        t,
-        states,
-        mu,
-        data_std,
-        True,
-        math.nan,
-        fitter.near_limit_fraction,
-        fitter.identifiable_std,
-        share,
-    )
-
-
-def distrust(quality: dict) -> str | None:
-    """Why the fit-quality checks (``fit_quality.assess``) say the fitted mu is not the
-    friction, or None: mu on its bound, a loss far above what the noise explains, or a poor fit
-    of the states friction acts on (each is a model that does not explain the data, so its mu
-    is not determined by them)."""
-    from pcvfe_drake.estimation.fit_quality import LOSS_NOISE_RATIO_WARN, POOR_FIT_PERCENT
-
-    if "mu" in quality.get("at_bound", []):
-        return "mu on its bound"
-    ratio = quality.get("loss_noise_ratio", math.nan)
-    if ratio is not None and ratio > LOSS_NOISE_RATIO_WARN:
-        return f"the loss is {ratio:.3g} x what the noise explains: the model misses the data"
-    poor = {k: v for k, v in quality.get("fit_percent", {}).items() if v < POOR_FIT_PERCENT}
-    if poor:
-        return "poor fit of " + ", ".join(f"{k} ({v:.0f} %)" for k, v in poor.items())
-    return None
