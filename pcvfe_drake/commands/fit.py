@@ -328,24 +328,21 @@ def run_effects(args: argparse.Namespace, model: FitModel) -> int:
         fitted = c["mu_std"] is not None and math.isfinite(c["mu_std"])
         if fitted:
             c["mu_std_data"] = without_model_error(c["theta"]["mu"], c["mu_std"], model_error_rel)
-        if fitted and not out["mu_is_peak"]:  # fit_log judged a stiffness scale: as a friction
+        judged = c
+        if fitted and not out["mu_is_peak"]:
+            # fit_log judged the model's mu as it is (a stiffness scale); the headline states it
+            # as the friction, so it is judged as one (kept beside fit_log's fields)
             rows = data.context == k
-            mu = c["theta"]["mu"]
-            c.update(
-                judge_friction(
-                    data.t[rows],
-                    data.x[rows],
-                    mu,
-                    c["mu_std_data"],
-                    fitter.near_limit_fraction,
-                    fitter.identifiable_std,
-                )
+            judged = c["judged_as_friction"] = judge_friction(
+                data.t[rows],
+                data.x[rows],
+                c["theta"]["mu"],
+                c["mu_std_data"],
+                fitter.near_limit_fraction,
+                fitter.identifiable_std,
             )
-            used, std = c["mu_lower_bound"], c["mu_std"]
-            two_sided = c["near_limit"] or not math.isfinite(used)
-            c["mu_interval_95"] = [mu - Z95 * std, mu + Z95 * std] if two_sided else [used, None]
         c["headline"] = mu_headline(
-            c["theta"]["mu"], c["mu_std"], c, fitted, fitter.identifiable_std
+            c["theta"]["mu"], c["mu_std"], {**c, **judged}, fitted, fitter.identifiable_std
         )
         if column == "context" and label in NOISE_LABELS:
             c["headline"] = NOISE_HEADLINE
@@ -382,7 +379,7 @@ def run_effects(args: argparse.Namespace, model: FitModel) -> int:
             f"{label:>12} {_fmt(th['mu'], 4):>8} {_fmt(c['mu_std'], 2):>8} "
             f"{'[' + _fmt(lo, 3) + ', ' + (_fmt(hi, 3) if math.isfinite(hi) else 'inf') + ']':>16} "
             f"{_fmt(th['C_Sf'], 4):>8} {_fmt(th['C_Sr'], 4):>8} {_fmt(c['mu_lower_bound'], 3):>7}  "
-            + _limit_words(c)
+            + _limit_words(c.get("judged_as_friction", c))
         )
     for name, p in out["params"].items():
         if "." in name:
