@@ -65,8 +65,8 @@ def compare(original: Path, replayed: Path) -> dict:
     sb = json.loads((replayed / "summary.json").read_text())
     out["contexts"] = [sa["contexts_discovered"], sb["contexts_discovered"]]
     out["final_mu_hat"] = [
-        [round(e["mu_hat"], 4) for e in sa["mu_estimates"]],
-        [round(e["mu_hat"], 4) for e in sb["mu_estimates"]],
+        [None if e["mu_hat"] is None else round(e["mu_hat"], 4) for e in sa["mu_estimates"]],
+        [None if e["mu_hat"] is None else round(e["mu_hat"], 4) for e in sb["mu_estimates"]],
     ]
     return out
 

@@ -196,7 +196,8 @@ def main() -> int:
         r = run_one(mapping, source, seed, effects.get(mapping, []), args.laps)
         runs.append(r)
         ctx = ", ".join(
-            f"{c['majority_terrain']} {c['mu_hat']:.3f}/{c['true_mu']} "
+            f"{c['majority_terrain']} "
+            f"{'no fit' if c['mu_hat'] is None else format(c['mu_hat'], '.3f')}/{c['true_mu']} "
             f"(20 s+: {c['abs_error_after_settle_max']})"
             for c in r["contexts"]
             if c["true_mu"] is not None

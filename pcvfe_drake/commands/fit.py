@@ -1,12 +1,29 @@
-"""``pcvfe fit``: fit the single-track friction parameters per context of a drive log."""
+"""``pcvfe fit``: fit the friction per context of a drive log, with the live estimator's model.
+
+The model is the one the live estimator uses (:func:`default_fit_model`): a run folder's own
+``scenario.yaml`` fitter (its effect model, if any), a scenario named with ``--scenario``, or
+else the single-track model. Each context's headline states mu as the friction and is judged
+as the live estimator judges a friction peak and by the fit-quality checks
+(``pcvfe_drake.estimation.fit_answer``): an identifiable mu is printed with its std; where
+the data never came near the friction limit, the std is too large, the fit lies below the
+friction used or does not explain the data, the headline is the lower bound, the lateral
+friction the data used, with the words "not identifiable": a fit that converged on such data
+is a stiffness scale or a prior, not the friction."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import math
+from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+import pandas as pd
+import yaml
+
+from pcvfe_drake.estimation.estimate_table import Z95
+from pcvfe_drake.estimation.fit_answer import distrust, judge_friction, mu_headline
 from pcvfe_drake.estimation.fit_dataset import (
     DEFAULT_HORIZON,
     DEFAULT_MAX_WINDOWS,
@@ -18,8 +35,11 @@ from pcvfe_drake.estimation.fit_dataset import (
 from pcvfe_drake.estimation.fit_options import (
     COVARIANCES,
     JOINT_PRIOR_REL_SIGMA,
+    STATUS_DIVERGED,
+    STATUS_TOO_LITTLE_DATA,
     FitOptions,
     joint_options,
+    without_model_error,
 )
 from pcvfe_drake.estimation.fitting import fit_contexts
 from pcvfe_drake.runs.drivelog import read_drive_log
@@ -32,23 +52,41 @@ def register(subparsers) -> None:
         "fit",
         help="fit mu (and optionally C_Sf, C_Sr) per context of a drive log, with uncertainty",
         description=(
-            "Fit the single-track model's friction parameters to a drive log (CSV or Parquet, "
-            "the drive-log format) per context: rollouts of H steps from the measured states "
-            "with the recorded inputs, windows only from stable segments in one context with "
-            "v >= --min-speed (paper eq. 5a-6). By default only mu is fitted, the stiffnesses "
-            "stay at the vehicle's nominal values; --joint also fits C_Sf, C_Sr with Gaussian "
-            "priors. Prints a table (or one JSON object with --json)."
+            "Fit the friction of a drive log (CSV or Parquet, the drive-log format) per "
+            "context with the live estimator's model: a run folder's scenario.yaml fitter (its "
+            "effect model, if any), --scenario's, or else the single-track model (rollouts of H "
+            "steps from the measured states with the recorded inputs, windows only from stable "
+            "segments in one context with v >= --min-speed, paper eq. 5a-6; only mu fitted, "
+            "--joint also fits C_Sf, C_Sr with Gaussian priors). Each context's mu is judged as "
+            "the live estimator judges it: where the data never came near the friction limit "
+            "the answer is a lower bound, the friction used, marked 'not identifiable'. Prints "
+            "the answers and a table (or one JSON object with --json)."
         ),
     )
-    parser.add_argument("log", type=Path, help="drive log (.csv, .csv.gz, .parquet)")
     parser.add_argument(
-        "--vehicle", default=None, help="vehicle preset or YAML file (default: ford_escort)"
+        "log",
+        type=Path,
+        help="drive log (.csv, .csv.gz, .parquet) or a run folder holding one",
+    )
+    parser.add_argument(
+        "--vehicle",
+        default=None,
+        help="vehicle preset or YAML file (default: the scenario's, else ford_escort)",
+    )
+    parser.add_argument(
+        "--scenario",
+        default=None,
+        metavar="NAME|FILE",
+        help="fit with this scenario's live-estimator model (fitter.effects) and judge "
+        "identifiability with its fitter settings (default: the run folder's scenario.yaml "
+        "beside the log, else the single-track model)",
     )
     parser.add_argument(
         "--context-column",
-        choices=("terrain", "context"),
+        choices=("terrain", "context", "none"),
         default=None,
-        help="column holding the context of each row (default: the whole log is one context)",
+        help="column holding the context of each row (default: context, else terrain, as "
+        "pcvfe diagnose; none: the whole log is one context)",
     )
     parser.add_argument(
         "--joint",
@@ -107,10 +145,11 @@ def register(subparsers) -> None:
         action="append",
         default=[],
         metavar="EFFECT[:PARAM=VALUE,...]",
-        help="fit the workbench model with this effect (repeatable; PARAM=VALUE fixes a "
-        "parameter, e.g. steering_lag:tau=0.15): the log is fitted as `pcvfe diagnose --add` "
-        "fits it (one model, mu per context, effect parameters shared, the diagnosis's "
-        "training windows), so both give the same parameters (docs/fitting.md)",
+        help="fit the workbench model with this effect instead of the scenario's (repeatable; "
+        "PARAM=VALUE fixes a parameter, e.g. steering_lag:tau=0.15; 'none': the single-track "
+        "model): the log is fitted as `pcvfe diagnose --add` fits it (one model, mu per "
+        "context, effect parameters shared, the diagnosis's training windows), so both give "
+        "the same parameters (docs/fitting.md)",
     )
     parser.add_argument(
         "--covariance",
@@ -123,48 +162,215 @@ def register(subparsers) -> None:
     parser.add_argument(
         "--model-error-rel",
         type=float,
-        default=0.0,
+        default=None,
         metavar="REL",
-        help="model-error budget: mu's std becomes sqrt(std^2 + (REL mu)^2) (default 0: none; "
-        "for a model error every window shares, calibrated against ground truth: "
-        "docs/fitting.md)",
+        help="model-error budget: mu's std becomes sqrt(std^2 + (REL mu)^2) (default: the "
+        "scenario's fitter.model_error_rel, else 0; for a model error every window shares, "
+        "calibrated against ground truth: docs/fitting.md)",
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.set_defaults(func=run)
 
 
-def run_effects(args: argparse.Namespace) -> int:
-    """``--effects``: the effect model on the whole log (``fit_effects.fit_log``)."""
-    from pcvfe_drake.commands.fit_effects import fit_log
-    from pcvfe_drake.estimation.effect_fit import parse_effects
-    from pcvfe_drake.models.data import load
+ST_MODEL_NOTE = (
+    "the single-track model (no scenario beside the log: give --scenario NAME|FILE or --effects "
+    "to fit the live estimator's model)"
+)
 
-    specs = parse_effects(args.effects)  # unknown effects fail before reading the log
-    data = load(args.log, context_column=args.context_column, resample_hz=args.resample)
+
+@dataclass
+class FitModel:
+    """The model ``pcvfe fit`` fits and the live estimator's settings it judges with.
+
+    Attributes:
+        effects: the effect model's effects (``FitterEffect``; empty: the single-track model).
+        fitter: the live estimator's fitter settings (``LiveFitConfig``: ``identifiable_std``,
+            ``near_limit_fraction``, ``model_error_rel``).
+        vehicle: the scenario's vehicle (preset name or resolved file; None: not given).
+        source: where the model came from, for the printed header.
+        note: printed before the table when the model is a fallback (None: no note).
+    """
+
+    effects: list = field(default_factory=list)
+    fitter: object = None
+    vehicle: str | None = None
+    source: str = "single-track model"
+    note: str | None = None
+
+
+def default_fit_model(log: Path, scenario: str | Path | None = None) -> FitModel:
+    """The model the live estimator uses for ``log``: ``scenario`` (a shipped name or a YAML
+    file) if given, else the ``scenario.yaml`` of the run folder holding ``log``, else the
+    single-track model with a note. The one place that decides the default model (a vehicle's
+    calibrated model file can take the fallback's place).
+
+    Raises ValueError naming the file when the scenario cannot be read or its ``fitter`` section
+    is invalid (a run's model is never swapped silently for another)."""
+    from pcvfe_drake.estimation.context_estimator import LiveFitConfig
+
+    if scenario is not None:
+        from pcvfe_drake.runs.scenario_files import resolve_scenario_path
+
+        path = resolve_scenario_path(scenario)
+        source = f"scenario {path}"
+    else:
+        folder = log if log.is_dir() else log.parent
+        path = folder / "scenario.yaml"
+        if not path.is_file():
+            return FitModel(fitter=LiveFitConfig(), note=ST_MODEL_NOTE)
+        source = f"the run's scenario {path}"
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except (OSError, yaml.YAMLError) as exc:
+        raise ValueError(f"{path}: cannot read the scenario: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: a scenario is a mapping of fields, got {type(data).__name__}")
+    section = data.get("fitter") or {}
+    if not isinstance(section, dict):
+        raise ValueError(f"{path}: fitter: expected a mapping, got {type(section).__name__}")
+    try:
+        fitter = LiveFitConfig(**section)
+    except TypeError as exc:  # an unknown field
+        raise ValueError(f"{path}: fitter: {exc}") from exc
+    except ValueError as exc:
+        raise ValueError(f"{path}: fitter: {exc}") from exc
+    vehicle = data.get("vehicle")
+    if isinstance(vehicle, str) and vehicle.endswith((".yaml", ".yml")):
+        vehicle = str((path.parent / vehicle).resolve())  # vehicle files: relative to the file
+    return FitModel(
+        effects=list(fitter.effects),
+        fitter=fitter,
+        vehicle=vehicle if isinstance(vehicle, str) else None,
+        source=source + (" (effect model)" if fitter.effects else " (single-track model)"),
+    )
+
+
+NOISE_LABELS = ("-1", "unknown")
+"""Labels of the run log's ``context`` column for frames no context claimed (noise, empty)."""
+NOISE_HEADLINE = {
+    "kind": "noise",
+    "text": "noise",
+    "reason": "samples no context claimed (several terrains): not a context, no answer",
+}
+
+
+def _json(obj) -> str:
+    """One JSON object: non-finite numbers as null (strict JSON), numpy scalars as numbers."""
+    from pcvfe_drake.workbench.report import to_jsonable
+
+    return json.dumps(to_jsonable(obj), default=lambda v: None, allow_nan=False)
+
+
+def _note(model: FitModel, args: argparse.Namespace) -> None:
+    """The fallback model's note, once the log has been read (not with ``--json``)."""
+    if model.note and not args.json:
+        print(f"note: fitting {model.note}")
+
+
+def _context_column(log: pd.DataFrame, choice: str | None) -> str | None:
+    """``--context-column``: None picks ``context``, else ``terrain`` (as ``pcvfe diagnose``)."""
+    if choice == "none":
+        return None
+    if choice is not None:
+        return choice
+    return next((c for c in ("context", "terrain") if c in log.columns), None)
+
+
+def _rows_of(log: pd.DataFrame, column: str | None, label) -> np.ndarray:
+    if column is None:
+        return np.ones(len(log), dtype=bool)
+    values = log[column]
+    if pd.api.types.is_numeric_dtype(values):
+        return values.to_numpy(dtype=float) == float(label)
+    return values.astype(str).to_numpy() == str(label)
+
+
+def _print_headlines(contexts: dict, source: str) -> None:
+    print(f"friction per context ({source}):")
+    for label, c in contexts.items():
+        h = c["headline"]
+        if h["kind"] == "estimate":
+            print(f"  {label:>12}  mu = {h['text']}")
+        else:
+            print(f"  {label:>12}  {h['text']}: {h['reason']}")
+
+
+def run_effects(args: argparse.Namespace, model: FitModel) -> int:
+    """The effect model on the whole log (``fit_effects.fit_log``), judged as the live estimator
+    judges a context (``effect_fit.identifiability``)."""
+    from pcvfe_drake.commands.fit_effects import fit_log
+    from pcvfe_drake.models.data import find_log, prepare
+
+    path = find_log(args.log)
+    log = read_drive_log(path, max_gap_s=None)
+    if args.resample is not None:
+        log = resample_log(log, args.resample, source=str(path))
+    _note(model, args)
+    column = _context_column(log, args.context_column)
+    if column is None:
+        log = log.drop(columns=[c for c in ("context", "terrain") if c in log.columns])
+    data = prepare(log, str(path), column)
+    fitter = model.fitter
+    model_error_rel = (
+        fitter.model_error_rel if args.model_error_rel is None else args.model_error_rel
+    )
     out = fit_log(
         data,
-        load_vehicle(args.vehicle),
-        specs,
+        load_vehicle(args.vehicle or model.vehicle),
+        model.effects,
+        identifiable_std=fitter.identifiable_std,
+        near_limit_fraction=fitter.near_limit_fraction,
         covariance=args.covariance,
-        model_error_rel=args.model_error_rel,
+        model_error_rel=model_error_rel,
     )
-    out = {"log": str(args.log), "contexts_column": args.context_column, **out}
+    for k, (label, c) in enumerate(out["contexts"].items()):
+        # no finite std: the data (too few samples) leave mu where it started, nothing fitted
+        fitted = c["mu_std"] is not None and math.isfinite(c["mu_std"])
+        if fitted:
+            c["mu_std_data"] = without_model_error(c["theta"]["mu"], c["mu_std"], model_error_rel)
+        judged = c
+        if fitted and not out["mu_is_peak"]:
+            # fit_log judged the model's mu as it is (a stiffness scale); the headline states it
+            # as the friction, so it is judged as one (kept beside fit_log's fields)
+            rows = data.context == k
+            judged = c["judged_as_friction"] = judge_friction(
+                data.t[rows],
+                data.x[rows],
+                c["theta"]["mu"],
+                c["mu_std_data"],
+                fitter.near_limit_fraction,
+                fitter.identifiable_std,
+            )
+        c["headline"] = mu_headline(
+            c["theta"]["mu"], c["mu_std"], {**c, **judged}, fitted, fitter.identifiable_std
+        )
+        if column == "context" and label in NOISE_LABELS:
+            c["headline"] = NOISE_HEADLINE
+    out = {
+        "log": str(path),
+        "model": model.source,
+        "contexts_column": column,
+        "identifiable_std": fitter.identifiable_std,
+        "near_limit_fraction": fitter.near_limit_fraction,
+        **out,
+    }
     if args.json:
-        print(json.dumps(out, default=lambda v: None))
+        print(_json(out))
         return 0
     names = ", ".join(
         s.name
         + ("" if not s.fixed else f" ({', '.join(f'{k}={v:g}' for k, v in s.fixed.items())})")
-        for s in specs
+        for s in model.effects
     )
     print(
-        f"{args.log}: effect model {names}; mu is the "
+        f"{path}: effect model {names}; mu is the "
         + ("friction peak" if out["mu_is_peak"] else "single-track model's mu (a stiffness scale)")
         + f"; {out['training_windows']} training windows (as pcvfe diagnose)"
     )
+    _print_headlines(out["contexts"], model.source)
     print(
-        f"{'context':>12} {'mu':>8} {'+-std':>8} {'95 % interval':>16} {'C_Sf':>8} {'C_Sr':>8} "
-        f"{'mu >=':>7}  limit"
+        f"{'context':>12} {'mu fit':>8} {'+-std':>8} {'95 % interval':>16} {'C_Sf':>8} "
+        f"{'C_Sr':>8} {'mu >=':>7}  limit"
     )
     for label, c in out["contexts"].items():
         th = c["theta"]
@@ -173,7 +379,7 @@ def run_effects(args: argparse.Namespace) -> int:
             f"{label:>12} {_fmt(th['mu'], 4):>8} {_fmt(c['mu_std'], 2):>8} "
             f"{'[' + _fmt(lo, 3) + ', ' + (_fmt(hi, 3) if math.isfinite(hi) else 'inf') + ']':>16} "
             f"{_fmt(th['C_Sf'], 4):>8} {_fmt(th['C_Sr'], 4):>8} {_fmt(c['mu_lower_bound'], 3):>7}  "
-            + ("near" if c["near_limit"] else "never near: mu barely observable")
+            + _limit_words(c.get("judged_as_friction", c))
         )
     for name, p in out["params"].items():
         if "." in name:
@@ -181,44 +387,76 @@ def run_effects(args: argparse.Namespace) -> int:
     return 0
 
 
+def _limit_words(judged: dict) -> str:
+    if judged.get("distrust"):
+        return "fit not trustworthy: not identifiable"
+    if judged.get("below_used"):
+        return "peak below the friction used: not identifiable"
+    if not judged["near_limit"]:
+        return "never near: not identifiable"
+    return "near" if judged["identifiable"] else "near, std large: not identifiable"
+
+
 def _fmt(value: float, digits: int = 4) -> str:
-    return f"{value:.{digits}g}" if math.isfinite(value) else "-"
+    return f"{value:.{digits}g}" if value is not None and math.isfinite(value) else "-"
 
 
 def run(args: argparse.Namespace) -> int:
     if args.resample is not None:
         check_resample_rate(args.resample)  # bounded before any work
-    if args.effects:
-        return run_effects(args)
-    params = load_vehicle(args.vehicle)
+    if args.effects == ["none"]:
+        model = default_fit_model(args.log, args.scenario)
+        model = FitModel(fitter=model.fitter, vehicle=model.vehicle, source="single-track model")
+    elif args.effects:
+        from pcvfe_drake.estimation.effect_fit import parse_effects
+
+        model = default_fit_model(args.log, args.scenario)
+        model = FitModel(
+            parse_effects(args.effects), model.fitter, model.vehicle, "--effects (effect model)"
+        )
+    else:
+        model = default_fit_model(args.log, args.scenario)
+    if model.effects:
+        return run_effects(args, model)
+    fitter = model.fitter
+    params = load_vehicle(args.vehicle or model.vehicle)
+    model_error_rel = (
+        fitter.model_error_rel if args.model_error_rel is None else args.model_error_rel
+    )
     if args.prior_rel < 0 or not math.isfinite(args.prior_rel):
         raise ValueError(f"--prior-rel must be >= 0, got {args.prior_rel}")
     if args.max_windows < 0 or args.max_windows == 1:
         raise ValueError(f"--max-windows must be 0 (all) or >= 2, got {args.max_windows}")
-    log = read_drive_log(args.log, validate=not args.lenient, max_gap_s=math.inf)
+    from pcvfe_drake.models.data import find_log
+
+    path = find_log(args.log)
+    log = read_drive_log(path, validate=not args.lenient, max_gap_s=math.inf)
     if args.resample is not None:
-        log = resample_log(log, args.resample, source=str(args.log))
+        log = resample_log(log, args.resample, source=str(path))
+    _note(model, args)
+    column = _context_column(log, args.context_column)
     split = windows_from_log(
         log,
-        args.context_column,
+        column,
         horizon=args.horizon,
         stride=args.stride,
         v_min=args.min_speed,
         x0_smoothing_s=args.x0_smoothing_s,
         max_windows=args.max_windows or None,
     )
-    n_rows = len(log)
-    del log  # the windows hold what the fit needs; a long log's table is large
     if args.joint:
         options = joint_options(
             params,
             rel_sigma=args.prior_rel or None,
             covariance=args.covariance,
-            model_error_rel=args.model_error_rel,
+            model_error_rel=model_error_rel,
         )
     else:
-        options = FitOptions(covariance=args.covariance, model_error_rel=args.model_error_rel)
+        options = FitOptions(covariance=args.covariance, model_error_rel=model_error_rel)
     results = fit_contexts(split, params, options, solver=args.solver)
+    judged = _judge(log, column, results, fitter, model_error_rel)
+    n_rows = len(log)
+    del log  # the windows hold what the fit needs; a long log's table is large
 
     if args.json:
         contexts = {}
@@ -226,14 +464,16 @@ def run(args: argparse.Namespace) -> int:
             entry = result.to_dict()
             entry["samples"] = int(split.samples.get(label, 0))
             entry["windows_available"] = int(split.available.get(label, 0))
+            entry.update(judged[label])
             contexts[str(label)] = entry
         print(
-            json.dumps(
+            _json(
                 {
-                    "log": str(args.log),
+                    "log": str(path),
+                    "model": model.source,
                     "vehicle": params.name,
                     "nominal_theta": dict(zip(THETA_NAMES, map(float, params.theta), strict=True)),
-                    "context_column": args.context_column,
+                    "context_column": column,
                     "samples": n_rows,
                     "resampled_hz": args.resample,
                     "dt_s": split.dt,
@@ -244,31 +484,36 @@ def run(args: argparse.Namespace) -> int:
                     "solver": args.solver,
                     "covariance": options.covariance,
                     "model_error_rel": options.model_error_rel,
+                    "identifiable_std": fitter.identifiable_std,
+                    "near_limit_fraction": fitter.near_limit_fraction,
                     "free": list(options.free),
                     "prior_sigma": dict(options.prior_sigma or {}),
                     "candidate_windows": split.n_candidates,
                     "windows_skipped": split.skipped,
                     "contexts": contexts,
-                }
+                },
             )
         )
         return 0
 
     print(
-        f"{args.log}: {n_rows} samples, dt {split.dt:.4g} s, vehicle {params.name}, "
+        f"{path}: {n_rows} samples, dt {split.dt:.4g} s, vehicle {params.name}, "
         f"H {split.horizon}, stride {args.stride}, v >= {args.min_speed:g} m/s, "
         f"fitted {', '.join(options.free)} ({args.solver})"
     )
+    _print_headlines({str(k): v for k, v in judged.items()}, model.source)
     header = f"{'context':>12} {'samples':>8} {'windows':>8} "
     header += " ".join(f"{n:>9} {'+-std':>9}" for n in THETA_NAMES)
-    header += f" {'loss':>9} {'iters':>5}  status"
+    header += f" {'loss':>9} {'iters':>5} {'mu >=':>7}  solver; limit"
     print(header)
     for label, result in results.items():
         row = f"{str(label):>12} {split.samples.get(label, 0):>8d} {result.n_windows:>8d} "
         row += " ".join(
             f"{_fmt(result.theta[i], 5):>9} {_fmt(result.std[i], 2):>9}" for i in range(3)
         )
-        row += f" {_fmt(result.loss, 3):>9} {result.iterations:>5d}  {result.status}"
+        j = judged[label]
+        row += f" {_fmt(result.loss, 3):>9} {result.iterations:>5d} "
+        row += f"{_fmt(j['mu_lower_bound'], 3):>7}  {result.status}; " + _limit_words(j)
         print(row)
     skipped = ", ".join(f"{k} {v}" for k, v in split.skipped.items())
     print(f"candidate windows {split.n_candidates}; skipped: {skipped}")
@@ -283,3 +528,39 @@ def run(args: argparse.Namespace) -> int:
         for warning in result.warnings:
             print(f"warning [{label}]: {warning}")
     return 0
+
+
+def _judge(log: pd.DataFrame, column, results: dict, fitter, model_error_rel: float) -> dict:
+    """Per context: ``fit_answer.judge_friction`` of the single-track fit on the context's rows
+    (the std the data leave), its fit-quality verdict (``fit_answer.distrust``), the headline
+    and the 95 % interval (``ContextEstimate.mu_interval_95``'s rule)."""
+    t = log["t"].to_numpy(dtype=float)
+    states = log[["sx", "sy", "delta", "v", "psi", "psi_dot", "beta"]].to_numpy(dtype=float)
+    out = {}
+    for label, result in results.items():
+        rows = _rows_of(log, column, label) & np.all(np.isfinite(states), axis=1)
+        mu, std = float(result.theta[0]), float(result.std[0])
+        data_std = without_model_error(mu, std, model_error_rel)
+        judged = judge_friction(
+            t[rows],
+            states[rows],
+            mu,
+            data_std,
+            fitter.near_limit_fraction,
+            fitter.identifiable_std,
+        )
+        judged["mu_std_data"] = data_std
+        used = judged["mu_lower_bound"]
+        fitted = result.status not in (STATUS_TOO_LITTLE_DATA, STATUS_DIVERGED)
+        judged["distrust"] = distrust(result.quality) if fitted else None
+        judged["identifiable"] = judged["identifiable"] and fitted and not judged["distrust"]
+        if not fitted:
+            interval = [None, None]
+        elif judged["near_limit"] or not math.isfinite(used):
+            interval = [mu - Z95 * std, mu + Z95 * std]
+        else:
+            interval = [used, None]
+        judged["mu_interval_95"] = interval
+        judged["headline"] = mu_headline(mu, std, judged, fitted, fitter.identifiable_std)
+        out[label] = judged
+    return out

@@ -10,11 +10,12 @@ import math
 from pcvfe_drake.estimation.effect_fit import (
     controller_theta,
     friction_is_peak,
-    friction_used,
+    identifiability,
     parse_effects,
 )
 from pcvfe_drake.estimation.estimate_table import Z95
 from pcvfe_drake.estimation.fit_options import COVARIANCES, HAC_LAG_S, with_model_error
+from pcvfe_drake.estimation.probe import wheel_peak_share
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.workbench.ranking import Workbench
 
@@ -37,7 +38,9 @@ def fit_log(
     ``mu_is_peak``, and per context the controller's theta, mu's std (``covariance``: ``hac``,
     the Newey-West sandwich over the time-ordered training windows, or ``iid``, the workbench's;
     with the model-error budget ``model_error_rel``),
-    its lower bound from the friction used, ``near_limit``, ``identifiable`` and the 95 %
+    its lower bound from the friction used, ``near_limit``, ``identifiable``, ``below_used``
+    (judged as the live estimator judges them: :func:`identifiability` on the std the data
+    leave, with the wheels' ``wheel_peak_share`` when the model has the track) and the 95 %
     interval ``mu_interval_95`` (as ``ContextEstimate.mu_interval_95``; None: no upper bound).
     """
     wb = Workbench(data, vehicle)
@@ -51,15 +54,32 @@ def fit_log(
     elif covariance != "iid":
         raise ValueError(f"covariance must be one of {COVARIANCES}, got {covariance!r}")
     res = wb.fit_model(model, warm=wb.baseline, fixed=fixed, hac_lag=lag)
+    peak = friction_is_peak(model)
+    track = dict(zip(model.param_names, res.theta, strict=True)).get("track_slip.t", 0.0)
     contexts = {}
     for c, label in enumerate(data.context_names):
         theta = controller_theta(model, res.theta, c)
         mu_idx = next(i for i, p in enumerate(model.params) if p.effect is None and p.context == c)
         rows = data.context == c
-        used = friction_used(data.t[rows], data.x[rows], lateral_only=friction_is_peak(model))
+        share = math.nan  # as the live estimator: with the track, how near each wheel came
+        if peak and track > 0:
+            share = wheel_peak_share(
+                data.t[rows], data.x[rows], vehicle, theta[0], theta[0] * theta[1:], track
+            )
+        # the live estimator's judgement (identifiability), on the std the data leave
+        judged = identifiability(
+            data.t[rows],
+            data.x[rows],
+            theta[0],
+            float(res.std[mu_idx]),
+            peak,
+            math.nan,
+            near_limit_fraction,
+            identifiable_std,
+            share,
+        )
+        used, near = judged["mu_lower_bound"], judged["near_limit"]
         std = with_model_error(theta[0], float(res.std[mu_idx]), model_error_rel)
-        near = bool(math.isfinite(used) and used >= near_limit_fraction * theta[0])
-        below = bool(friction_is_peak(model) and math.isfinite(used) and theta[0] < used)
         if near or not math.isfinite(used):  # the data came near the limit: two-sided
             interval = [theta[0] - Z95 * std, theta[0] + Z95 * std]
         else:  # never near: the friction used bounds mu from below, nothing from above
@@ -67,12 +87,8 @@ def fit_log(
         contexts[label] = {
             "theta": dict(zip(("mu", "C_Sf", "C_Sr"), map(float, theta), strict=True)),
             "mu_std": std,
-            "mu_lower_bound": used,
-            "near_limit": near,
-            "below_used": below,
-            "identifiable": bool(
-                near and not below and math.isfinite(std) and std <= identifiable_std
-            ),
+            **judged,
+            "wheel_peak_share": share,
             "mu_interval_95": interval,
         }
     return {

@@ -36,6 +36,7 @@ import numpy as np
 
 from pcvfe_drake.estimation.fit_dataset import WindowDataset
 from pcvfe_drake.estimation.fit_options import FitOptions
+from pcvfe_drake.models.data import EXCITATION_NOISE_FACTOR
 from pcvfe_drake.vehicle.params import THETA_NAMES, VehicleParams
 from pcvfe_drake.vehicle.single_track import BETA, NTHETA, NX, PSI_DOT, STATE_NAMES
 
@@ -44,7 +45,6 @@ LOSS_NOISE_RATIO_WARN = 5.0
 INFLUENCE_STD = 3.0
 INFLUENCE_REL = 0.01
 POOR_FIT_PERCENT = 50.0
-EXCITATION_NOISE_FACTOR = 5.0
 FIT_STATES = (PSI_DOT, BETA)
 """States whose fit percent is judged: the ones friction acts on."""
 MAX_LISTED_WINDOWS = 5

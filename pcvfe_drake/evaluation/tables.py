@@ -164,7 +164,9 @@ def context_rows(summary: Mapping[str, Any]) -> list[dict]:
     """One row per context of ``summary["mu_estimates"]`` (id, estimate, truth, errors)."""
     keys = (
         "id",
+        "fitted",
         "mu_hat",
+        "handed_mu",
         "std",
         "samples",
         "majority_terrain",

@@ -23,6 +23,9 @@ NOISE_STRIDE_S = 0.1
 """Noise scales are estimated from 4th differences over strides of up to this time [s]."""
 CORRELATED_NOISE_RATIO = 1.15
 """A longer-stride noise estimate this much above the 1-sample one means correlated noise."""
+EXCITATION_NOISE_FACTOR = 5.0
+"""A signal is excited when its standard deviation exceeds this many times its noise (the
+fitter's fit-percent test and the workbench's excitation check share it)."""
 LOG_SUFFIXES = (".csv", ".csv.gz", ".parquet", ".pq")
 MAX_SAMPLES = 30_000
 """Most samples the workbench analyses (bounded memory and time; 5 min at 100 Hz). A longer log

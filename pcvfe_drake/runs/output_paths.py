@@ -112,3 +112,11 @@ def check_output_dir(path: str | os.PathLike, option: str = "--out") -> Path:
         )
     _check_creatable(path, option, path)
     return path
+
+
+def os_error_text(exc: OSError, path: str | Path) -> str:
+    """``"path: reason[; hint]"`` for an OS error met while writing ``path`` (the wording of
+    :func:`describe_os_error`)."""
+    if exc.errno is None:
+        return f"{path}: {exc}"
+    return describe_os_error(OSError(exc.errno, exc.strerror, str(path)))

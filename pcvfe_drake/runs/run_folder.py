@@ -42,7 +42,7 @@ import pandas as pd
 
 from pcvfe_drake.json_numbers import finite_or_none
 from pcvfe_drake.runs.figures import write_figures
-from pcvfe_drake.runs.output_paths import check_output_dir, describe_os_error
+from pcvfe_drake.runs.output_paths import check_output_dir, describe_os_error, os_error_text
 from pcvfe_drake.runs.runlog import SAMPLES_FILE
 from pcvfe_drake.runs.summary import summarize_run
 
@@ -79,14 +79,6 @@ def run_folder_name(tag: str, when: datetime) -> str:
 
 class RunFolderError(ValueError):
     """The run folder cannot be used or written; the message names the path and the reason."""
-
-
-def os_error_text(exc: OSError, path: str | Path) -> str:
-    """``"path: reason[; hint]"`` for an OS error met while writing ``path`` (the wording of
-    ``pcvfe_drake.runs.output_paths.describe_os_error``)."""
-    if exc.errno is None:
-        return f"{path}: {exc}"
-    return describe_os_error(OSError(exc.errno, exc.strerror, str(path)))
 
 
 class RunFolder:

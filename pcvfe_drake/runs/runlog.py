@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 
 from pcvfe_drake.runs.drivelog import TRUE_STATE_COLUMNS, DriveLogError, DriveLogWriter
+from pcvfe_drake.runs.output_paths import os_error_text
 from pcvfe_drake.vehicle.single_track import INPUT_NAMES, NX, STATE_NAMES
 
 ESTIMATE_COLUMNS = ("mu_hat", "C_Sf_hat", "C_Sr_hat")
@@ -136,7 +137,6 @@ class RunLog:
             try:
                 self.frame_dir.mkdir(parents=True, exist_ok=True)
             except OSError as exc:  # no frames; the log itself goes on
-                from pcvfe_drake.runs.run_folder import os_error_text
 
                 self.errors.append(f"no camera frames: {os_error_text(exc, self.frame_dir)}")
                 self.frame_period_s = 0.0
@@ -180,7 +180,6 @@ class RunLog:
                 path, t_s=values[:, 0], state=values[:, 1 : 1 + NX], actuation=values[:, 1 + NX :]
             )
         except OSError as exc:
-            from pcvfe_drake.runs.run_folder import os_error_text
 
             self.write_error = f"cannot write {os_error_text(exc, path)}"
 
@@ -201,7 +200,6 @@ class RunLog:
 
     def _fail(self, exc: OSError, path: Path) -> None:
         """Stop writing to disk after an OS error (a full disk) and raise RunLogWriteError."""
-        from pcvfe_drake.runs.run_folder import os_error_text
 
         self.write_error = f"cannot write {os_error_text(exc, path)}"
         writer, self._writer = self._writer, None
@@ -225,7 +223,6 @@ class RunLog:
             try:
                 writer.close()
             except OSError as exc:
-                from pcvfe_drake.runs.run_folder import os_error_text
 
                 self.write_error = f"cannot write {os_error_text(exc, self.path)}"
 

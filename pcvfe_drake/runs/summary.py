@@ -29,7 +29,8 @@ dict written as ``summary.json``:
 - Friction: ``mu_estimates`` (per context: id, mu_hat, std, samples, majority true terrain, its
   true mu, abs error, and the time-weighted mean and the max abs error once the context has been
   in use for 20 s of driving, the time of its first fit and how long after the first entry into
-  its terrain that came, see :func:`mu_estimates`), ``mu_error_after_settle`` (the worst
+  its terrain that came, whether the context was ever ``fitted`` and the ``handed_mu``, see
+  :func:`mu_estimates`), ``mu_error_after_settle`` (the worst
   context's of those, and which contexts never reached 20 s), ``mu_abs_error_time_weighted``
   (|mu_hat - mu_true| over the whole run, weighted by time, the prior used while a terrain is
   still noise included).
@@ -47,10 +48,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pcvfe_drake.json_numbers import finite_or_none
 from pcvfe_drake.contexts import metrics
-from pcvfe_drake.estimation.estimate_table import Z95
 from pcvfe_drake.control import failure
+from pcvfe_drake.estimation.estimate_table import Z95
+from pcvfe_drake.json_numbers import finite_or_none
 from pcvfe_drake.runs import drive_metrics
 
 SETTLE_TIME_S = 20.0
@@ -156,7 +157,12 @@ def mu_estimates(
     successful fit); ``first_fit_after_entry_s`` is that time minus the first time the car was
     on the majority terrain (how long a new terrain waited for an estimate of its own). Where a
     context is missing from the table, the last ``mu_hat`` logged while
-    the context was current is used and ``std`` is None.
+    the context was current is used and ``std`` is None. A context the table lists without a
+    fit (:func:`entry_fitted`) has ``fitted`` False and no ``mu_hat``, ``std``, ``abs_error`` or
+    interval: its table mu is the prior (``prior_mu``), which no data produced and which the
+    car may never have been handed. ``handed_mu`` is what the controller was given at the
+    context's last sample (the log's ``mu_hat``: a fit, a probe level or the unknown-context
+    value).
 
     The error "after its first 20 s" (issue 7's target, ``settle_time_s``): the time-weighted
     mean (``abs_error_after_settle_mean``) and the largest (``abs_error_after_settle_max``)
@@ -189,7 +195,16 @@ def mu_estimates(
         true_mu = float(terrain_mu[majority]) if majority in terrain_mu else None
         entry = table.get(k)
         interval = None
-        if entry is not None:
+        handed = float(mu_hat[rows[-1]])
+        if entry is not None and not entry_fitted(entry):
+            # No fit: the table's mu is the prior, not an estimate; the car was handed the
+            # unknown-context value (logged as mu_hat), reported beside it.
+            est = std = None
+            samples = int(entry.get("samples", 0))
+            status = entry.get("status")
+            first_fit = None
+            ident = {"prior_mu": float(entry["mu"])}
+        elif entry is not None:
             est = float(entry["mu"])
             std = finite_or_none(entry.get("mu_std", math.nan))
             interval = entry.get("mu_interval_95")
@@ -205,7 +220,7 @@ def mu_estimates(
                 "model_params": entry.get("model_params") or None,
             }
         else:
-            est = float(mu_hat[rows[-1]])
+            est = handed
             std = None
             samples = 0
             status = None
@@ -218,6 +233,8 @@ def mu_estimates(
         settled = rows[(in_context_before >= settle_time_s) & (terrain[rows] == majority)]
         if interval is None or any(v is None or math.isnan(v) for v in interval):
             interval = (est - Z95 * std, est + Z95 * std) if std is not None else None
+        if est is None:
+            interval = None
         err_after = err_after_max = None
         if true_mu is not None and settled.size:
             err = np.abs(mu_hat[settled] - true_mu)
@@ -226,7 +243,9 @@ def mu_estimates(
         out.append(
             {
                 "id": k,
+                "fitted": est is not None,
                 "mu_hat": est,
+                "handed_mu": handed,
                 "std": std,
                 "samples": samples,
                 "fit_status": status,
@@ -240,7 +259,9 @@ def mu_estimates(
                 "majority_terrain": majority,
                 "majority_share": (names.count(majority) / len(rows)) if majority else 0.0,
                 "true_mu": true_mu,
-                "abs_error": abs(est - true_mu) if true_mu is not None else None,
+                "abs_error": (
+                    abs(est - true_mu) if true_mu is not None and est is not None else None
+                ),
                 "abs_error_after_settle_mean": err_after,
                 "abs_error_after_settle_max": err_after_max,
                 "scored_time_s": float(np.sum(w[settled])) if err_after is not None else 0.0,
@@ -256,6 +277,22 @@ def mu_estimates(
             }
         )
     return out
+
+
+NO_FIT_STATUSES = ("prior", "too_little_data")
+"""Estimate-table statuses of a context that never had a successful fit (its mu is the prior)."""
+
+
+def entry_fitted(entry: Mapping[str, Any]) -> bool:
+    """Whether an estimate-table entry holds a fit (its ``mu`` an estimate, not the prior): not
+    a no-fit status, and not a first refit that diverged (no ``first_fit_s``). An entry without
+    a status (a table from elsewhere) counts as fitted."""
+    status = entry.get("status")
+    if status in NO_FIT_STATUSES:
+        return False
+    if status == "diverged":
+        return finite_or_none(entry.get("first_fit_s", math.nan)) is not None
+    return True
 
 
 NO_TRUTH_NOTE = (
@@ -317,9 +354,7 @@ def summarize_run(
     summary["scored_on_truth"] = drive_metrics.has_truth(log)
     summary.update(course_tracking(truth, course))
     summary["friction_utilisation"] = drive_metrics.friction_utilisation(truth)
-    summary["mu_error_after_entry"] = drive_metrics.mu_error_after_settling(
-        log, excluded_terrains
-    )
+    summary["mu_error_after_entry"] = drive_metrics.mu_error_after_settling(log, excluded_terrains)
     first_fit = {
         int(r["id"]): float(r["first_fit_s"])
         for r in (estimate_table or [])
@@ -418,6 +453,8 @@ def _station_faults(status: Mapping[str, Any]) -> str:
 
 def _limit_flag(entry: Mapping[str, Any]) -> str:
     """The identifiability column: whether the data came near the friction limit."""
+    if entry.get("fitted") is False:
+        return "no fit (" + str(entry.get("fit_status") or "prior") + ")"
     if entry.get("near_limit") is None:
         return "-"
     if entry.get("below_used"):
@@ -484,13 +521,15 @@ def summary_table(summary: Mapping[str, Any]) -> str:
     if est:
         lines.append("")
         lines.append(
-            "context  terrain        mu_true  mu_hat   std      |err|    "
+            "context  terrain        mu_true  mu_hat   handed   std      |err|    "
             "after 20 s: mean  max      scored  time     mu >=   limit"
         )
         for e in est:
+            fitted = e.get("fitted", True)
             lines.append(
                 f"{e['id']:>7}  {str(e['majority_terrain'] or '-'):<13}  "
-                f"{fmt(e['true_mu']):>7}  {fmt(e['mu_hat']):>7}  {fmt(e['std']):>7}  "
+                f"{fmt(e['true_mu']):>7}  {fmt(e['mu_hat']) if fitted else 'no fit':>7}  "
+                f"{fmt(e.get('handed_mu')):>7}  {fmt(e['std']):>7}  "
                 f"{fmt(e['abs_error']):>7}  {fmt(e['abs_error_after_settle_mean']):>16}  "
                 f"{fmt(e.get('abs_error_after_settle_max')):>7}  "
                 f"{e.get('scored_time_s', 0.0):>6.1f} s  {e['time_in_context_s']:>6.1f} s  "

@@ -1,7 +1,9 @@
 """The report's pictures: where the model fails, before (baseline) and after (the final model).
 
 Each function draws one PNG into a folder and returns its file name. Inputs are the report
-dict and the :class:`~pcvfe_drake.workbench.ranking.Workbench` that produced it.
+dict and the :class:`~pcvfe_drake.workbench.ranking.Workbench` that produced it. Every picture
+has a caption (:data:`CAPTIONS`) that says what it shows and what to look for: a reader who
+has not built the workbench should know which part of a plot carries the finding.
 """
 
 from __future__ import annotations
@@ -17,6 +19,56 @@ from pcvfe_drake.workbench.compare import noise_rollouts
 from pcvfe_drake.workbench.verdict import localise
 
 DPI = 80
+
+CAPTIONS = {
+    "selection_path.png": (
+        "The loop, step by step: the held-out model error after each effect was added or "
+        "dropped, against the noise floor (dashed). Look for a drop at every step, and how far "
+        "the last point stays above the floor: that gap is what no library effect explains."
+    ),
+    "error_over_log.png": (
+        "Model error above the noise over the whole log: baseline (blue) and final model "
+        "(red); shading marks the contexts, hatching the held-out blocks. Look for where the "
+        "red line stays high: the time, and the context, where the error remains."
+    ),
+    "error_map.png": (
+        "Where on the course: left, where the baseline failed; right, what remains with the "
+        "final model, on the same colour scale. Look for dark points on the right: the places "
+        "(bends, a terrain) the final model still gets wrong."
+    ),
+    "regimes.png": (
+        "Excess error per operating regime (speed, lateral acceleration, steering rate, "
+        "acceleration command, drive mode), baseline and final model, with 99 % intervals. "
+        "Look for a final-model bar well above its neighbours: the regime where the error "
+        "remains."
+    ),
+    "bias.png": (
+        "Residual bias of the final model's 0.2 s predictions per state (left) and per context "
+        "(right), in units of the noise, with 99 % intervals. Look for intervals that miss "
+        "zero; a bias that differs between contexts points to the friction or a terrain effect."
+    ),
+    "cross_correlation.png": (
+        "Correlation of the final model's residuals with each input over the lag; grey: the "
+        "99 % band of residuals the inputs do not explain. Look for curves leaving the band, "
+        "at positive lags (input leading): an input whose effect the model gets wrong or late."
+    ),
+    "overlay.png": (
+        "Measured states (black) and the free-run predictions of the baseline (blue) and the "
+        "final model (red) over the held-out blocks. Look for where red leaves black (the "
+        "error that remains); the gap between blue and red is what the added effects explain."
+    ),
+    "residual_autocorr.png": (
+        "One-step residual autocorrelation per state, baseline and final model; grey: the 99 % "
+        "band of white residuals. Look for the final model's curves inside the band: what stays "
+        "outside is dynamics the model lacks."
+    ),
+    "ranking.png": (
+        "First round: how much each library effect alone lowers the held-out model error "
+        "(green: significant). Look for the effects the loop could choose from; a long grey bar "
+        "helps, but not beyond chance."
+    ),
+}
+"""Each figure's caption in the report: what it shows and what to look for."""
 
 
 def _plt():
@@ -71,12 +123,13 @@ def error_over_log(wb, before, after, label_after: str, folder: Path) -> str:
     plt = _plt()
     data = wb.data
     fig, ax = plt.subplots(figsize=(10, 3.2))
+    if after is None:  # the final model is the baseline: drawn dashed on top of it
+        after, label_after = before, "final model (= baseline: no effect added)"
     for fit, color, label in ((before, "C0", "baseline"), (after, "C3", label_after)):
-        if fit is None:
-            continue
         starts, excess = whole_log_excess(wb, fit)
         t = data.t[starts + wb.h_eval // 2]
-        ax.plot(t, np.sqrt(np.maximum(excess, 0.0)), color=color, lw=0.9, label=label)
+        ls = "--" if fit is before and color == "C3" else "-"
+        ax.plot(t, np.sqrt(np.maximum(excess, 0.0)), color=color, lw=0.9, ls=ls, label=label)
     # contexts shaded, held-out blocks hatched
     ctx = data.context
     change = np.flatnonzero(np.diff(ctx)) + 1
@@ -97,22 +150,31 @@ def error_over_log(wb, before, after, label_after: str, folder: Path) -> str:
     return _save(fig, folder, "error_over_log.png")
 
 
-def error_map(wb, fit, label: str, folder: Path) -> str:
+def error_map(wb, before, after, label: str, folder: Path) -> str:
+    """Two course maps on one colour scale: where ``before`` (the baseline) failed and what
+    remains with ``after`` (the final model, ``label``)."""
     plt = _plt()
     data = wb.data
-    starts, excess = whole_log_excess(wb, fit)
-    mid = starts + wb.h_eval // 2
-    fig, ax = plt.subplots(figsize=(6, 5))
-    ax.plot(data.x[:, 0], data.x[:, 1], color="0.85", lw=0.6)
-    sc = ax.scatter(
-        data.x[mid, 0], data.x[mid, 1], c=np.sqrt(np.maximum(excess, 0)), s=9, cmap="inferno_r"
-    )
-    fig.colorbar(sc, ax=ax, label="model error (above noise)")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("sx [m]")
-    ax.set_ylabel("sy [m]")
-    ax.set_title(f"where on the course: {label}", fontsize=9)
-    return _save(fig, folder, "error_map.png")
+    panels = []
+    for fit in (before, after):
+        starts, excess = whole_log_excess(wb, fit)
+        panels.append((starts + wb.h_eval // 2, np.sqrt(np.maximum(excess, 0.0))))
+    top = max((float(np.max(e)) for _, e in panels if e.size), default=1.0) or 1.0
+    fig, axes = plt.subplots(1, 2, figsize=(11, 5))
+    titles = ("baseline: where it failed", f"final model ({label}): what remains")
+    for ax, (mid, err), title in zip(axes, panels, titles, strict=True):
+        ax.plot(data.x[:, 0], data.x[:, 1], color="0.85", lw=0.6)
+        sc = ax.scatter(
+            data.x[mid, 0], data.x[mid, 1], c=err, s=9, cmap="inferno_r", vmin=0.0, vmax=top
+        )
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlabel("sx [m]")
+        ax.set_title(title, fontsize=9)
+    axes[0].set_ylabel("sy [m]")
+    fig.colorbar(sc, ax=list(axes), label="model error (above noise)")
+    fig.savefig(folder / "error_map.png", dpi=DPI)
+    plt.close(fig)
+    return "error_map.png"
 
 
 def bias_plot(report: dict, folder: Path) -> str:
@@ -196,17 +258,26 @@ def cross_correlation_plot(report: dict, folder: Path) -> str:
 
 
 def overlay(wb, after_eval, label_after: str, folder: Path) -> str:
+    """Measured, baseline and final model (``after_eval``, labelled ``label_after``; dashed
+    when it is the baseline itself) over the held-out blocks' free runs."""
     plt = _plt()
     data = wb.data
+    same = after_eval is wb.baseline_eval
     fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
     for ax, state in zip(axes, ("v", "psi_dot", "beta"), strict=True):
         i = STATE_NAMES.index(state)
         for k, (idx, sim) in enumerate(wb.baseline_eval["_free_run"]):
             ax.plot(data.t[idx], data.x[idx, i], "k", lw=0.8, label="measured" if k == 0 else None)
             ax.plot(data.t[idx], sim[:, i], "C0", lw=0.8, label="baseline" if k == 0 else None)
-        if after_eval is not None:
-            for k, (idx, sim) in enumerate(after_eval.get("_free_run", [])):
-                ax.plot(data.t[idx], sim[:, i], "C3", lw=0.8, label=label_after if k == 0 else None)
+        for k, (idx, sim) in enumerate(after_eval.get("_free_run", [])):
+            ax.plot(
+                data.t[idx],
+                sim[:, i],
+                "C3",
+                lw=0.8,
+                ls="--" if same else "-",
+                label=label_after if k == 0 else None,
+            )
         ax.set_ylabel(state)
     axes[0].legend(loc="upper right", fontsize=8)
     axes[-1].set_xlabel("t [s] (held-out blocks, free run)")
@@ -249,18 +320,25 @@ def all_figures(report: dict, wb, folder: Path) -> list[str]:
     final_eval = getattr(wb, "final_eval", None)
     label = "+ " + " + ".join(final.model.effect_names) if final and final.model.effects else ""
     has_after = bool(label)
-    if has_after and "_free_run" not in final_eval:
+    if has_after and not final_eval.get("_free_run"):  # the loop evaluates without free runs
         final_eval = wb.evaluate(final)
     names = [selection_path(report, folder)]
     names.append(error_over_log(wb, wb.baseline, final if has_after else None, label, folder))
-    names.append(error_map(wb, final or wb.baseline, label or "baseline", folder))
+    names.append(error_map(wb, wb.baseline, final or wb.baseline, label or "= baseline", folder))
     evals = [("baseline", wb.baseline_eval)]
     if has_after:
         evals.append((label, final_eval))
     names.append(regimes_plot(wb, evals, folder))
     names.append(bias_plot(report, folder))
     names.append(cross_correlation_plot(report, folder))
-    names.append(overlay(wb, final_eval if has_after else None, label, folder))
+    names.append(
+        overlay(
+            wb,
+            final_eval if has_after else wb.baseline_eval,
+            f"final model ({label})" if has_after else "final model (= baseline: no effect added)",
+            folder,
+        )
+    )
     names.append(autocorr_plot(report, folder))
     names.append(ranking_plot(report, folder))
     return names

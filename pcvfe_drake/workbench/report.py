@@ -17,7 +17,8 @@ import numpy as np
 from pcvfe_drake.models.data import DriveData
 from pcvfe_drake.vehicle.single_track import STATE_NAMES
 from pcvfe_drake.workbench.compare import public
-from pcvfe_drake.workbench.figures import all_figures
+from pcvfe_drake.workbench.excitation import require_excitation
+from pcvfe_drake.workbench.figures import CAPTIONS, all_figures
 from pcvfe_drake.workbench.ranking import DiagnoseConfig, Workbench
 from pcvfe_drake.workbench.residuals import breakdowns, whiteness
 
@@ -29,7 +30,11 @@ def diagnose(
     candidates: list[str] | None = None,
     config: DiagnoseConfig | None = None,
 ) -> tuple[dict, Workbench]:
-    """Compare, rank candidate effects and (with ``add``) refit; returns (report, workbench)."""
+    """Compare, rank candidate effects and (with ``add``) refit; returns (report, workbench).
+
+    Raises :class:`~pcvfe_drake.workbench.excitation.NotDiagnosable` before any fit when the log
+    carries no yaw excitation; without a speed change the verdict says what was not tested."""
+    ex = require_excitation(data)
     wb = Workbench(data, vehicle, config)
     base = wb.baseline
     report: dict = {
@@ -40,6 +45,7 @@ def diagnose(
         "vehicle": wb.base_model.vehicle.name,
         "noise_sigma": dict(zip(STATE_NAMES, data.sigma.tolist(), strict=True)),
         "windows": {"train": int(wb.train_starts.size), "heldout": int(wb.eval_starts.size)},
+        "excitation": ex,
         "baseline": wb.baseline_summary(),
     }
     report["baseline"]["residuals"] = {
@@ -47,6 +53,9 @@ def diagnose(
         "breakdowns": breakdowns(wb.baseline_eval["_err"], wb.eval_starts, data),
     }
     report.update(wb.rank(candidates, start=add))
+    if ex["missing"]:
+        report["verdict"]["untested"] = ex["missing"]
+        report["verdict"]["text"] += f"; not tested, the log carries {ex['text']}"
     final = wb.final_fit
     report["final"]["residuals"] = {
         "whiteness": whiteness(final.model, final.theta, data, wb.config.n_blocks),
@@ -102,9 +111,11 @@ def _html(report: dict, pngs: list[str], folder: Path) -> str:
     imgs = ""
     for name in pngs:
         b64 = base64.b64encode((folder / name).read_bytes()).decode()
+        caption = CAPTIONS.get(name, "")
         imgs += (
-            f'<figure><img alt="{html.escape(name)}" src="data:image/png;base64,{b64}"/>'
-            f"<figcaption>{html.escape(name)}</figcaption></figure>"
+            f'<figure id="{html.escape(name.removesuffix(".png"))}"><img alt="{html.escape(name)}"'
+            f' src="data:image/png;base64,{b64}"/><figcaption><b>{html.escape(name)}</b>: '
+            f"{html.escape(caption)}</figcaption></figure>"
         )
     base = report["baseline"]
     verdict = report["verdict"]

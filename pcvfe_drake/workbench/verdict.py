@@ -10,7 +10,10 @@ at least ``1 - alpha``. A base parameter (e.g. mu) that ends on its bound is evi
 "Where" comes from the final model's held-out windows: the per-window excess error (whitened
 MSE minus the window's noise floor) is averaged per bin of speed, lateral acceleration,
 steering rate, acceleration command, drive mode and context; a bin is named when its mean
-excess is at least twice the log's and more than 2.58 standard errors above it.
+excess is at least twice the log's and more than 2.58 standard errors above it. The time and
+place come from the same windows: those with at least twice the log's mean excess, joined into
+spans where they follow within two window lengths; the span holding the largest part of the
+excess is named with its time, its place on the course (the mean position) and its context.
 """
 
 from __future__ import annotations
@@ -127,6 +130,7 @@ def localise(ev: dict, starts: np.ndarray, data: DriveData, group: int) -> dict:
             if r["excess"] >= 2.0 * max(overall, 1e-12) and r["z"] > 2.576:
                 hot.append({"kind": kind, **r})
     hot.sort(key=lambda r: r["excess"], reverse=True)
+    span = hot_span(excess, starts, horizon, data)
     idx = list(FIT_STATES)
     err = ev["_err"][:, :, idx] / data.sigma[idx]
     per_state = np.mean(err**2, axis=(0, 1)) - 1.0
@@ -135,14 +139,59 @@ def localise(ev: dict, starts: np.ndarray, data: DriveData, group: int) -> dict:
         "overall_excess": overall,
         "bins": groups,
         "concentrated": hot[:4],
+        "span": span,
         "worst_state": worst,
         "excess_per_state": {STATE_NAMES[i]: float(e) for i, e in zip(idx, per_state, strict=True)},
     }
 
 
-def where_sentence(where: dict) -> str:
+def hot_span(excess: np.ndarray, starts: np.ndarray, horizon: int, data: DriveData) -> dict | None:
+    """The time span of windows holding the largest part of the excess error (module
+    docstring): ``t0_s``, ``t1_s``, ``share`` of the log's positive excess, mean position
+    ``sx_m``, ``sy_m`` and majority ``context``; None when no window has twice the mean."""
+    excess = np.asarray(excess, dtype=float)
+    positive = np.maximum(excess, 0.0)
+    total = float(positive.sum())
+    overall = float(np.mean(excess)) if excess.size else 0.0
+    order = np.argsort(starts)
+    hot = order[excess[order] >= 2.0 * max(overall, 1e-12)]
+    if hot.size == 0 or total <= 0:
+        return None
+    breaks = np.flatnonzero(np.diff(starts[hot]) > 2 * horizon) + 1
+    best = max(np.split(hot, breaks), key=lambda w: float(positive[w].sum()))
+    mid = starts[best] + horizon // 2
+    ctx = np.bincount(data.context[mid], minlength=len(data.context_names))
+    return {
+        "t0_s": float(data.t[starts[best].min()]),
+        "t1_s": float(data.t[min(starts[best].max() + horizon, data.n - 1)]),
+        "share": float(positive[best].sum() / total),
+        "sx_m": float(np.mean(data.x[mid, 0])),
+        "sy_m": float(np.mean(data.x[mid, 1])),
+        "context": data.context_names[int(np.argmax(ctx))],
+        "windows": int(best.size),
+    }
+
+
+def span_phrase(span: dict | None, contexts: int) -> str:
+    """``"the largest part of the held-out excess (37%) at t 40.1-52.3 s, around (12, -30) m, on
+    sand"`` ("" without a span)."""
+    if span is None:
+        return ""
+    on = f", on {span['context']}" if contexts > 1 else ""
+    return (
+        f"the largest part of the held-out excess ({span['share']:.0%}) at t {span['t0_s']:.1f}-"
+        f"{span['t1_s']:.1f} s, around ({span['sx_m']:.0f}, {span['sy_m']:.0f}) m{on}"
+    )
+
+
+def where_sentence(where: dict, contexts: int = 1) -> str:
+    """Where the error remains: the regimes it concentrates in, the worst state and the time
+    and place of the span with the largest part of it."""
     hot = where["concentrated"]
     state = f"the worst-predicted state is {where['worst_state']}"
+    span = span_phrase(where.get("span"), contexts)
+    if span:
+        state += f"; {span}"
     if not hot:
         return f"errors spread over all operating regimes; {state}"
     seen, parts = set(), []
@@ -219,7 +268,7 @@ def final_verdict(wb, fit, ev, selected: list[str], alpha: float) -> dict:
         head = "something outside the library remains"
         if named:
             head += f" after {' + '.join(named)}"
-        text = f"{head}: {'; '.join(evidence)}; {where_sentence(where)}"
+        text = f"{head}: {'; '.join(evidence)}; {where_sentence(where, len(data.context_names))}"
         if stand_ins:
             many = len(stand_ins) > 1
             text += (
@@ -244,7 +293,9 @@ def final_verdict(wb, fit, ev, selected: list[str], alpha: float) -> dict:
         "stand_ins": stand_ins,
         "stand_in_evidence": stand_in_evidence,
         "stability": stability,
-        "where": where_sentence(where) if kind == "outside_library" else "",
+        "where": (
+            where_sentence(where, len(data.context_names)) if kind == "outside_library" else ""
+        ),
         "evidence": evidence,
         "tests": [
             {"test": k, "what": w, "p_value": p, "threshold": th, "failed": bool(p < th)}

@@ -158,7 +158,11 @@ def main() -> int:
                 "terrain": e["majority_terrain"],
                 "mu_true": e["true_mu"],
                 "mu_hat": e["mu_hat"],
-                "rel_error": (e["mu_hat"] - e["true_mu"]) / e["true_mu"] if e["true_mu"] else None,
+                "rel_error": (
+                    (e["mu_hat"] - e["true_mu"]) / e["true_mu"]
+                    if e["true_mu"] and e["mu_hat"] is not None
+                    else None
+                ),
             }
             for e in s["mu_estimates"]
         ]
@@ -179,7 +183,8 @@ def main() -> int:
         for e in estimates:
             rel = "" if e["rel_error"] is None else f" ({100 * e['rel_error']:+.1f} %)"
             print(f"   context {e['id']} {e['terrain']:<13} mu_true {e['mu_true']} "
-                  f"mu_hat {e['mu_hat']:.3f}{rel}", flush=True)  # fmt: skip
+                  f"mu_hat {'no fit' if e['mu_hat'] is None else format(e['mu_hat'], '.3f')}"
+                  f"{rel}", flush=True)  # fmt: skip
     result = {
         "benchmark": "actuation_delay",
         "scenario": args.scenario,

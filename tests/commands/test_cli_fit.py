@@ -46,8 +46,12 @@ def test_table_and_single_context(log_path, capsys):
     lines = [ln.split() for ln in out.splitlines()]
     rows = {ln[0]: ln for ln in lines if ln and ln[0] in {"0", "1"}}
     assert abs(float(rows["0"][3]) - 0.45) < 0.01 and abs(float(rows["1"][3]) - 0.8) < 0.01
-    # Without a context column the whole log is one context: a compromise friction.
+    # By default the context column is context (as pcvfe diagnose); with none the whole log
+    # is one context: a compromise friction.
     assert main(["fit", str(log_path), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert report["context_column"] == "context" and list(report["contexts"]) == ["0", "1"]
+    assert main(["fit", str(log_path), "--context-column", "none", "--json"]) == 0
     report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert list(report["contexts"]) == ["all"]
     assert 0.45 < report["contexts"]["all"]["theta"]["mu"] < 0.8

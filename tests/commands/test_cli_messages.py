@@ -30,11 +30,12 @@ def test_clip_given_a_file(tmp_path, capsys):
 
 
 def test_fit_on_a_folder(tmp_path, capsys):
+    # a run folder is read as pcvfe diagnose reads it: the drive log inside
     err = _error(capsys, ["fit", str(tmp_path)])
-    assert f"drive log {tmp_path} is a folder" in err and "no such file" not in err
+    assert f"run folder {tmp_path}: no drive log" in err and "no such file" not in err
     (tmp_path / "drive_log.csv").write_text("t\n")
     err = _error(capsys, ["fit", str(tmp_path)])
-    assert "it holds drive_log.csv" in err
+    assert f"drive log {tmp_path / 'drive_log.csv'}: " in err and "missing column" in err
 
 
 def test_effects_file_sys_exit_is_reported(tmp_path, capsys):

@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+import html as html_text
 import json
 import shutil
 import subprocess
 
+import matplotlib.image as mpimg
 import numpy as np
 import pytest
 
 from pcvfe_drake.models.data import prepare
-from pcvfe_drake.workbench import synth
+from pcvfe_drake.workbench import figures, synth
+from pcvfe_drake.workbench.figures import CAPTIONS
 from pcvfe_drake.workbench.report import diagnose, write_report
 
 PNGS = [
@@ -35,11 +38,11 @@ def report_dir(tmp_path_factory):
     report, wb = diagnose(prepare(df, "two contexts"), candidates=["drag", "gyro_bias"])
     out = tmp_path_factory.mktemp("rep") / "report"
     write_report(report, wb, out)
-    return out, report
+    return out, report, wb
 
 
 def test_report_has_every_picture_and_the_loop(report_dir):
-    out, report = report_dir
+    out, report, _ = report_dir
     for png in PNGS:
         assert (out / png).stat().st_size > 2000, png
     saved = json.loads((out / "report.json").read_text())
@@ -51,6 +54,14 @@ def test_report_has_every_picture_and_the_loop(report_dir):
     html = (out / "report.html").read_text()
     assert html.count("data:image/png;base64,") == len(PNGS)
     assert 'id="verdict"' in html and "The loop" in html
+    # every figure is captioned with what to look for
+    assert set(CAPTIONS) == set(PNGS)
+    for png in PNGS:
+        caption = html_text.escape(CAPTIONS[png])
+        assert f"<b>{png}</b>: {caption}" in html and "Look for" in caption, png
+    # the course map: the baseline's failures beside what remains (two panels side by side)
+    height, width = mpimg.imread(out / "error_map.png").shape[:2]
+    assert width > 2 * height
 
 
 def _chromium() -> str | None:
@@ -65,7 +76,7 @@ def _chromium() -> str | None:
     _chromium() is None, reason="no headless Chromium (apt-get install -y chromium)"
 )
 def test_report_renders_in_headless_chromium(report_dir, tmp_path):
-    out, report = report_dir
+    out, report, _ = report_dir
     # a copy with a probe script: the page title reports how many images decoded
     probe = (
         (out / "report.html")
@@ -94,7 +105,23 @@ def test_report_renders_in_headless_chromium(report_dir, tmp_path):
         capture_output=True,
         timeout=90,
     )
-    import matplotlib.image as mpimg
-
     img = mpimg.imread(shot)
     assert img.shape[0] >= 2000 and img.std() > 0.05  # a rendered page, not a blank one
+
+
+def test_overlay_shows_measured_baseline_and_final_model(report_dir, tmp_path, monkeypatch):
+    _, report, wb = report_dir
+    drawn = {}
+
+    def keep(fig, folder, name):
+        drawn[name] = fig
+        return name
+
+    monkeypatch.setattr(figures, "_save", keep)
+    figures.all_figures(report, wb, tmp_path)
+    for ax in drawn["overlay.png"].axes:
+        labels = [line.get_label() for line in ax.lines if not line.get_label().startswith("_")]
+        if labels:
+            assert labels == ["measured", "baseline", "final model (+ drag)"]
+    legend = [t.get_text() for t in drawn["overlay.png"].axes[0].get_legend().get_texts()]
+    assert legend == ["measured", "baseline", "final model (+ drag)"]
