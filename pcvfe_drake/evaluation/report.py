@@ -216,9 +216,9 @@ def _worlds_section(doc: _Doc, runs: pd.DataFrame, sources: list[str], metrics) 
     doc.h(2, "Over worlds")
     n_worlds = runs.loc[runs["world"].astype(str) != "", "world"].nunique()
     doc.p(
-        f"{n_worlds} worlds. Per source and metric: the mean over seeds in each world, then the "
-        "median and the mean of those over the worlds, and the worst world (the lowest, or the "
-        "highest where lower is better) with its value."
+        f"{n_worlds} world{'s' if n_worlds != 1 else ''}. Per source and metric: the mean over "
+        "seeds in each world, then the median and the mean of those over the worlds, and the "
+        "worst world (the lowest, or the highest where lower is better) with its value."
     )
     header = ["metric", "source", "worlds", "median", "mean", "worst world", "worst"]
     rows = []
