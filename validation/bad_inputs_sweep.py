@@ -1,11 +1,11 @@
 """Bad and unusual inputs through the ``pcvfe`` CLI, as a new user would give them: does every
 one end in a named error (or the documented degraded behaviour), never a traceback or a hang?
 
-Each case runs ``pcvfe ...`` in a subprocess (a fresh interpreter, as a user's shell would) with
-a timeout, in a scratch folder with its own fixtures: a short run folder of ``paper_sim`` (2.5 s),
-a small results folder of ``pcvfe evaluate`` (written through ``ResultStore``, no runs), a
-small ROS 2 bag (written with ``rosbags`` as ``tests/test_bag_import.py`` does) and a drive log.
-A case expects ``error`` (refused: exit 2 with a ``pcvfe CMD: error:`` line) or ``ok``
+Each case runs ``pcvfe ...`` through ``pcvfe_drake.cli.main`` in this process (``--subprocess``:
+in a fresh interpreter, as a user's shell would) with a timeout, in a scratch folder with its own
+fixtures: a short run folder of ``paper_sim`` (2.5 s), a small results folder of ``pcvfe
+evaluate`` (written through ``ResultStore``, no runs), a small ROS 2 bag (written with
+``rosbags`` as ``tests/test_bag_import.py`` does) and a drive log. A case expects ``error`` (refused: exit 2 with a ``pcvfe CMD: error:`` line) or ``ok``
 (accepted, maybe degraded: exit 0). Outcomes:
 
 - ``named``: as expected (a refusal with its one error line, or an accepted degraded input);
@@ -15,6 +15,7 @@ A case expects ``error`` (refused: exit 2 with a ``pcvfe CMD: error:`` line) or 
 - ``wrong``: a refusal that was accepted, or an accepted input that was refused.
 
 Usage: python validation/bad_inputs_sweep.py [--only CATEGORY] [--timeout S] [--keep DIR]
+       [--subprocess]
 Prints one table per category (with each case that is not ``named``), then one JSON object.
 """
 
@@ -403,7 +404,49 @@ def classify(case: Case, code: int | None, err: str) -> str:
     return "named" if code == 0 else "wrong"
 
 
-def run_case(case: Case, work: Path, fixtures: dict, timeout_s: float) -> dict:
+class _Timeout(BaseException):
+    """Raised by the alarm: past every ``except Exception`` of the CLI, as a hang."""
+
+
+def _in_process(args: list[str], cwd: Path, timeout_s: float) -> tuple[int | None, str]:
+    """``pcvfe_drake.cli.main(args)`` in this process (no interpreter start per case), in
+    ``cwd``, its stdout and stderr captured; an exception that escapes the CLI is printed as a
+    traceback; a SIGALRM after ``timeout_s`` ends it as a hang (exit None)."""
+    import contextlib
+    import signal
+    import traceback
+
+    from pcvfe_drake.cli import main as cli_main
+
+    def alarm(signum, frame):
+        raise _Timeout
+
+    out, err = io.StringIO(), io.StringIO()
+    here = os.getcwd()
+    previous = signal.signal(signal.SIGALRM, alarm)
+    signal.setitimer(signal.ITIMER_REAL, timeout_s)
+    try:
+        os.chdir(cwd)
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                code = cli_main(args)
+            except SystemExit as exc:  # argparse
+                code = exc.code if isinstance(exc.code, int) else 2
+            except _Timeout:
+                code = None
+            except Exception:  # noqa: BLE001 - escaped the CLI: that is a traceback
+                traceback.print_exc()
+                code = 1
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+        os.chdir(here)
+    return code, err.getvalue()
+
+
+def run_case(
+    case: Case, work: Path, fixtures: dict, timeout_s: float, in_process: bool = True
+) -> dict:
     tmp = Path(tempfile.mkdtemp(dir=work))
     for rel, text in case.files.items():
         (tmp / rel).write_text(text)
@@ -416,13 +459,16 @@ def run_case(case: Case, work: Path, fixtures: dict, timeout_s: float) -> dict:
         names["copy"] = str(copy)
     args = [a.format(**names) for a in case.args]
     t0 = time.perf_counter()
-    try:
-        done = subprocess.run(
-            [*PCVFE, *args], capture_output=True, text=True, timeout=timeout_s, cwd=tmp
-        )
-        code, err = done.returncode, done.stderr
-    except subprocess.TimeoutExpired as exc:
-        code, err = None, (exc.stderr or b"").decode(errors="replace")
+    if in_process:
+        code, err = _in_process(args, tmp, timeout_s)
+    else:
+        try:
+            done = subprocess.run(
+                [*PCVFE, *args], capture_output=True, text=True, timeout=timeout_s, cwd=tmp
+            )
+            code, err = done.returncode, done.stderr
+        except subprocess.TimeoutExpired as exc:
+            code, err = None, (exc.stderr or b"").decode(errors="replace")
     outcome = classify(case, code, err)
     shutil.rmtree(tmp, ignore_errors=True)
     last = err.strip().splitlines()[-1] if err.strip() else ""
@@ -442,6 +488,12 @@ def main() -> int:
     parser.add_argument("--only", default=None, help="run one category (by its name)")
     parser.add_argument("--timeout", type=float, default=120.0, help="seconds per case")
     parser.add_argument("--keep", type=Path, default=None, help="scratch folder to keep")
+    parser.add_argument(
+        "--subprocess",
+        action="store_true",
+        help="one interpreter per case, as a shell runs it (slower: pydrake imports each time); "
+        "default: every case in this process through pcvfe_drake.cli.main",
+    )
     args = parser.parse_args()
     selected = [c for c in cases() if args.only in (None, c.category)]
     work = Path(tempfile.mkdtemp(prefix="pcvfe_sweep_")) if args.keep is None else args.keep
@@ -450,8 +502,11 @@ def main() -> int:
     if any("{log}" in a for c in selected for a in c.args):
         needed.add("log")
     makers = {"run": make_run, "results": make_results, "bag": make_bag, "log": make_log}
+    for old in ("run", "results", "bag", "log"):  # fixtures of an earlier sweep in --keep
+        for path in work.glob(f"fixture_{old}*"):
+            shutil.rmtree(path) if path.is_dir() else path.unlink()
     fixtures = {name: makers[name](work) for name in sorted(needed)}
-    rows = [run_case(c, work, fixtures, args.timeout) for c in selected]
+    rows = [run_case(c, work, fixtures, args.timeout, not args.subprocess) for c in selected]
     by_category = collections.defaultdict(list)
     for r in rows:
         by_category[r["category"]].append(r)
