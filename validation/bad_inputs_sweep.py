@@ -5,8 +5,9 @@ Each case runs ``pcvfe ...`` through ``pcvfe_drake.cli.main`` in this process (`
 in a fresh interpreter, as a user's shell would) with a timeout, in a scratch folder with its own
 fixtures: a short run folder of ``paper_sim`` (2.5 s), a small results folder of ``pcvfe
 evaluate`` (written through ``ResultStore``, no runs), a small ROS 2 bag (written with
-``rosbags`` as ``tests/test_bag_import.py`` does) and a drive log. A case expects ``error`` (refused: exit 2 with a ``pcvfe CMD: error:`` line) or ``ok``
-(accepted, maybe degraded: exit 0). Outcomes:
+``rosbags`` as ``tests/test_bag_import.py`` does) and a drive log. A case expects ``error``
+(refused: exit 2 with a ``pcvfe CMD: error:`` line) or ``ok`` (accepted, maybe degraded: exit
+0). Outcomes:
 
 - ``named``: as expected (a refusal with its one error line, or an accepted degraded input);
 - ``traceback``: stderr holds a Python traceback;
