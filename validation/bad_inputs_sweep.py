@@ -6,8 +6,8 @@ in a fresh interpreter, as a user's shell would) with a timeout, in a scratch fo
 fixtures: a short run folder of ``paper_sim`` (2.5 s), a small results folder of ``pcvfe
 evaluate`` (written through ``ResultStore``, no runs), a small ROS 2 bag (written with
 ``rosbags`` as ``tests/test_bag_import.py`` does) and a drive log. A case expects ``error``
-(refused: exit 2 with a ``pcvfe CMD: error:`` line) or ``ok`` (accepted, maybe degraded: exit
-0). Outcomes:
+(refused: exit 2 with a ``pcvfe CMD: error:`` line), ``stopped`` (began, then stopped early:
+exit 1 with that line) or ``ok`` (accepted, maybe degraded: exit 0). Outcomes:
 
 - ``named``: as expected (a refusal with its one error line, or an accepted degraded input);
 - ``traceback``: stderr holds a Python traceback;
@@ -234,15 +234,18 @@ def cases() -> list[Case]:
     damaged_run("no scenario.yaml", lambda f: (f / "scenario.yaml").unlink())
     damaged_run("garbled scenario.yaml", lambda f: (f / "scenario.yaml").write_text("[: :"))
     damaged_run("empty drive log", lambda f: (f / "drive_log.csv").write_text(""))
-    damaged_run(
-        "drive log cut mid-row",
-        lambda f: (f / "drive_log.csv").write_text(
-            "\n".join((f / "drive_log.csv").read_text().splitlines()[:6])[:-300] + "\n"
-        ),
+    cut = (
+        lambda f, n: (f / "drive_log.csv").write_text(  # noqa: E731 (a killed writer)
+            "\n".join((f / "drive_log.csv").read_text().splitlines()[:6])[:-n] + "\n"
+        )
     )
+    damaged_run("drive log cut in a row's state", lambda f: cut(f, 1590))
+    damaged_run("drive log cut in a row's features (that row skipped)", lambda f: cut(f, 300), "ok")
     damaged_run("garbled samples", lambda f: (f / "fitter_samples.npz").write_bytes(b"x"))
     damaged_run("a frame missing", lambda f: frames(f)[0].unlink())
-    damaged_run("a frame unreadable", lambda f: frames(f)[-1].write_bytes(b"x"))
+    damaged_run(
+        "a frame unreadable (stops early)", lambda f: frames(f)[-1].write_bytes(b"x"), "stopped"
+    )
     damaged_run("no samples (not exact, said)", lambda f: (f / "fitter_samples.npz").unlink(), "ok")
     out.append(
         Case(
@@ -402,6 +405,8 @@ def classify(case: Case, code: int | None, err: str) -> str:
         return "internal"
     if case.expect == "error":
         return "named" if code == 2 and ": error: " in err else "wrong"
+    if case.expect == "stopped":  # began, then stopped early: exit 1 with the reason
+        return "named" if code == 1 and ": error: " in err else "wrong"
     return "named" if code == 0 else "wrong"
 
 
