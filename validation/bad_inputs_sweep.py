@@ -1,13 +1,13 @@
 """Bad and unusual inputs through the ``pcvfe`` CLI, as a new user would give them: does every
 one end in a named error (or the documented degraded behaviour), never a traceback or a hang?
 
-Each case runs ``pcvfe ...`` in a subprocess (a fresh interpreter, as a user's shell would) with
-a timeout, in a scratch folder with its own fixtures: a short run folder of ``paper_sim`` (2.5 s),
-a small results folder of ``pcvfe evaluate`` (written through ``ResultStore``, no runs), a
-small ROS 2 bag (written with ``rosbags`` as ``tests/hardware/test_bag_import.py`` does) and a
-drive log.
-A case expects ``error`` (refused: exit 2 with a ``pcvfe CMD: error:`` line) or ``ok``
-(accepted, maybe degraded: exit 0). Outcomes:
+Each case runs ``pcvfe ...`` through ``pcvfe_drake.cli.main`` in this process (``--subprocess``:
+in a fresh interpreter, as a user's shell would) with a timeout, in a scratch folder with its own
+fixtures: a short run folder of ``paper_sim`` (2.5 s), a small results folder of ``pcvfe
+evaluate`` (written through ``ResultStore``, no runs), a small ROS 2 bag (written with
+``rosbags`` as ``tests/hardware/test_bag_import.py`` does) and a drive log. A case expects ``error``
+(refused: exit 2 with a ``pcvfe CMD: error:`` line), ``stopped`` (began, then stopped early:
+exit 1 with that line) or ``ok`` (accepted, maybe degraded: exit 0). Outcomes:
 
 - ``named``: as expected (a refusal with its one error line, or an accepted degraded input);
 - ``traceback``: stderr holds a Python traceback;
@@ -16,6 +16,7 @@ A case expects ``error`` (refused: exit 2 with a ``pcvfe CMD: error:`` line) or 
 - ``wrong``: a refusal that was accepted, or an accepted input that was refused.
 
 Usage: python validation/bad_inputs_sweep.py [--only CATEGORY] [--timeout S] [--keep DIR]
+       [--subprocess]
 Prints one table per category (with each case that is not ``named``), then one JSON object.
 """
 
@@ -233,15 +234,18 @@ def cases() -> list[Case]:
     damaged_run("no scenario.yaml", lambda f: (f / "scenario.yaml").unlink())
     damaged_run("garbled scenario.yaml", lambda f: (f / "scenario.yaml").write_text("[: :"))
     damaged_run("empty drive log", lambda f: (f / "drive_log.csv").write_text(""))
-    damaged_run(
-        "drive log cut mid-row",
-        lambda f: (f / "drive_log.csv").write_text(
-            "\n".join((f / "drive_log.csv").read_text().splitlines()[:6])[:-300] + "\n"
-        ),
+    cut = (
+        lambda f, n: (f / "drive_log.csv").write_text(  # noqa: E731 (a killed writer)
+            "\n".join((f / "drive_log.csv").read_text().splitlines()[:6])[:-n] + "\n"
+        )
     )
+    damaged_run("drive log cut in a row's state", lambda f: cut(f, 1590))
+    damaged_run("drive log cut in a row's features (that row skipped)", lambda f: cut(f, 300), "ok")
     damaged_run("garbled samples", lambda f: (f / "fitter_samples.npz").write_bytes(b"x"))
     damaged_run("a frame missing", lambda f: frames(f)[0].unlink())
-    damaged_run("a frame unreadable", lambda f: frames(f)[-1].write_bytes(b"x"))
+    damaged_run(
+        "a frame unreadable (stops early)", lambda f: frames(f)[-1].write_bytes(b"x"), "stopped"
+    )
     damaged_run("no samples (not exact, said)", lambda f: (f / "fitter_samples.npz").unlink(), "ok")
     out.append(
         Case(
@@ -314,7 +318,7 @@ def cases() -> list[Case]:
     )
 
     bag = ["import-bag", "{copy}", "--out", "{tmp}/log/drive.csv"]
-    data = lambda f: f / "bag.mcap"  # noqa: E731
+    data = lambda f: next(f.glob("*.mcap"))  # noqa: E731 (named after the bag's folder)
 
     def damaged_bag(name, damage, extra=(), expect="error"):
         out.append(Case("import-bag", name, [*bag, *extra], expect, damage=("bag", damage)))
@@ -401,10 +405,54 @@ def classify(case: Case, code: int | None, err: str) -> str:
         return "internal"
     if case.expect == "error":
         return "named" if code == 2 and ": error: " in err else "wrong"
+    if case.expect == "stopped":  # began, then stopped early: exit 1 with the reason
+        return "named" if code == 1 and ": error: " in err else "wrong"
     return "named" if code == 0 else "wrong"
 
 
-def run_case(case: Case, work: Path, fixtures: dict, timeout_s: float) -> dict:
+class _Timeout(BaseException):
+    """Raised by the alarm: past every ``except Exception`` of the CLI, as a hang."""
+
+
+def _in_process(args: list[str], cwd: Path, timeout_s: float) -> tuple[int | None, str]:
+    """``pcvfe_drake.cli.main(args)`` in this process (no interpreter start per case), in
+    ``cwd``, its stdout and stderr captured; an exception that escapes the CLI is printed as a
+    traceback; a SIGALRM after ``timeout_s`` ends it as a hang (exit None)."""
+    import contextlib
+    import signal
+    import traceback
+
+    from pcvfe_drake.cli import main as cli_main
+
+    def alarm(signum, frame):
+        raise _Timeout
+
+    out, err = io.StringIO(), io.StringIO()
+    here = os.getcwd()
+    previous = signal.signal(signal.SIGALRM, alarm)
+    signal.setitimer(signal.ITIMER_REAL, timeout_s)
+    try:
+        os.chdir(cwd)
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                code = cli_main(args)
+            except SystemExit as exc:  # argparse
+                code = exc.code if isinstance(exc.code, int) else 2
+            except _Timeout:
+                code = None
+            except Exception:  # noqa: BLE001 - escaped the CLI: that is a traceback
+                traceback.print_exc()
+                code = 1
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+        os.chdir(here)
+    return code, err.getvalue()
+
+
+def run_case(
+    case: Case, work: Path, fixtures: dict, timeout_s: float, in_process: bool = True
+) -> dict:
     tmp = Path(tempfile.mkdtemp(dir=work))
     for rel, text in case.files.items():
         (tmp / rel).write_text(text)
@@ -417,13 +465,16 @@ def run_case(case: Case, work: Path, fixtures: dict, timeout_s: float) -> dict:
         names["copy"] = str(copy)
     args = [a.format(**names) for a in case.args]
     t0 = time.perf_counter()
-    try:
-        done = subprocess.run(
-            [*PCVFE, *args], capture_output=True, text=True, timeout=timeout_s, cwd=tmp
-        )
-        code, err = done.returncode, done.stderr
-    except subprocess.TimeoutExpired as exc:
-        code, err = None, (exc.stderr or b"").decode(errors="replace")
+    if in_process:
+        code, err = _in_process(args, tmp, timeout_s)
+    else:
+        try:
+            done = subprocess.run(
+                [*PCVFE, *args], capture_output=True, text=True, timeout=timeout_s, cwd=tmp
+            )
+            code, err = done.returncode, done.stderr
+        except subprocess.TimeoutExpired as exc:
+            code, err = None, (exc.stderr or b"").decode(errors="replace")
     outcome = classify(case, code, err)
     shutil.rmtree(tmp, ignore_errors=True)
     last = err.strip().splitlines()[-1] if err.strip() else ""
@@ -443,6 +494,12 @@ def main() -> int:
     parser.add_argument("--only", default=None, help="run one category (by its name)")
     parser.add_argument("--timeout", type=float, default=120.0, help="seconds per case")
     parser.add_argument("--keep", type=Path, default=None, help="scratch folder to keep")
+    parser.add_argument(
+        "--subprocess",
+        action="store_true",
+        help="one interpreter per case, as a shell runs it (slower: pydrake imports each time); "
+        "default: every case in this process through pcvfe_drake.cli.main",
+    )
     args = parser.parse_args()
     selected = [c for c in cases() if args.only in (None, c.category)]
     work = Path(tempfile.mkdtemp(prefix="pcvfe_sweep_")) if args.keep is None else args.keep
@@ -451,8 +508,11 @@ def main() -> int:
     if any("{log}" in a for c in selected for a in c.args):
         needed.add("log")
     makers = {"run": make_run, "results": make_results, "bag": make_bag, "log": make_log}
+    for old in ("run", "results", "bag", "log"):  # fixtures of an earlier sweep in --keep
+        for path in work.glob(f"fixture_{old}*"):
+            shutil.rmtree(path) if path.is_dir() else path.unlink()
     fixtures = {name: makers[name](work) for name in sorted(needed)}
-    rows = [run_case(c, work, fixtures, args.timeout) for c in selected]
+    rows = [run_case(c, work, fixtures, args.timeout, not args.subprocess) for c in selected]
     by_category = collections.defaultdict(list)
     for r in rows:
         by_category[r["category"]].append(r)

@@ -54,9 +54,9 @@ def register(subparsers) -> None:
     parser.add_argument(
         "--overwrite",
         action="store_true",
-        help="replace a run already in --out (removes its drive_log.csv, summary.json, "
-        "playback.html, scenario.yaml, figures/ and frames/; other files stay); without it such "
-        "a folder is refused",
+        help="replace a run already in --out (removes its drive_log.csv, fitter_samples.npz, "
+        "summary.json, playback.html, scenario.yaml, internal_error.txt, figures/ and frames/; "
+        "other files stay); without it such a folder is refused",
     )
     length = parser.add_mutually_exclusive_group()
     length.add_argument("--laps", type=float, default=None, help="stop after N laps")

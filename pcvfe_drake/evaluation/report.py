@@ -307,6 +307,10 @@ def _terrain_table(doc: _Doc, rows: list[dict], sources: list[str]) -> None:
     )
 
 
+MU_PLOT_COLUMNS = ("t", "mu_hat", "mu_true")
+"""Drive-log columns the mu-over-time figure draws."""
+
+
 def build_report(root: str | Path) -> tuple[Path, Path]:
     """Write ``report.md``, ``report.html`` and ``figures/`` of the results folder ``root``."""
     store = ResultStore(root)
@@ -405,10 +409,13 @@ def build_report(root: str | Path) -> tuple[Path, Path]:
             except ResultsFolderError as exc:  # one damaged run: the rest is still drawn
                 no_log.append(f"{r.run_id} ({exc})")
                 continue
-            if log is not None:
-                logs[r.source] = log
-            else:
+            lacking = [c for c in MU_PLOT_COLUMNS if log is not None and c not in log.columns]
+            if log is None:
                 no_log.append(f"{r.run_id} (missing)")
+            elif lacking:
+                no_log.append(f"{r.run_id} (no column(s) {', '.join(lacking)})")
+            else:
+                logs[r.source] = log
         if no_log:
             doc.p(f"Drive logs not drawn over time: {'; '.join(no_log)}.")
         if logs:

@@ -363,7 +363,10 @@ def read_bag(
                     drive.append((t, d.steering_angle, d.steering_angle_velocity, d.acceleration))
                 elif role == "image" and frames_dir is not None:
                     if n_image % mapping.image.every == 0:
-                        images.append((t, image_rgb(msg)))
+                        try:
+                            images.append((t, image_rgb(msg)))
+                        except ValueError as exc:  # the bag is fine, its images unsupported
+                            raise BagError(f"bag {bag}: topic {connection.topic}: {exc}") from exc
                     n_image += 1
         except BagError:
             raise

@@ -156,6 +156,16 @@ class ReplayLog:
         return int(np.searchsorted(self.sample_t_s, t_s + _EPS_S, side="right")) - 1
 
     def state_at(self, t_s: float) -> np.ndarray:
+        """The state at ``t_s``: the fitter's sample or the row taken at exactly ``t_s`` (the
+        two rates' event times can differ in the last bit, 0.15 and 0.15000000000000002, and the
+        simulator steps to each), else the newest sample (or row) before it."""
+        if self.sample_t_s is not None:
+            k = int(np.searchsorted(self.sample_t_s, t_s))
+            if k < len(self.sample_t_s) and self.sample_t_s[k] == t_s:
+                return self.sample_states[k]
+            r = int(np.searchsorted(self.t_s, t_s))
+            if r < len(self.t_s) and self.t_s[r] == t_s:
+                return self.states[r]
         k = self._sample_at(t_s)
         return self.sample_states[k] if k >= 0 else self.states[self._row_at(t_s)]
 
