@@ -179,7 +179,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("runs", nargs="*", type=Path, help="run folders with summary.json")
     ap.add_argument("--quick", action="store_true", help="without runs: a 45 s run")
-    ap.add_argument("--scenario", default="paper_eval_effects", help="without runs: this one")
+    ap.add_argument("--scenario", default="paper_eval", help="without runs: this one")
     ap.add_argument(
         "--oracle", type=Path, help="reference runs (a folder of runs, or one run): per-terrain lag"
     )

@@ -23,6 +23,7 @@ from pcvfe_drake.diagrams.scenario_io import (
 from pcvfe_drake.evaluation.experiment import (
     Experiment,
     RunSpec,
+    Variant,
     apply_overrides,
     experiment_problems,
     resolve_experiment_path,
@@ -61,7 +62,7 @@ def run_specs(
     seeds: int | None = None,
     quick: bool = False,
 ) -> list[RunSpec]:
-    """Every run of the grid (scenario x source x seed), validated; order: seed-major.
+    """Every run of the grid (scenario x variant x source x seed), validated; order: seed-major.
 
     ``seeds`` replaces the experiment's seed count; ``quick`` uses ``exp.quick`` (its seed count
     unless ``seeds`` is given, and its duration).
@@ -81,24 +82,27 @@ def run_specs(
         if duration_s is not None or laps is not None:
             base = base.with_run_length(laps=laps, duration_s=duration_s)
         base_dict = base.to_dict()
-        for j, src in enumerate(exp.sources):
-            where = f"{experiment_path}: sources[{j}] ({src.name}) on scenarios[{i}] ({base.name})"
-            merged = apply_overrides(base_dict, exp.overrides, f"{experiment_path}: overrides")
-            merged = apply_overrides(merged, src.overrides, where)
-            checked = scenario_from_yaml_text(yaml.safe_dump(merged), source=where)
-            for k, seed in enumerate(exp.seed_list(n_seeds)):
-                scenario = dataclasses.replace(checked, seed=seed).to_dict()
-                per_seed[k].append(
-                    RunSpec(
-                        run_id=run_id(base.name, src.name, seed),
-                        experiment=exp.name,
-                        scenario_name=base.name,
-                        source=src.name,
-                        seed=seed,
-                        scenario=scenario,
-                        spec_hash=spec_hash(scenario),
+        for variant in exp.variants or [Variant()]:
+            name = f"{base.name}-{variant.name}" if variant.name else base.name
+            for j, src in enumerate(exp.sources):
+                where = f"{experiment_path}: sources[{j}] ({src.name}) on scenarios[{i}] ({name})"
+                merged = apply_overrides(base_dict, exp.overrides, f"{experiment_path}: overrides")
+                merged = apply_overrides(merged, variant.overrides, f"{where}: variant")
+                merged = apply_overrides(merged, src.overrides, where)
+                checked = scenario_from_yaml_text(yaml.safe_dump(merged), source=where)
+                for k, seed in enumerate(exp.seed_list(n_seeds)):
+                    scenario = dataclasses.replace(checked, seed=seed).to_dict()
+                    per_seed[k].append(
+                        RunSpec(
+                            run_id=run_id(name, src.name, seed),
+                            experiment=exp.name,
+                            scenario_name=name,
+                            source=src.name,
+                            seed=seed,
+                            scenario=scenario,
+                            spec_hash=spec_hash(scenario),
+                        )
                     )
-                )
     specs = [s for group in per_seed for s in group]
     ids = [s.run_id for s in specs]
     dupes = sorted({i for i in ids if ids.count(i) > 1})

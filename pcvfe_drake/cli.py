@@ -16,6 +16,7 @@ COMMANDS = [
     "export_clip",
     "terrain_map",
     "diagnose",
+    "calibrate",
     "evaluate",
     "vehicle_bridge",
     "replay",

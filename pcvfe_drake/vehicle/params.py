@@ -55,6 +55,10 @@ class VehicleParams:
         a_max: maximum absolute longitudinal acceleration [m/s^2].
         length, width: body size, for drawing and course margins [m].
         g: gravitational acceleration [m/s^2].
+        track: front track width, wheel centre to wheel centre [m] (None: not given). The
+            context fitter's ``track_slip`` effect holds its width at this value
+            (``pcvfe_drake.estimation.effect_model``); a car that does not give it has the
+            width calibrated from its drive instead.
     """
 
     name: str
@@ -77,10 +81,11 @@ class VehicleParams:
     length: float = 4.3
     width: float = 1.7
     g: float = G_MPS2
+    track: float | None = None
 
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):
-            if field.name == "name":
+            if field.name == "name" or (field.name == "track" and self.track is None):
                 continue
             value = getattr(self, field.name)
             if not isinstance(value, int | float) or not math.isfinite(value):
@@ -88,7 +93,7 @@ class VehicleParams:
                     f"VehicleParams '{self.name}': {field.name}={value!r} is not finite"
                 )
         positive = ("m", "I_z", "lf", "lr", "C_Sf", "C_Sr", "a_max", "v_switch", "length", "width")
-        for key in positive:
+        for key in positive + (() if self.track is None else ("track",)):
             if getattr(self, key) <= 0:
                 raise ValueError(
                     f"VehicleParams '{self.name}': {key}={getattr(self, key)!r} must be > 0"
@@ -143,14 +148,18 @@ class VehicleParams:
         )
         if missing:
             raise ValueError(f"missing vehicle parameter(s) {missing}")
-        values = {k: (v if k == "name" else float(v)) for k, v in data.items()}
+        values = {
+            k: (v if k == "name" or (k == "track" and v is None) else float(v))
+            for k, v in data.items()
+        }
         return cls(**values)
 
     @classmethod
     def from_commonroad(cls, p, name: str = "commonroad") -> VehicleParams:
         """Build from a ``vehiclemodels`` parameter set (e.g. ``parameters_vehicle1()``).
 
-        mu is ``p.tire.p_dy1``, C_Sf = C_Sr = ``-p.tire.p_ky1 / p.tire.p_dy1``, h is ``p.h_s``.
+        mu is ``p.tire.p_dy1``, C_Sf = C_Sr = ``-p.tire.p_ky1 / p.tire.p_dy1``, h is ``p.h_s``,
+        the track the front one ``p.T_f``.
         """
         mu = float(p.tire.p_dy1)
         c_s = float(-p.tire.p_ky1 / p.tire.p_dy1)
@@ -174,6 +183,7 @@ class VehicleParams:
             a_max=float(p.longitudinal.a_max),
             length=float(p.l),
             width=float(p.w),
+            track=float(p.T_f),
         )
 
 
