@@ -53,11 +53,11 @@ def test_where_the_model_is_found(tmp_path):
     assert vehicle_model_path(str(tmp_path / "car.yaml"), "st", "peak") == tmp_path / (
         "car_model.yaml"
     )
-    with pytest.raises(
-        FileNotFoundError, match="pcvfe calibrate --simulate ford_escort --mapping peak"
-    ):
+    with pytest.raises(ValueError, match="pcvfe calibrate --simulate ford_escort --mapping peak"):
         resolve_model(EffectModel(), "ford_escort", "mb", "peak")
     assert resolve_model(EffectModel(), "ford_escort", "st", "peak").single_track
+    with pytest.raises(ValueError, match="fitter.model.file 'nothing.yaml': no such model file"):
+        resolve_model(EffectModel(file="nothing.yaml"), "ford_escort", "mb", "peak")
     inline = EffectModel(effects=["peak_tyre:k_s=0"], model_error_rel=0.1)
     assert resolve_model(inline, "ford_escort", "mb", "peak").to_dict() == inline.to_dict()
 
@@ -82,3 +82,15 @@ def test_every_shipped_car_has_a_calibrated_model(vehicle, mapping):
     # every parameter is held: the fitter's only unknown is the friction
     assert all(e.fixed for e in model.effects)
     assert 0.0 <= model.model_error_rel < 0.3 and model.calibrated_mu > 0.5
+
+
+def test_a_vehicle_file_finds_its_model_beside_it(tmp_path):
+    car = tmp_path / "car.yaml"
+    car.write_text("name: car\n")
+    with pytest.raises(ValueError, match="no calibrated model .*car_model.yaml"):
+        resolve_model(EffectModel(), str(car), "st", "peak")
+    (tmp_path / "car_model.yaml").write_text(
+        "vehicle: car\neffects: [{name: peak_tyre, fixed: {k_s: 0.5}}]\nmodel_error_rel: 0.07\n"
+    )
+    model = resolve_model(EffectModel(), str(car), "st", "peak")
+    assert model.effects[0].fixed == {"k_s": 0.5} and model.model_error_rel == 0.07

@@ -179,7 +179,7 @@ def vehicle_model_path(vehicle: str, truth_model: str, friction_mapping: str) ->
     spec = Path(str(vehicle)).expanduser()
     if spec.suffix in (".yaml", ".yml", ".json"):
         return spec.with_name(spec.stem + MODEL_SUFFIX)
-    if truth_model == "st":
+    if truth_model != "mb":
         return None
     return MODEL_DIR / f"{vehicle}_{friction_mapping}{MODEL_SUFFIX}"
 
@@ -188,18 +188,22 @@ def resolve_model(
     model: EffectModel, vehicle: str, truth_model: str, friction_mapping: str
 ) -> EffectModel:
     """The model the fitter uses: ``model``'s effects, else its file, else the vehicle's own
-    model file (:func:`vehicle_model_path`). A missing file raises FileNotFoundError naming
-    it and the command that writes it."""
+    model file (:func:`vehicle_model_path`). A missing file raises ValueError (a scenario
+    problem) naming it and the command that writes it."""
     if model.effects:
         return replace(model)  # validated again (a YAML loader may set fields directly)
     if model.file:
-        return load_model_file(model.file)
+        if not Path(model.file).expanduser().is_file():
+            raise ValueError(f"fitter.model.file {model.file!r}: no such model file")
+        return load_model_file(Path(model.file).expanduser())
     path = vehicle_model_path(vehicle, truth_model, friction_mapping)
     if path is None:
         return EffectModel()
+    if path.parent != MODEL_DIR and not Path(str(vehicle)).expanduser().is_file():
+        return EffectModel()  # a vehicle file not found (yet): the scenario loader says so
     if not path.is_file():
         mapping = f" --mapping {friction_mapping}" if truth_model == "mb" else ""
-        raise FileNotFoundError(
+        raise ValueError(
             f"vehicle {vehicle}: no calibrated model {path} (write it with `pcvfe calibrate "
             f"--simulate {vehicle}{mapping} --out {path}` or from a drive log, name one in "
             "fitter.model.file, or use estimator pcvfe_paper)"
