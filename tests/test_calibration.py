@@ -73,3 +73,43 @@ def test_the_programme_drives_the_stated_circles():
     np.testing.assert_allclose(levels, list(CIRCLE_LEVELS) * 2)
     assert {s.kind for s in segments} == {"cruise", "circle", "step", "sweep", "brake"}
     assert all(s.value > 0 for s in segments if s.kind == "brake")
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["calibrate"], "give a calibration drive LOG or --simulate VEHICLE"),
+        (["calibrate", "log.csv", "--simulate", "bmw_320i"], "(one of them)"),
+        (["calibrate", "log.csv"], "a calibration LOG needs --vehicle"),
+        (["calibrate", "--simulate", "roboracer"], "has no CommonRoad multi-body parameters"),
+    ],
+)
+def test_calibrate_arguments_are_checked_before_any_work(argv, message, capsys):
+    from pcvfe_drake.cli import main
+
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+def test_calibrate_reads_only_what_a_car_measures(tmp_path, capsys, monkeypatch):
+    """Truth columns of the log never reach the calibration."""
+    import pcvfe_drake.workbench.data as data_module
+    from pcvfe_drake.cli import main
+    from pcvfe_drake.runs.drivelog import REQUIRED_COLUMNS
+
+    df = simulate_truths([PLANTED], VP, duration_s=25.0, seed=3)[0]
+    df["mu_true"] = 0.8
+    df["true_v"] = df["v"]
+    df.to_csv(tmp_path / "drive.csv", index=False)
+    seen = {}
+
+    def fake(table, *args, **kwargs):
+        seen["columns"] = list(table.columns)
+        raise ValueError("stop here")
+
+    monkeypatch.setattr(data_module, "prepare", fake)
+    argv = ["calibrate", str(tmp_path / "drive.csv"), "--vehicle", "ford_escort"]
+    assert main(argv) == 2
+    assert "stop here" in capsys.readouterr().err
+    assert seen["columns"] == list(REQUIRED_COLUMNS)
