@@ -26,7 +26,7 @@ PLANTED = Truth(
 
 @pytest.fixture(scope="module")
 def calibration():
-    df = simulate_truths([PLANTED], VP, duration_s=60.0, seed=3)[0]
+    df = simulate_truths([PLANTED], VP, duration_s=40.0, seed=3)[0]
     data = prepare(df, "planted")
     return calibrate(data, "ford_escort", VP, 0.0, candidates=("axle_stiffness",))
 
