@@ -94,3 +94,22 @@ def test_a_vehicle_file_finds_its_model_beside_it(tmp_path):
     )
     model = resolve_model(EffectModel(), str(car), "st", "peak")
     assert model.effects[0].fixed == {"k_s": 0.5} and model.model_error_rel == 0.07
+
+
+def test_scenarios_get_the_cars_model_or_the_papers_fitter():
+    import dataclasses
+
+    from pcvfe_drake.diagrams.scenario_io import load_scenario
+
+    paper_eval = load_scenario("paper_eval")
+    calibrated = load_model_file(vehicle_model_path("ford_escort", "mb", "lateral_peak"))
+    assert paper_eval.fitter.model.single_track  # the scenario holds no constant of its own
+    assert paper_eval.fit_config().model.to_dict() == calibrated.to_dict()
+    paper = dataclasses.replace(paper_eval, estimator="pcvfe_paper")
+    assert paper.fit_config().model.single_track and not paper.fit_config().effects
+    assert load_scenario("paper_sim").fit_config().model.single_track
+    overlay = MODEL_DIR.parent / "scenarios" / "overlays" / "bmw_320i.yaml"
+    bmw = load_scenario("paper_eval", overlay).fit_config().model
+    assert (
+        bmw.to_dict() == load_model_file(MODEL_DIR / "bmw_320i_lateral_peak_model.yaml").to_dict()
+    )
