@@ -25,6 +25,7 @@ import time
 import numpy as np
 
 from pcvfe_drake.estimation.context_estimator import ContextEstimator, LiveFitConfig
+from pcvfe_drake.estimation.effect_model import EffectModel
 from pcvfe_drake.vehicle.params import ford_escort
 from pcvfe_drake.workbench import synth
 
@@ -102,7 +103,9 @@ def main() -> int:
     runs = {}
     for spec in args.effects:
         effects = [e for e in spec.split(";") if e]
-        res = drive(ContextEstimator(vp, LiveFitConfig(effects=effects)), t, S, U)
+        res = drive(
+            ContextEstimator(vp, LiveFitConfig(model=EffectModel(effects=effects))), t, S, U
+        )
         res["cpu_ratio_vs_st"] = res["cpu_median_s"] / st["cpu_median_s"]
         runs[spec] = res
         print(f"{spec}: {res}", flush=True)

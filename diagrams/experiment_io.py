@@ -24,6 +24,7 @@ from pcvfe_drake.diagrams.scenario_io import (
 from pcvfe_drake.evaluation.experiment import (
     Experiment,
     RunSpec,
+    Variant,
     apply_overrides,
     experiment_problems,
     resolve_experiment_path,
@@ -107,7 +108,8 @@ def run_specs(
     worlds_dir: str | Path | None = None,
     progress: bool = False,
 ) -> list[RunSpec]:
-    """Every run of the grid (scenario x world x source x seed), validated; order: seed-major.
+    """Every run of the grid (scenario x variant x world x source x seed), validated; order:
+    seed-major.
 
     ``seeds`` replaces the experiment's seed count; ``quick`` uses ``exp.quick`` (its seed count
     unless ``seeds`` is given, and its duration). ``worlds_dir``: where generated worlds are
@@ -131,31 +133,38 @@ def run_specs(
             raise ValueError(f"{experiment_path}: scenarios[{i}]={entry!r}: {exc}") from exc
         if duration_s is not None or laps is not None:
             base = base.with_run_length(laps=laps, duration_s=duration_s)
-        for label, world in worlds or [("", "")]:
-            base_dict = base.to_dict()
-            cell = base.name
-            if world:  # the world axis: the world's own course, the scenario's settings
-                base_dict.update(world=world, course="")
-                cell = f"{base.name}@{label}"
-            for j, src in enumerate(exp.sources):
-                where = f"{experiment_path}: sources[{j}] ({src.name}) on scenarios[{i}] ({cell})"
-                merged = apply_overrides(base_dict, exp.overrides, f"{experiment_path}: overrides")
-                merged = apply_overrides(merged, src.overrides, where)
-                checked = scenario_from_yaml_text(yaml.safe_dump(merged), source=where)
-                for k, seed in enumerate(exp.seed_list(n_seeds)):
-                    scenario = dataclasses.replace(checked, seed=seed).to_dict()
-                    per_seed[k].append(
-                        RunSpec(
-                            run_id=run_id(cell, src.name, seed),
-                            experiment=exp.name,
-                            scenario_name=cell,
-                            source=src.name,
-                            seed=seed,
-                            scenario=scenario,
-                            spec_hash=spec_hash(scenario),
-                            world=label,
-                        )
+        for variant in exp.variants or [Variant()]:
+            vname = f"{base.name}-{variant.name}" if variant.name else base.name
+            for label, world in worlds or [("", "")]:
+                base_dict = base.to_dict()
+                cell = vname
+                if world:  # the world axis: the world's own course, the scenario's settings
+                    base_dict.update(world=world, course="")
+                    cell = f"{vname}@{label}"
+                for j, src in enumerate(exp.sources):
+                    where = (
+                        f"{experiment_path}: sources[{j}] ({src.name}) on scenarios[{i}] ({cell})"
                     )
+                    merged = apply_overrides(
+                        base_dict, exp.overrides, f"{experiment_path}: overrides"
+                    )
+                    merged = apply_overrides(merged, variant.overrides, f"{where}: variant")
+                    merged = apply_overrides(merged, src.overrides, where)
+                    checked = scenario_from_yaml_text(yaml.safe_dump(merged), source=where)
+                    for k, seed in enumerate(exp.seed_list(n_seeds)):
+                        scenario = dataclasses.replace(checked, seed=seed).to_dict()
+                        per_seed[k].append(
+                            RunSpec(
+                                run_id=run_id(cell, src.name, seed),
+                                experiment=exp.name,
+                                scenario_name=cell,
+                                source=src.name,
+                                seed=seed,
+                                scenario=scenario,
+                                spec_hash=spec_hash(scenario),
+                                world=label,
+                            )
+                        )
     specs = [s for group in per_seed for s in group]
     ids = [s.run_id for s in specs]
     dupes = sorted({i for i in ids if ids.count(i) > 1})

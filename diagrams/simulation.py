@@ -36,7 +36,7 @@ from pcvfe_drake.diagrams.world_io import scenario_world
 from pcvfe_drake.estimation.lookup import build_lookup_table
 from pcvfe_drake.perception.features import make_extractor
 from pcvfe_drake.perception.terrain import TerrainMap
-from pcvfe_drake.runs.friction_sources import fixed_mu
+from pcvfe_drake.runs.friction_sources import PCVFE_SOURCES, fixed_mu
 from pcvfe_drake.runs.runlog import RunLog
 from pcvfe_drake.runs.scenario import Scenario
 from pcvfe_drake.systems.clip_features import ClipFeatures
@@ -76,8 +76,9 @@ def _add_friction_source(builder, scenario: Scenario, params, station, features,
     output port; returns its ``theta_hat`` output and the port logged as the run's ``context``
     column.
 
-    ``pcvfe``: ``clustering`` (ContextClustering) and ``fitter`` (ContextFitter), the context id
-    from the clustering. ``oracle``: ``friction_source`` (OracleFriction on ``true_mu``).
+    ``pcvfe`` and ``pcvfe_paper``: ``clustering`` (ContextClustering) and ``fitter``
+    (ContextFitter), the context id from the clustering. ``oracle``: ``friction_source``
+    (OracleFriction on ``true_mu``).
     ``lookup``: ``friction_source`` (LookupFriction on the features; its class is the context).
     ``ukf``: ``friction_source`` (UkfFriction on the measured state and the actuation).
     ``fixed`` and ``kmpc``: ``friction_source``, a ConstantVectorSource. Sources without
@@ -86,7 +87,7 @@ def _add_friction_source(builder, scenario: Scenario, params, station, features,
     rates = scenario.rates
     kind = scenario.estimator
     feature_dim = features.size()
-    if kind == "pcvfe":
+    if kind in PCVFE_SOURCES:
         clustering = builder.AddNamedSystem(
             "clustering",
             ContextClustering(

@@ -17,6 +17,7 @@ COMMANDS = [
     "terrain_map",
     "world",
     "diagnose",
+    "calibrate",
     "evaluate",
     "vehicle_bridge",
     "replay",

@@ -49,14 +49,16 @@ def run_one(mapping: str, source: str, seed: int, effects: list[str], laps: floa
     from pcvfe_drake.diagrams.run_simulation import simulate_summary
     from pcvfe_drake.diagrams.scenario_io import load_scenario
     from pcvfe_drake.estimation.effect_fit import parse_effects
+    from pcvfe_drake.estimation.effect_model import EffectModel
 
     scenario = load_scenario("paper_eval")
     fitter = scenario.fitter
-    estimator = "pcvfe"
+    estimator = "pcvfe_paper"  # the single-track fitter
     if source in ("effects", "effects_lb"):
+        estimator = "pcvfe"
         fitter = dataclasses.replace(
             fitter,
-            effects=parse_effects(effects),
+            model=EffectModel(effects=parse_effects(effects)),
             unidentified_mu="lower_bound" if source == "effects_lb" else "estimate",
         )
     elif source == "oracle":

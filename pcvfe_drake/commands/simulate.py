@@ -12,7 +12,7 @@ import time
 from datetime import datetime
 from pathlib import Path
 
-from pcvfe_drake.runs.friction_sources import ESTIMATORS
+from pcvfe_drake.runs.friction_sources import ESTIMATORS, PCVFE_SOURCES
 from pcvfe_drake.runs.scenario_files import DEFAULT_SCENARIO, shipped_scenarios
 
 CHUNK_S = 1.0
@@ -125,6 +125,11 @@ def run(args: argparse.Namespace) -> int:
     removed = folder.prepare(overwrite=args.overwrite)
     if removed:
         print(f"--overwrite: removed the previous run in {out}: {', '.join(removed)}")
+    if scenario.estimator in PCVFE_SOURCES:  # the model as run, not where it was read from
+        model = scenario.fit_config().model
+        scenario = dataclasses.replace(
+            scenario, fitter=dataclasses.replace(scenario.fitter, model=model)
+        )
     folder.write_text(folder.scenario, scenario.to_yaml())
 
     meshcat = None

@@ -42,12 +42,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from pcvfe_drake.estimation.context_switch import RiseGuard, check_confirm_s
-from pcvfe_drake.estimation.effect_fit import (
-    EffectFitter,
-    FitterEffect,
-    identifiability,
-    parse_effects,
-)
+from pcvfe_drake.estimation.effect_fit import EffectFitter, FitterEffect, identifiability
+from pcvfe_drake.estimation.effect_model import EffectModel
 from pcvfe_drake.estimation.estimate_table import ContextEstimate, EstimateTable
 from pcvfe_drake.estimation.fit_dataset import (
     DEFAULT_HORIZON,
@@ -124,15 +120,14 @@ class LiveFitConfig:
         relabel: after each re-clustering, give the stored samples the clustering's new labels
             (paper eq. 5d; the ContextFitter's ``frame_labels`` input); False: every sample keeps
             the id it was taken with (noise samples never count).
-        effects: fit the workbench model with these effects instead of the bare ST model
-            (``pcvfe_drake.estimation.effect_fit``; entries: name and fixed parameter values,
-            the others fitted per context). Empty: the ST fit (default).
+        model: the effect model (``pcvfe_drake.estimation.effect_model.EffectModel``: the
+            effects with their held values, the model-error budget): the workbench model
+            with these effects instead of the bare ST model (``effect_fit``). No effects: the
+            ST fit (default). ``effects`` and ``model_error_rel`` read it.
         effect_horizon_s, effect_stride_s, effect_max_windows, effect_min_windows: the
             effect fit's windows (horizon, spacing, the newest this many per refit, fewer than
             this many: keep the prior).
         identifiable_std: mu's standard deviation above which a context is not identifiable.
-        model_error_rel: model-error budget added to mu's std (``FitOptions.model_error_rel``;
-            0: none): ``sqrt(std^2 + (model_error_rel * mu)^2)``.
         near_limit_fraction: the data came near the limit when the used friction reached this
             fraction of the fitted mu.
         unidentified_mu: what the controller gets for a fitted context whose mu is not
@@ -169,13 +164,12 @@ class LiveFitConfig:
     unknown_keeps_stiffness: bool = True
     unknown_floor_stated: bool = False
     relabel: bool = True
-    effects: list[FitterEffect] = field(default_factory=list)
+    model: EffectModel = field(default_factory=EffectModel)
     effect_horizon_s: float = 1.0
     effect_stride_s: float = 0.5
     effect_max_windows: int = 100
     effect_min_windows: int = 10
     identifiable_std: float = 0.05
-    model_error_rel: float = 0.0
     near_limit_fraction: float = 0.6
     unidentified_mu: str = "estimate"
     probe_step_rel: float = 0.1
@@ -193,22 +187,27 @@ class LiveFitConfig:
     probe_bend_margin: float = 0.0
     probe_fit_target: bool = False
 
+    @property
+    def effects(self) -> list[FitterEffect]:
+        """The effect model's effects (``model.effects``)."""
+        return self.model.effects
+
+    @property
+    def model_error_rel(self) -> float:
+        """The effect model's model-error budget (``model.model_error_rel``)."""
+        return self.model.model_error_rel
+
     def __post_init__(self) -> None:
         if self.unidentified_mu not in UNIDENTIFIED_MU:
             raise ValueError(
                 f"LiveFitConfig.unidentified_mu must be one of {UNIDENTIFIED_MU}, got "
                 f"{self.unidentified_mu!r}"
             )
-        self.effects = parse_effects(self.effects)
         check_probe_settings(self, "LiveFitConfig")
         for name in ("effect_horizon_s", "effect_stride_s", "identifiable_std"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"LiveFitConfig.{name} must be > 0, got {value!r}")
-        if not (math.isfinite(self.model_error_rel) and self.model_error_rel >= 0):
-            raise ValueError(
-                f"LiveFitConfig.model_error_rel must be >= 0, got {self.model_error_rel!r}"
-            )
         if not (0 < self.near_limit_fraction <= 1):
             raise ValueError(
                 f"LiveFitConfig.near_limit_fraction must be in (0, 1], got "

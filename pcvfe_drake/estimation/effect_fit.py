@@ -72,11 +72,15 @@ class FitterEffect:
     Attributes:
         name: the effect's name in the workbench library (``pcvfe diagnose --list``).
         fixed: parameter values held fixed (short names, e.g. ``{tau: 0.15}``; as found by
-            ``pcvfe diagnose``); the effect's other parameters are fitted per context.
+            ``pcvfe diagnose`` or ``pcvfe calibrate``); the effect's other parameters are
+            fitted per context.
+        std: the held values' standard deviations (short names; a subset of ``fixed``), as
+            the calibration measured them (0: a constant of the car's data, exact).
     """
 
     name: str = ""
     fixed: dict[str, float] = field(default_factory=dict)
+    std: dict[str, float] = field(default_factory=dict)
 
 
 def parse_effects(entries) -> list[FitterEffect]:
@@ -87,7 +91,11 @@ def parse_effects(entries) -> list[FitterEffect]:
         if isinstance(entry, FitterEffect):
             spec = entry
         elif isinstance(entry, dict):
-            spec = FitterEffect(str(entry.get("name", "")), dict(entry.get("fixed", {}) or {}))
+            spec = FitterEffect(
+                str(entry.get("name", "")),
+                dict(entry.get("fixed", {}) or {}),
+                dict(entry.get("std", {}) or {}),
+            )
         else:
             text = str(entry).strip()
             name, _, rest = text.partition(":")
@@ -115,7 +123,21 @@ def parse_effects(entries) -> list[FitterEffect]:
                     f"effect {spec.name}: fixed {key} = {value!r} is outside its bounds "
                     f"[{q.lower}, {q.upper}] {q.unit}"
                 )
-        out.append(FitterEffect(effect.name, {k: float(v) for k, v in spec.fixed.items()}))
+        for key, value in spec.std.items():
+            if key not in spec.fixed:
+                raise ValueError(
+                    f"effect {spec.name}: std given for {key!r}, which is not held (held: "
+                    f"{', '.join(spec.fixed) or 'none'})"
+                )
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"effect {spec.name}: std of {key} = {value!r} must be >= 0")
+        out.append(
+            FitterEffect(
+                effect.name,
+                {k: float(v) for k, v in spec.fixed.items()},
+                {k: float(v) for k, v in spec.std.items()},
+            )
+        )
     return out
 
 

@@ -51,6 +51,17 @@ class Source:
 
 
 @dataclass
+class Variant:
+    """One variant of every scenario (a car, a friction mapping, ...): a name and the overrides
+    that make it. Each scenario runs once per variant, as the scenario ``<name>-<variant>``."""
+
+    name: str = ""
+    """Short name appended to the scenario's (letters, digits, ``_`` and ``-``)."""
+    overrides: dict[str, OverrideValue] = field(default_factory=dict)
+    """Dotted scenario field -> value, applied after the experiment's own overrides."""
+
+
+@dataclass
 class QuickSettings:
     """What ``--quick`` changes: fewer seeds and shorter runs, for a first look."""
 
@@ -92,6 +103,8 @@ class Experiment:
     scenarios: list[str] = field(default_factory=lambda: ["paper_sim"])
     """Shipped scenario names or YAML files (relative paths: relative to the experiment file)."""
     sources: list[Source] = field(default_factory=list)
+    variants: list[Variant] = field(default_factory=list)
+    """Variants of every scenario (empty: each scenario as it is)."""
     reference: str = ""
     """The source every other one is compared with, seed by seed (default: the first source)."""
     seeds: int = 10
@@ -164,6 +177,15 @@ def experiment_problems(exp: Experiment) -> list[str]:
             "letters, digits, '_' or '-' only",
         )
         need(names.count(s.name) == 1, f"sources[{i}].name", s.name, "used by two sources")
+    variants = [v.name for v in exp.variants]
+    for i, v in enumerate(exp.variants):
+        need(
+            bool(_NAME_RE.match(v.name)),
+            f"variants[{i}].name",
+            v.name,
+            "letters, digits, '_' or '-' only",
+        )
+        need(variants.count(v.name) == 1, f"variants[{i}].name", v.name, "used by two variants")
     if exp.reference:
         need(exp.reference in names, "reference", exp.reference, f"must be one of {names}")
     need(

@@ -110,6 +110,7 @@ def refit_run(folder: Path) -> list[dict]:
     summary = json.loads((folder / "summary.json").read_text())
     scenario = yaml.safe_load((folder / "scenario.yaml").read_text())
     fc = scenario["fitter"]
+    fc = {**fc, **fc.get("model", {})}  # the effect model as run (fitter.model)
     period_s = float(scenario.get("rates", {}).get("fitter_sample_period_s", 0.01))
     vehicle = load_vehicle(scenario.get("vehicle"))
     kind = "effects" if fc.get("effects") else "st"

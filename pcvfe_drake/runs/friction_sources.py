@@ -3,7 +3,10 @@
 The scenario field ``estimator`` picks it (``pcvfe simulate SCENARIO --estimator X`` overrides):
 
 ==============  ==========================================================================
-``pcvfe``       the PC-VFE pipeline: features, context clustering, per-context fitter
+``pcvfe``       the PC-VFE pipeline: features, context clustering, per-context fitter of
+                the vehicle's calibrated effect model (``fitter.model``; docs/vehicles.md)
+``pcvfe_paper`` the same pipeline with the paper's fitter: the single-track model, no effects
+                (reproduces the paper's method and shows what the effect model buys)
 ``oracle``      the true mu under the car (simulation only: the upper bound)
 ``fixed``       a constant mu: ``fixed.use`` picks ``conservative`` (``fixed.conservative_mu``)
                 or ``nominal`` (``fixed.nominal_mu``, default the vehicle's mu: optimistic)
@@ -21,9 +24,13 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 
-ESTIMATORS = ("pcvfe", "oracle", "fixed", "lookup", "ukf", "kmpc")
+PAPER_FITTER = "pcvfe_paper"
+"""The PC-VFE source with the paper's single-track fitter (``Scenario.fit_config``)."""
+ESTIMATORS = ("pcvfe", PAPER_FITTER, "oracle", "fixed", "lookup", "ukf", "kmpc")
 """Values of the scenario's ``estimator`` field (the friction source; ``kmpc``: the kinematic
 controller without a friction input)."""
+PCVFE_SOURCES = ("pcvfe", PAPER_FITTER)
+"""The sources built from the camera's contexts and the context fitter."""
 FIXED_CHOICES = ("conservative", "nominal")
 
 PAPER_LOOKUP_CLASSES = [

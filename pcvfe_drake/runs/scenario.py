@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from pcvfe_drake.contexts.clustering_params import ClusteringParams
 from pcvfe_drake.control.nmpc_config import NmpcConfig
 from pcvfe_drake.estimation.context_estimator import LiveFitConfig
+from pcvfe_drake.estimation.effect_model import EffectModel, resolve_model
 from pcvfe_drake.estimation.ukf import UkfConfig
 from pcvfe_drake.hardware.settings import HardwareSettings, hardware_problems
 from pcvfe_drake.perception.camera import CameraConfig
@@ -214,8 +215,9 @@ class Scenario:
     sensing: SensingConfig = field(default_factory=SensingConfig)
     """State sensing: ``model: none`` (the true state) or ``ins`` (``vehicle/sensing.py``)."""
     estimator: str = "pcvfe"
-    """The friction source feeding the NMPC: pcvfe | oracle | fixed | lookup | ukf | kmpc
-    (``pcvfe_drake.runs.friction_sources``)."""
+    """The friction source feeding the NMPC: pcvfe | pcvfe_paper | oracle | fixed | lookup |
+    ukf | kmpc (``pcvfe_drake.runs.friction_sources``; ``pcvfe`` fits the vehicle's
+    calibrated effect model, ``pcvfe_paper`` the paper's single-track model)."""
     fixed: FixedFrictionSettings = field(default_factory=FixedFrictionSettings)
     lookup: LookupSettings = field(default_factory=LookupSettings)
     ukf: UkfConfig = field(default_factory=UkfConfig)
@@ -258,8 +260,20 @@ class Scenario:
         )
 
     def fit_config(self) -> LiveFitConfig:
-        """``fitter`` with its data rate (``rates.fitter_sample_period_s``) filled in."""
-        fitter = dataclasses.replace(self.fitter, sample_period_s=self.rates.fitter_sample_period_s)
+        """``fitter`` with its data rate (``rates.fitter_sample_period_s``) and its effect model
+        filled in: for ``estimator: pcvfe`` ``fitter.model`` as given, or the vehicle's
+        calibrated model where it names none
+        (``pcvfe_drake.estimation.effect_model.resolve_model``); for ``pcvfe_paper`` (the
+        paper's fitter), and for the sources without a fitter, the single-track model."""
+        if self.estimator != "pcvfe":
+            model = EffectModel()
+        else:
+            model = resolve_model(
+                self.fitter.model, self.vehicle, self.truth_model, self.friction_mapping
+            )
+        fitter = dataclasses.replace(
+            self.fitter, sample_period_s=self.rates.fitter_sample_period_s, model=model
+        )
         if fitter.probe_use_fraction is None:  # the planner uses speed_margin^2 of mu
             fitter = dataclasses.replace(fitter, probe_use_fraction=self.nmpc.speed_margin**2)
         return fitter

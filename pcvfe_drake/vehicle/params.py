@@ -53,6 +53,7 @@ PHYSICAL_RANGES: dict[str, tuple[float, float]] = {
     "length": (0.05, 30.0),
     "width": (0.05, 5.0),
     "g": (1.0, 30.0),
+    "track": (0.05, 5.0),
 }
 """Plausible range of every vehicle field [SI units], inclusive: from a 1/10-scale car to a
 truck. Beyond them a value is a wrong unit or a typo (a steering limit in degrees, a centre of
@@ -66,7 +67,7 @@ def vehicle_problems(p: VehicleParams) -> list[str]:
     order, as ``"field=value: reason"`` strings."""
     out = []
     for f in dataclasses.fields(p):
-        if f.name == "name":
+        if f.name == "name" or (f.name == "track" and p.track is None):
             continue
         value = getattr(p, f.name)
         if isinstance(value, bool) or not isinstance(value, int | float):
@@ -116,6 +117,10 @@ class VehicleParams:
         a_max: maximum absolute longitudinal acceleration [m/s^2].
         length, width: body size, for drawing and course margins [m].
         g: gravitational acceleration [m/s^2].
+        track: front track width, wheel centre to wheel centre [m] (None: not given). The
+            context fitter's ``track_slip`` effect holds its width at this value
+            (``pcvfe_drake.estimation.effect_model``); a car that does not give it has the
+            width calibrated from its drive instead.
     """
 
     name: str
@@ -138,6 +143,7 @@ class VehicleParams:
     length: float = 4.3
     width: float = 1.7
     g: float = G_MPS2
+    track: float | None = None
 
     def __post_init__(self) -> None:
         problems = vehicle_problems(self)
@@ -182,18 +188,24 @@ class VehicleParams:
         wrong = [
             f"{k}={v!r} must be a number"
             for k, v in data.items()
-            if k != "name" and (isinstance(v, bool) or not isinstance(v, int | float))
+            if k != "name"
+            and not (k == "track" and v is None)
+            and (isinstance(v, bool) or not isinstance(v, int | float))
         ]
         if wrong:
             raise ValueError("; ".join(wrong))
-        values = {k: (v if k == "name" else float(v)) for k, v in data.items()}
+        values = {
+            k: (v if k == "name" or (k == "track" and v is None) else float(v))
+            for k, v in data.items()
+        }
         return cls(**values)
 
     @classmethod
     def from_commonroad(cls, p, name: str = "commonroad") -> VehicleParams:
         """Build from a ``vehiclemodels`` parameter set (e.g. ``parameters_vehicle1()``).
 
-        mu is ``p.tire.p_dy1``, C_Sf = C_Sr = ``-p.tire.p_ky1 / p.tire.p_dy1``, h is ``p.h_s``.
+        mu is ``p.tire.p_dy1``, C_Sf = C_Sr = ``-p.tire.p_ky1 / p.tire.p_dy1``, h is ``p.h_s``,
+        the track the front one ``p.T_f``.
         """
         mu = float(p.tire.p_dy1)
         c_s = float(-p.tire.p_ky1 / p.tire.p_dy1)
@@ -217,6 +229,7 @@ class VehicleParams:
             a_max=float(p.longitudinal.a_max),
             length=float(p.l),
             width=float(p.w),
+            track=float(p.T_f),
         )
 
 

@@ -153,9 +153,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("runs", nargs="*", type=Path, help="run folders with a drive log")
     ap.add_argument("--window", type=float, default=6.0, help="novelty_window_s [s]")
-    ap.add_argument(
-        "--scenario", default="paper_eval_effects", help="the third setting: its clustering"
-    )
+    ap.add_argument("--scenario", default="paper_eval", help="the third setting: its clustering")
     ap.add_argument(
         "--hold",
         type=float,
@@ -167,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if not args.runs:
         with tempfile.TemporaryDirectory(prefix="novelty_replay_") as tmp:
-            made = make_run(Path(tmp) / "run", "paper_eval_effects", 45.0 if args.quick else None)
+            made = make_run(Path(tmp) / "run", "paper_eval", 45.0 if args.quick else None)
             return main([str(made), "--window", str(args.window), "--scenario", args.scenario])
     from pcvfe_drake.diagrams.scenario_io import load_scenario
 

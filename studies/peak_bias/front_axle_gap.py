@@ -131,10 +131,12 @@ def scenario_law(name: str) -> tuple[FitterLaw, str]:
     as fixed in its ``fitter.effects``) and its ``friction_mapping`` (the replay's truth)."""
     import yaml
 
+    from pcvfe_drake.diagrams.scenario_io import load_scenario
     from pcvfe_drake.runs.scenario_files import resolve_scenario_path
 
     spec = yaml.safe_load(resolve_scenario_path(name).read_text())
-    fixed = {e["name"]: e.get("fixed", {}) for e in spec.get("fitter", {}).get("effects", [])}
+    effects = load_scenario(resolve_scenario_path(name)).fit_config().model.effects
+    fixed = {e.name: e.fixed for e in effects}
     law = FitterLaw(
         k_f=float(fixed.get("axle_stiffness", {}).get("k_f", 1.0)),
         k_s=float(fixed.get("peak_tyre", {}).get("k_s", 1.0)),
@@ -406,7 +408,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=60.0, help="length of each drive [s]")
     ap.add_argument("--runs", default=None, help="a pcvfe evaluate folder to replay")
-    ap.add_argument("--scenario", default="paper_eval_effects")
+    ap.add_argument("--scenario", default="paper_eval")
     ap.add_argument("--source", default="pcvfe_effects")
     ap.add_argument("--seeds", default="0,1")
     ap.add_argument("--terrains", default="patchy_grass,sand")

@@ -174,7 +174,7 @@ def main() -> None:
         "--runs", default=None, help="a pcvfe evaluate output folder (default: make the runs)"
     )
     ap.add_argument("--quick", action="store_true", help="without --runs: seed 0, 30 s, sand")
-    ap.add_argument("--scenario", default="paper_eval_effects")
+    ap.add_argument("--scenario", default="paper_eval")
     ap.add_argument("--source", default="pcvfe_effects")
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--terrains", default="patchy_grass,sand,brick")

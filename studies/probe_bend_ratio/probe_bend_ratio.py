@@ -111,7 +111,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--window", type=float, default=3.0, help="window length [s]")
     ap.add_argument("--json-only", action="store_true")
     ap.add_argument("--quick", action="store_true", help="without runs: a 60 s run")
-    ap.add_argument("--scenario", default="paper_eval_effects", help="without runs: this one")
+    ap.add_argument("--scenario", default="paper_eval", help="without runs: this one")
     args = ap.parse_args(argv)
     if not args.runs:
         with tempfile.TemporaryDirectory(prefix="bend_ratio_") as tmp:

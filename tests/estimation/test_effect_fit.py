@@ -21,6 +21,7 @@ from pcvfe_drake.estimation.effect_fit import (
     parse_effects,
     small_slip_stiffness,
 )
+from pcvfe_drake.estimation.effect_model import EffectModel
 from pcvfe_drake.runs.drivelog import write_drive_log
 from pcvfe_drake.vehicle.params import ford_escort
 from pcvfe_drake.workbench import synth
@@ -137,7 +138,10 @@ def test_estimator_effect_path_and_lower_bound(saturating_log):
 
     def run(**cfg):
         est = ContextEstimator(
-            vp, LiveFitConfig(effects=["tire_saturation"], sample_period_s=0.02, **cfg)
+            vp,
+            LiveFitConfig(
+                model=EffectModel(effects=["tire_saturation"]), sample_period_s=0.02, **cfg
+            ),
         )
         for k in range(t.size):
             est.add_sample(t[k], S[k], U[k], 0)

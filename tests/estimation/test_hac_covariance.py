@@ -176,6 +176,7 @@ def test_st_fit_std_and_model_error_budget():
 def test_bad_settings_are_refused():
     from pcvfe_drake.estimation.context_estimator import LiveFitConfig
     from pcvfe_drake.estimation.effect_fit import EffectFitter
+    from pcvfe_drake.estimation.effect_model import EffectModel
     from pcvfe_drake.estimation.fit_options import FitOptions
     from pcvfe_drake.vehicle.params import ford_escort
 
@@ -185,8 +186,8 @@ def test_bad_settings_are_refused():
         FitOptions(model_error_rel=-0.1)
     with pytest.raises(ValueError, match="hac_lag_s"):
         FitOptions(hac_lag_s=math.nan)
-    with pytest.raises(ValueError, match="LiveFitConfig.model_error_rel"):
-        LiveFitConfig(model_error_rel=math.inf)
+    with pytest.raises(ValueError, match="EffectModel.model_error_rel"):
+        LiveFitConfig(model=EffectModel(model_error_rel=math.inf))
     with pytest.raises(ValueError, match="EffectFitter.covariance"):
         EffectFitter(ford_escort(), ["peak_tyre"], covariance="x")
     with pytest.raises(ValueError, match="EffectFitter.model_error_rel"):

@@ -9,6 +9,7 @@ import pytest
 
 from pcvfe_drake.estimation.context_estimator import ContextEstimator, LiveFitConfig
 from pcvfe_drake.estimation.effect_fit import identifiability
+from pcvfe_drake.estimation.effect_model import EffectModel
 from pcvfe_drake.estimation.probe import MF_SHAPE, axle_slip_angles, wheel_peak_share
 from pcvfe_drake.models.chassis_effects import wheel_slip_offsets
 from pcvfe_drake.vehicle.params import ford_escort
@@ -89,11 +90,11 @@ def test_the_estimator_judges_the_std_without_the_model_error_budget():
     t, x = _straight_then_bends()
     mu, data_std = 0.22, 0.01  # near: used 0.153 >= 0.6 * 0.22
     for rel in (0.0, 0.11, 0.3):
-        est = ContextEstimator(VP, LiveFitConfig(model_error_rel=rel))
+        est = ContextEstimator(VP, LiveFitConfig(model=EffectModel(model_error_rel=rel)))
         empty = est._slot(0).estimate
         reported = math.hypot(data_std, rel * mu)  # what the fit reports with the budget
         assert est._identifiability(empty, t, x, mu, reported, True)["identifiable"]
-    est = ContextEstimator(VP, LiveFitConfig(model_error_rel=0.11))
+    est = ContextEstimator(VP, LiveFitConfig(model=EffectModel(model_error_rel=0.11)))
     empty = est._slot(0).estimate
     assert not est._identifiability(empty, t, x, mu, math.hypot(0.06, 0.11 * mu), True)[
         "identifiable"

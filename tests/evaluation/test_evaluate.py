@@ -218,7 +218,8 @@ def test_shipped_experiments_load_and_expand():
 
     assert "paper_claim3" in shipped_experiments()
     exp, path = load_experiment("paper_claim3")
-    assert [s.name for s in exp.sources] == ["pcvfe", "ukf", "lookup", "fixed", "kmpc", "oracle"]
+    names = ["pcvfe_paper", "ukf", "lookup", "fixed", "kmpc", "oracle"]
+    assert [s.name for s in exp.sources] == names
     specs = run_specs(exp, path)
     assert len(specs) == 60 and {s.scenario_name for s in specs} == {"paper_eval"}
     estimators = {s.source: s.scenario["estimator"] for s in specs}
@@ -273,3 +274,29 @@ def test_terrain_rows_count_settled_and_covered_pairs_by_hand():
     old = terrain_rows(contexts.drop(columns="covered_95"))
     assert all(r["interval_known"] == 0 for r in old) and len(old) == 3
     assert terrain_rows(pd.DataFrame()) == []
+
+
+def test_variants_run_every_scenario_once_per_variant(tmp_path):
+    path = tmp_path / "cars.yaml"
+    path.write_text(
+        "name: cars\nscenarios: [paper_eval]\nseeds: 1\n"
+        "variants:\n"
+        "  - {name: bmw, overrides: {vehicle: bmw_320i}}\n"
+        "  - {name: van-project, overrides: {vehicle: vw_vanagon,\n"
+        "                                    friction_mapping: peak_and_stiffness}}\n"
+        "sources:\n  - {name: oracle, overrides: {estimator: oracle}}\n"
+    )
+    exp, _ = load_experiment(path)
+    specs = run_specs(exp, path)
+    assert [s.scenario_name for s in specs] == ["paper_eval-bmw", "paper_eval-van-project"]
+    assert [s.run_id for s in specs] == [
+        "paper_eval-bmw__oracle__s000",
+        "paper_eval-van-project__oracle__s000",
+    ]
+    assert [(s.scenario["vehicle"], s.scenario["friction_mapping"]) for s in specs] == [
+        ("bmw_320i", "lateral_peak"),
+        ("vw_vanagon", "peak_and_stiffness"),
+    ]
+    path.write_text(path.read_text().replace("name: van-project", "name: bmw"))
+    with pytest.raises(ValueError, match=r"variants\[1\].name='bmw': used by two variants"):
+        load_experiment(path)

@@ -1,0 +1,186 @@
+"""``pcvfe calibrate``: a car's effect model for the context fitter, from a calibration drive."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from pcvfe_drake.runs.output_paths import write_failed
+
+MAPPINGS = ("lateral_peak", "peak_and_stiffness", "peak")
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "calibrate",
+        help="calibrate a car's effect model (the context fitter's) on a calibration drive",
+        description=(
+            "Run the workbench's loop on a calibration drive and write the car's effect model "
+            "for the context fitter (docs/vehicles.md): which effects, the values held and "
+            "their standard deviations, and a model-error budget. The loop starts from the "
+            "effects a car has by construction, with the constants the vehicle's own data "
+            "give (track width, the tyre's camber offsets) held, and adds what is significant. "
+            "Only what a car measures is read: the drive log's measured state and commanded "
+            "inputs. With --simulate the drive is first driven on the multi-body truth: "
+            "steady-state circles at rising speed, steering steps, a sine sweep and braking, "
+            "on one surface of known friction."
+        ),
+    )
+    p.add_argument("log", nargs="?", help="calibration drive log (.csv/.parquet) or run folder")
+    p.add_argument(
+        "--simulate",
+        metavar="VEHICLE",
+        default=None,
+        help="drive the calibration programme with this vehicle on the multi-body truth first "
+        "(ford_escort, bmw_320i, vw_vanagon)",
+    )
+    p.add_argument("--vehicle", default=None, help="vehicle preset or YAML file (with a log)")
+    p.add_argument(
+        "--mapping",
+        choices=MAPPINGS,
+        default="peak_and_stiffness",
+        help="--simulate: the multi-body truth's friction mapping; it states the tyre's "
+        "stiffness law (peak_tyre k_s: 1 for peak_and_stiffness, else 0)",
+    )
+    p.add_argument(
+        "--k-s",
+        type=float,
+        default=None,
+        help="with a log: peak_tyre's stiffness exponent (how the tyre's stiffness follows the "
+        "friction; one surface cannot show it; default 0: only the peak changes)",
+    )
+    p.add_argument(
+        "--surface-mu",
+        type=float,
+        default=None,
+        help="the calibration surface's friction peak (--simulate: default the tyre's nominal "
+        "peak; with a log: known friction adds the fit's offset from it to the model-error "
+        "budget)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="--simulate: seed of the sensor noise")
+    p.add_argument("--context-column", default=None, help="column with surface labels")
+    p.add_argument("--out", default=None, help="model file to write (default: print only)")
+    p.add_argument("--save-log", default=None, help="--simulate: also write the drive log here")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--no-progress", action="store_true", help="no progress lines")
+    p.set_defaults(func=run)
+
+
+def _progress(enabled: bool):
+    start = time.monotonic()
+
+    def report(text: str) -> None:
+        if enabled:
+            print(f"[{time.monotonic() - start:6.1f} s] {text}", file=sys.stderr, flush=True)
+
+    return report
+
+
+def run(args: argparse.Namespace) -> int:
+    import pandas as pd
+
+    from pcvfe_drake.estimation.effect_model import STIFFNESS_LAW, write_model_file
+    from pcvfe_drake.models.data import find_log, prepare
+    from pcvfe_drake.runs.drivelog import REQUIRED_COLUMNS, read_drive_log
+    from pcvfe_drake.vehicle.params import load_vehicle
+    from pcvfe_drake.workbench.calibration import calibrate
+
+    if (args.log is None) == (args.simulate is None):
+        raise ValueError("give a calibration drive LOG or --simulate VEHICLE (one of them)")
+    if args.log is not None and args.vehicle is None:
+        raise ValueError("a calibration LOG needs --vehicle (the car that drove it)")
+    if args.simulate is not None and args.vehicle not in (None, args.simulate):
+        raise ValueError("--simulate names the vehicle; leave out --vehicle or give the same")
+    if args.out and Path(args.out).is_dir():
+        raise ValueError(f"--out {args.out}: is a folder; give the model file's name")
+    report = _progress(not args.no_progress and not args.json)
+    vehicle = args.simulate or args.vehicle
+    params = load_vehicle(vehicle)
+    cpu0 = time.process_time()
+    known_mu = args.surface_mu
+    if args.simulate is not None:
+        from pcvfe_drake.vehicle.mb_truth import commonroad_parameters
+        from pcvfe_drake.workbench.calibration_drive import calibration_drive
+
+        commonroad_parameters(vehicle)  # a vehicle without multi-body parameters fails here
+        if known_mu is None:
+            known_mu = float(commonroad_parameters(vehicle).tire.p_dy1)
+        k_s = STIFFNESS_LAW[args.mapping] if args.k_s is None else args.k_s
+        last = [-1]
+
+        def drive_progress(fraction: float) -> None:
+            step = int(fraction * 10)
+            if step > last[0]:
+                last[0] = step
+                report(f"calibration drive {fraction:4.0%}")
+
+        report(f"driving the calibration programme: {vehicle}, {args.mapping}, mu {known_mu:g}")
+        df = calibration_drive(
+            vehicle, args.mapping, known_mu, seed=args.seed, progress=drive_progress
+        )
+        if args.save_log:
+            try:
+                df.to_csv(args.save_log, index=False)
+            except OSError as exc:
+                raise write_failed(exc, "--save-log", args.save_log) from exc
+        source = f"calibration programme ({vehicle}, {args.mapping})"
+        command = f"pcvfe calibrate --simulate {vehicle} --mapping {args.mapping}"
+    else:
+        k_s = 0.0 if args.k_s is None else args.k_s
+        df = read_drive_log(find_log(args.log), max_gap_s=None)
+        source = str(args.log)
+        command = f"pcvfe calibrate {args.log} --vehicle {vehicle}"
+    keep = [c for c in REQUIRED_COLUMNS if c in df.columns]  # only what a car measures
+    if args.context_column and args.context_column in df.columns:
+        keep.append(args.context_column)
+    data = prepare(pd.DataFrame(df[keep]), source, args.context_column)
+    report(f"the workbench's loop on {data.n} samples ({data.t[-1] - data.t[0]:.0f} s)")
+    result = calibrate(data, vehicle, params, k_s, progress=report)
+    summary = result.summary()
+    if known_mu is not None:
+        offsets = [abs(mu - known_mu) / known_mu for mu in result.surface_mu.values()]
+        bias = max(offsets)
+        budget = round((result.model.model_error_rel**2 + bias**2) ** 0.5, 4)
+        result.model.model_error_rel = budget
+        summary["surface_mu_known"] = float(known_mu)
+    summary["cpu_s"] = round(time.process_time() - cpu0, 1)
+    summary["source"] = source
+    out = {"vehicle": vehicle, **result.model.to_dict(), "calibration": summary}
+    if args.json:
+        print(json.dumps(out))
+    else:
+        _print(vehicle, result, summary)
+    if args.out:
+        header = (
+            f"Effect model of {vehicle} for the context fitter (docs/vehicles.md).\n"
+            f"Written by `{command}`; the values are held by the fitter."
+        )
+        try:
+            write_model_file(args.out, result.model, vehicle, header, summary)
+        except OSError as exc:
+            raise write_failed(exc, "--out", args.out) from exc
+        print(f"model written to {args.out}", file=sys.stderr)
+    return 0
+
+
+def _print(vehicle: str, result, summary: dict) -> None:
+    print(
+        f"{vehicle}: held-out error {result.baseline_heldout_error:.3g} (single-track) -> "
+        f"{result.heldout_error:.3g} (noise floor {result.noise_floor:.3g}); effects: "
+        + ", ".join(result.effects)
+    )
+    for effect in result.model.effects:
+        values = ", ".join(
+            f"{k} {v:.4g}" + (f" +- {effect.std[k]:.2g}" if effect.std.get(k) else "")
+            for k, v in effect.fixed.items()
+        )
+        print(f"  {effect.name:18s} {values}")
+    surface = ", ".join(
+        f"{k} {v:.4f} +- {result.surface_mu_std[k]:.3f}" for k, v in result.surface_mu.items()
+    )
+    known = summary.get("surface_mu_known")
+    print(f"  surface mu (fitted) {surface}" + (f" (known {known:.4f})" if known else ""))
+    print(f"  model_error_rel {result.model.model_error_rel:.4f}; cpu {summary['cpu_s']} s")

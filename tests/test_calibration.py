@@ -1,0 +1,115 @@
+"""``pcvfe calibrate``: the car's effect model from a calibration drive (planted truths)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from pcvfe_drake.estimation.effect_model import load_model_file, vehicle_constants
+from pcvfe_drake.models.data import prepare
+from pcvfe_drake.vehicle.params import ford_escort
+from pcvfe_drake.workbench.calibration import calibrate
+from pcvfe_drake.workbench.calibration_drive import CIRCLE_LEVELS, CIRCLE_RADIUS_M, programme
+from pcvfe_drake.workbench.synth import Truth, simulate_truths
+
+VP = ford_escort()
+CONST = vehicle_constants("ford_escort", VP)
+PLANTED = Truth(
+    mf_peak=0.8,
+    axle_stiffness=(0.93, 1.12),
+    roll_camber=(CONST["roll_camber"]["f0"], 0.0, CONST["roll_camber"]["s0"]),
+    track=(VP.track, VP.track, -0.5),
+)
+
+
+@pytest.fixture(scope="module")
+def calibration():
+    df = simulate_truths([PLANTED], VP, duration_s=40.0, seed=3)[0]
+    data = prepare(df, "planted")
+    return calibrate(data, "ford_escort", VP, 0.0, candidates=("axle_stiffness",))
+
+
+def test_calibration_recovers_the_planted_car_and_holds_its_constants(calibration):
+    model = calibration.model
+    effects = {e.name: e for e in model.effects}
+    assert calibration.effects[-1] == "axle_stiffness" and set(effects) == {
+        "peak_tyre",
+        "track_slip",
+        "roll_camber",
+        "axle_stiffness",
+    }
+    axle = effects["axle_stiffness"]
+    assert axle.fixed["k_f"] == pytest.approx(0.93, abs=0.05)
+    assert axle.fixed["k_r"] == pytest.approx(1.12, abs=0.05)
+    assert 0 < axle.std["k_f"] < 0.05
+    # the car's own constants are held exactly (std 0): the track and the tyre's camber
+    assert effects["track_slip"].fixed["t"] == VP.track and effects["track_slip"].std["t"] == 0
+    assert effects["roll_camber"].fixed == CONST["roll_camber"]
+    assert effects["peak_tyre"].fixed == {"k_s": 0.0}
+    assert calibration.surface_mu["all"] == pytest.approx(0.8, abs=0.04)
+    assert model.calibrated_mu == pytest.approx(0.8, abs=0.04)
+    assert calibration.heldout_error < calibration.baseline_heldout_error
+    assert math.isfinite(model.model_error_rel) and model.model_error_rel < 0.1
+
+
+def test_the_written_model_file_is_what_the_fitter_reads(calibration, tmp_path):
+    from pcvfe_drake.estimation.effect_model import write_model_file
+
+    path = write_model_file(
+        tmp_path / "car_model.yaml", calibration.model, "ford_escort", "a\nb", calibration.summary()
+    )
+    assert path.read_text().startswith("# a\n# b\n")
+    again = load_model_file(path)
+    assert again.to_dict() == calibration.model.to_dict()
+
+
+def test_the_programme_drives_the_stated_circles():
+    segments = programme("ford_escort", 0.9)
+    circles = [s for s in segments if s.kind == "circle" and abs(s.value) == 1 / CIRCLE_RADIUS_M]
+    assert len(circles) == 2 * len(CIRCLE_LEVELS)
+    levels = [s.v_mps**2 / CIRCLE_RADIUS_M / (0.9 * VP.g) for s in circles]
+    np.testing.assert_allclose(levels, list(CIRCLE_LEVELS) * 2)
+    assert {s.kind for s in segments} == {"cruise", "circle", "step", "sweep", "brake"}
+    assert all(s.value > 0 for s in segments if s.kind == "brake")
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["calibrate"], "give a calibration drive LOG or --simulate VEHICLE"),
+        (["calibrate", "log.csv", "--simulate", "bmw_320i"], "(one of them)"),
+        (["calibrate", "log.csv"], "a calibration LOG needs --vehicle"),
+        (["calibrate", "--simulate", "roboracer"], "has no CommonRoad multi-body parameters"),
+    ],
+)
+def test_calibrate_arguments_are_checked_before_any_work(argv, message, capsys):
+    from pcvfe_drake.cli import main
+
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+def test_calibrate_reads_only_what_a_car_measures(tmp_path, capsys, monkeypatch):
+    """Truth columns of the log never reach the calibration."""
+    import pcvfe_drake.models.data as data_module
+    from pcvfe_drake.cli import main
+    from pcvfe_drake.runs.drivelog import REQUIRED_COLUMNS
+
+    df = simulate_truths([PLANTED], VP, duration_s=25.0, seed=3)[0]
+    df["mu_true"] = 0.8
+    df["true_v"] = df["v"]
+    df.to_csv(tmp_path / "drive.csv", index=False)
+    seen = {}
+
+    def fake(table, *args, **kwargs):
+        seen["columns"] = list(table.columns)
+        raise ValueError("stop here")
+
+    monkeypatch.setattr(data_module, "prepare", fake)
+    argv = ["calibrate", str(tmp_path / "drive.csv"), "--vehicle", "ford_escort"]
+    assert main(argv) == 2
+    assert "stop here" in capsys.readouterr().err
+    assert seen["columns"] == list(REQUIRED_COLUMNS)
