@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from pcvfe_drake.estimation.effect_model import load_model_file, vehicle_constants
 from pcvfe_drake.models.data import prepare
+from pcvfe_drake.models.effect_model import load_model_file, vehicle_constants
 from pcvfe_drake.vehicle.params import ford_escort
 from pcvfe_drake.workbench.calibration import calibrate
 from pcvfe_drake.workbench.calibration_drive import CIRCLE_LEVELS, CIRCLE_RADIUS_M, programme
@@ -55,7 +55,7 @@ def test_calibration_recovers_the_planted_car_and_holds_its_constants(calibratio
 
 
 def test_the_written_model_file_is_what_the_fitter_reads(calibration, tmp_path):
-    from pcvfe_drake.estimation.effect_model import write_model_file
+    from pcvfe_drake.models.effect_model import write_model_file
 
     path = write_model_file(
         tmp_path / "car_model.yaml", calibration.model, "ford_escort", "a\nb", calibration.summary()

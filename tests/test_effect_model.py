@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from pcvfe_drake.estimation.effect_model import (
+from pcvfe_drake.models.effect_model import (
     MODEL_DIR,
     EffectModel,
     load_model_file,

@@ -79,9 +79,9 @@ def test_default_model_is_the_runs_scenario(tmp_path):
     run = tmp_path / "run"
     run.mkdir()
     (run / "scenario.yaml").write_text(
-        "name: x\nvehicle: ford_escort\nfitter:\n  model_error_rel: 0.11\n"
-        "  near_limit_fraction: 0.5\n  effects:\n    - name: peak_tyre\n"
-        "      fixed: {k_s: 0.0}\n"
+        "name: x\nvehicle: ford_escort\nestimator: pcvfe\nfitter:\n  near_limit_fraction: 0.5\n"
+        "  model:\n    model_error_rel: 0.11\n    effects:\n      - name: peak_tyre\n"
+        "        fixed: {k_s: 0.0}\n"
     )
     log = run / "drive_log.csv"
     for where in (log, run):  # the log or its run folder
@@ -92,9 +92,9 @@ def test_default_model_is_the_runs_scenario(tmp_path):
         assert model.vehicle == "ford_escort" and model.note is None
         assert "effect model" in model.source
     # a shipped scenario named with --scenario wins over the folder's
-    shipped = default_fit_model(log, "paper_eval")
-    assert shipped.effects == [] and "paper_eval.yaml" in shipped.source
-    effects = default_fit_model(tmp_path / "x.csv", "paper_eval_effects")
+    shipped = default_fit_model(log, "paper_sim")  # the single-track truth: no effects
+    assert shipped.effects == [] and "paper_sim.yaml" in shipped.source
+    effects = default_fit_model(tmp_path / "x.csv", "paper_eval")
     assert "peak_tyre" in [e.name for e in effects.effects]
     # nothing beside the log: the single-track model, with a note
     alone = default_fit_model(tmp_path / "x.csv")
@@ -103,10 +103,10 @@ def test_default_model_is_the_runs_scenario(tmp_path):
 
 def test_a_bad_scenario_is_a_named_error(tmp_path, capsys):
     (tmp_path / "scenario.yaml").write_text("fitter:\n  near_limit_fraction: 3\n")
-    with pytest.raises(ValueError, match=r"scenario\.yaml: fitter: .*near_limit_fraction"):
+    with pytest.raises(ValueError, match=r"scenario\.yaml: .*fitter: .*near_limit_fraction"):
         default_fit_model(tmp_path / "drive_log.csv")
     (tmp_path / "scenario.yaml").write_text("fitter:\n  no_such_field: 1\n")
-    with pytest.raises(ValueError, match=r"scenario\.yaml: fitter: .*no_such_field"):
+    with pytest.raises(ValueError, match=r"scenario\.yaml: .*fitter.*no_such_field"):
         default_fit_model(tmp_path / "drive_log.csv")
     assert main(["fit", str(tmp_path / "drive_log.csv")]) == 2
     assert "no_such_field" in capsys.readouterr().err

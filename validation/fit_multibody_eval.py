@@ -48,8 +48,7 @@ SOURCES = ("st", "effects", "effects_lb", "oracle")
 def run_one(mapping: str, source: str, seed: int, effects: list[str], laps: float) -> dict:
     from pcvfe_drake.diagrams.run_simulation import simulate_summary
     from pcvfe_drake.diagrams.scenario_io import load_scenario
-    from pcvfe_drake.estimation.effect_fit import parse_effects
-    from pcvfe_drake.estimation.effect_model import EffectModel
+    from pcvfe_drake.models.effect_model import EffectModel, parse_effects
 
     scenario = load_scenario("paper_eval")
     fitter = scenario.fitter

@@ -82,8 +82,8 @@ def _progress(enabled: bool):
 def run(args: argparse.Namespace) -> int:
     import pandas as pd
 
-    from pcvfe_drake.estimation.effect_model import STIFFNESS_LAW, write_model_file
     from pcvfe_drake.models.data import find_log, prepare
+    from pcvfe_drake.models.effect_model import STIFFNESS_LAW, write_model_file
     from pcvfe_drake.runs.drivelog import REQUIRED_COLUMNS, read_drive_log
     from pcvfe_drake.vehicle.params import load_vehicle
     from pcvfe_drake.workbench.calibration import calibrate

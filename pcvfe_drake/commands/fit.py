@@ -20,7 +20,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import yaml
 
 from pcvfe_drake.estimation.estimate_table import Z95
 from pcvfe_drake.estimation.fit_answer import distrust, judge_friction, mu_headline
@@ -202,7 +201,9 @@ def default_fit_model(log: Path, scenario: str | Path | None = None) -> FitModel
     """The model the live estimator uses for ``log``: ``scenario`` (a shipped name or a YAML
     file) if given, else the ``scenario.yaml`` of the run folder holding ``log``, else the
     single-track model with a note. The one place that decides the default model (a vehicle's
-    calibrated model file can take the fallback's place).
+    calibrated model file can take the fallback's place). The scenario is loaded as a run loads
+    it (``load_scenario``, then ``Scenario.fit_config``), so ``estimator: pcvfe`` fits the
+    vehicle's calibrated effect model and ``pcvfe_paper`` the single-track model.
 
     Raises ValueError naming the file when the scenario cannot be read or its ``fitter`` section
     is invalid (a run's model is never swapped silently for another)."""
@@ -219,24 +220,14 @@ def default_fit_model(log: Path, scenario: str | Path | None = None) -> FitModel
         if not path.is_file():
             return FitModel(fitter=LiveFitConfig(), note=ST_MODEL_NOTE)
         source = f"the run's scenario {path}"
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise ValueError(f"{path}: cannot read the scenario: {exc}") from exc
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: a scenario is a mapping of fields, got {type(data).__name__}")
-    section = data.get("fitter") or {}
-    if not isinstance(section, dict):
-        raise ValueError(f"{path}: fitter: expected a mapping, got {type(section).__name__}")
-    try:
-        fitter = LiveFitConfig(**section)
-    except TypeError as exc:  # an unknown field
-        raise ValueError(f"{path}: fitter: {exc}") from exc
-    except ValueError as exc:
-        raise ValueError(f"{path}: fitter: {exc}") from exc
-    vehicle = data.get("vehicle")
-    if isinstance(vehicle, str) and vehicle.endswith((".yaml", ".yml")):
-        vehicle = str((path.parent / vehicle).resolve())  # vehicle files: relative to the file
+    from pcvfe_drake.diagrams.scenario_io import load_scenario
+
+    try:  # the scenario as a run loads it: the vehicle's calibrated model filled in
+        loaded = load_scenario(path)
+        fitter = loaded.fit_config()
+    except FileNotFoundError as exc:
+        raise ValueError(f"{path}: {exc}") from exc
+    vehicle = loaded.vehicle
     return FitModel(
         effects=list(fitter.effects),
         fitter=fitter,
@@ -408,7 +399,7 @@ def run(args: argparse.Namespace) -> int:
         model = default_fit_model(args.log, args.scenario)
         model = FitModel(fitter=model.fitter, vehicle=model.vehicle, source="single-track model")
     elif args.effects:
-        from pcvfe_drake.estimation.effect_fit import parse_effects
+        from pcvfe_drake.models.effect_model import parse_effects
 
         model = default_fit_model(args.log, args.scenario)
         model = FitModel(

@@ -7,15 +7,11 @@ from __future__ import annotations
 
 import math
 
-from pcvfe_drake.estimation.effect_fit import (
-    controller_theta,
-    friction_is_peak,
-    identifiability,
-    parse_effects,
-)
+from pcvfe_drake.estimation.effect_fit import controller_theta, friction_is_peak, identifiability
 from pcvfe_drake.estimation.estimate_table import Z95
 from pcvfe_drake.estimation.fit_options import COVARIANCES, HAC_LAG_S, with_model_error
 from pcvfe_drake.estimation.probe import wheel_peak_share
+from pcvfe_drake.models.effect_model import parse_effects
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.workbench.ranking import Workbench
 

@@ -42,8 +42,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from pcvfe_drake.estimation.context_switch import RiseGuard, check_confirm_s
-from pcvfe_drake.estimation.effect_fit import EffectFitter, FitterEffect, identifiability
-from pcvfe_drake.estimation.effect_model import EffectModel
+from pcvfe_drake.estimation.effect_fit import EffectFitter, identifiability
 from pcvfe_drake.estimation.estimate_table import ContextEstimate, EstimateTable
 from pcvfe_drake.estimation.fit_dataset import (
     DEFAULT_HORIZON,
@@ -76,6 +75,7 @@ from pcvfe_drake.estimation.unknown_context import (
     unknown_context_theta,
     with_friction,
 )
+from pcvfe_drake.models.effect_model import EffectModel, FitterEffect
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import NU, NX
 
@@ -120,7 +120,7 @@ class LiveFitConfig:
         relabel: after each re-clustering, give the stored samples the clustering's new labels
             (paper eq. 5d; the ContextFitter's ``frame_labels`` input); False: every sample keeps
             the id it was taken with (noise samples never count).
-        model: the effect model (``pcvfe_drake.estimation.effect_model.EffectModel``: the
+        model: the effect model (``pcvfe_drake.models.effect_model.EffectModel``: the
             effects with their held values, the model-error budget): the workbench model
             with these effects instead of the bare ST model (``effect_fit``). No effects: the
             ST fit (default). ``effects`` and ``model_error_rel`` read it.

@@ -46,7 +46,7 @@ from pcvfe_drake.models.data import (
     robust_noise_sigma,
     window_starts,
 )
-from pcvfe_drake.models.effects import get_effect
+from pcvfe_drake.models.effect_model import parse_effects
 from pcvfe_drake.models.estimate import fit
 from pcvfe_drake.models.model import WorkbenchModel
 from pcvfe_drake.vehicle.params import VehicleParams
@@ -63,82 +63,6 @@ COLD_ITERATION_FACTOR = 3
 """A context's first fit may take this many times ``max_iterations``."""
 STIFFNESS_PROBE_SLIP_RAD = 1e-4
 STIFFNESS_PROBE_SPEED_MPS = 10.0
-
-
-@dataclass
-class FitterEffect:
-    """One effect of the context fitter's model (scenario ``fitter.effects`` entry).
-
-    Attributes:
-        name: the effect's name in the workbench library (``pcvfe diagnose --list``).
-        fixed: parameter values held fixed (short names, e.g. ``{tau: 0.15}``; as found by
-            ``pcvfe diagnose`` or ``pcvfe calibrate``); the effect's other parameters are
-            fitted per context.
-        std: the held values' standard deviations (short names; a subset of ``fixed``), as
-            the calibration measured them (0: a constant of the car's data, exact).
-    """
-
-    name: str = ""
-    fixed: dict[str, float] = field(default_factory=dict)
-    std: dict[str, float] = field(default_factory=dict)
-
-
-def parse_effects(entries) -> list[FitterEffect]:
-    """``FitterEffect`` list from names, ``"name:param=value,..."`` strings, dicts or
-    FitterEffects; unknown effects and parameters are reported by name."""
-    out = []
-    for entry in entries or ():
-        if isinstance(entry, FitterEffect):
-            spec = entry
-        elif isinstance(entry, dict):
-            spec = FitterEffect(
-                str(entry.get("name", "")),
-                dict(entry.get("fixed", {}) or {}),
-                dict(entry.get("std", {}) or {}),
-            )
-        else:
-            text = str(entry).strip()
-            name, _, rest = text.partition(":")
-            fixed = {}
-            for item in filter(None, (s.strip() for s in rest.split(","))):
-                key, eq, value = item.partition("=")
-                if not eq:
-                    raise ValueError(
-                        f"effect {text!r}: fixed parameters are written name:param=value,... "
-                        f"(got {item!r})"
-                    )
-                fixed[key.strip()] = float(value)
-            spec = FitterEffect(name.strip(), fixed)
-        effect = get_effect(spec.name)  # unknown names fail here, with the library listed
-        names = {q.name: q for q in effect.params}
-        for key, value in spec.fixed.items():
-            if key not in names:
-                raise ValueError(
-                    f"effect {spec.name}: no parameter {key!r} to fix (its parameters: "
-                    f"{', '.join(names) or 'none'})"
-                )
-            q = names[key]
-            if not (math.isfinite(value) and q.lower <= value <= q.upper):
-                raise ValueError(
-                    f"effect {spec.name}: fixed {key} = {value!r} is outside its bounds "
-                    f"[{q.lower}, {q.upper}] {q.unit}"
-                )
-        for key, value in spec.std.items():
-            if key not in spec.fixed:
-                raise ValueError(
-                    f"effect {spec.name}: std given for {key!r}, which is not held (held: "
-                    f"{', '.join(spec.fixed) or 'none'})"
-                )
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"effect {spec.name}: std of {key} = {value!r} must be >= 0")
-        out.append(
-            FitterEffect(
-                effect.name,
-                {k: float(v) for k, v in spec.fixed.items()},
-                {k: float(v) for k, v in spec.std.items()},
-            )
-        )
-    return out
 
 
 def friction_is_peak(model) -> bool:

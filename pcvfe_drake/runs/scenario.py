@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from pcvfe_drake.contexts.clustering_params import ClusteringParams
 from pcvfe_drake.control.nmpc_config import NmpcConfig
 from pcvfe_drake.estimation.context_estimator import LiveFitConfig
-from pcvfe_drake.estimation.effect_model import EffectModel, resolve_model
+from pcvfe_drake.models.effect_model import EffectModel, resolve_model
 from pcvfe_drake.estimation.ukf import UkfConfig
 from pcvfe_drake.hardware.settings import HardwareSettings, hardware_problems
 from pcvfe_drake.perception.camera import CameraConfig
@@ -263,7 +263,7 @@ class Scenario:
         """``fitter`` with its data rate (``rates.fitter_sample_period_s``) and its effect model
         filled in: for ``estimator: pcvfe`` ``fitter.model`` as given, or the vehicle's
         calibrated model where it names none
-        (``pcvfe_drake.estimation.effect_model.resolve_model``); for ``pcvfe_paper`` (the
+        (``pcvfe_drake.models.effect_model.resolve_model``); for ``pcvfe_paper`` (the
         paper's fitter), and for the sources without a fitter, the single-track model."""
         if self.estimator != "pcvfe":
             model = EffectModel()

@@ -119,7 +119,7 @@ class VehicleParams:
         g: gravitational acceleration [m/s^2].
         track: front track width, wheel centre to wheel centre [m] (None: not given). The
             context fitter's ``track_slip`` effect holds its width at this value
-            (``pcvfe_drake.estimation.effect_model``); a car that does not give it has the
+            (``pcvfe_drake.models.effect_model``); a car that does not give it has the
             width calibrated from its drive instead.
     """
 

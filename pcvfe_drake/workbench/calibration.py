@@ -4,7 +4,7 @@
 selection with a backward check, the same machinery as ``pcvfe diagnose --add``) on a drive
 log that holds only what a car measures (the drive log's required columns: measured state and
 commanded inputs), and returns the model the live fitter holds
-(:class:`~pcvfe_drake.estimation.effect_model.EffectModel`):
+(:class:`~pcvfe_drake.models.effect_model.EffectModel`):
 
 1. the loop starts from the effects a car has by construction, with the constants its own data
    give held (``effect_model.vehicle_constants``): ``peak_tyre`` (the fitter hands the friction
@@ -29,9 +29,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pcvfe_drake.estimation.effect_fit import FitterEffect
-from pcvfe_drake.estimation.effect_model import EffectModel, vehicle_constants
 from pcvfe_drake.models.data import DriveData, block_ids, window_starts
+from pcvfe_drake.models.effect_model import EffectModel, FitterEffect, vehicle_constants
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.workbench.ranking import DiagnoseConfig, Workbench
 

@@ -14,14 +14,12 @@ from pcvfe_drake.cli import main
 from pcvfe_drake.estimation.context_estimator import ContextEstimator, LiveFitConfig
 from pcvfe_drake.estimation.effect_fit import (
     EffectFitter,
-    FitterEffect,
     build_model,
     controller_theta,
     friction_used,
-    parse_effects,
     small_slip_stiffness,
 )
-from pcvfe_drake.estimation.effect_model import EffectModel
+from pcvfe_drake.models.effect_model import EffectModel, FitterEffect, parse_effects
 from pcvfe_drake.runs.drivelog import write_drive_log
 from pcvfe_drake.vehicle.params import ford_escort
 from pcvfe_drake.workbench import synth

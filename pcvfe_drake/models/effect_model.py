@@ -40,7 +40,7 @@ import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from pcvfe_drake.estimation.effect_fit import FitterEffect, parse_effects
+from pcvfe_drake.models.effects import get_effect
 
 MODEL_DIR = Path(__file__).resolve().parents[1] / "data" / "vehicles"
 """Folder of the shipped vehicles' model files."""
@@ -55,6 +55,82 @@ peak, 0 where only the peak changes. A calibration on one surface cannot see how
 follows the friction, so the simulated car's mapping states it."""
 
 MODEL_KEYS = ("vehicle", "effects", "model_error_rel", "calibrated_mu", "calibration")
+
+
+@dataclass
+class FitterEffect:
+    """One effect of the context fitter's model (scenario ``fitter.effects`` entry).
+
+    Attributes:
+        name: the effect's name in the workbench library (``pcvfe diagnose --list``).
+        fixed: parameter values held fixed (short names, e.g. ``{tau: 0.15}``; as found by
+            ``pcvfe diagnose`` or ``pcvfe calibrate``); the effect's other parameters are
+            fitted per context.
+        std: the held values' standard deviations (short names; a subset of ``fixed``), as
+            the calibration measured them (0: a constant of the car's data, exact).
+    """
+
+    name: str = ""
+    fixed: dict[str, float] = field(default_factory=dict)
+    std: dict[str, float] = field(default_factory=dict)
+
+
+def parse_effects(entries) -> list[FitterEffect]:
+    """``FitterEffect`` list from names, ``"name:param=value,..."`` strings, dicts or
+    FitterEffects; unknown effects and parameters are reported by name."""
+    out = []
+    for entry in entries or ():
+        if isinstance(entry, FitterEffect):
+            spec = entry
+        elif isinstance(entry, dict):
+            spec = FitterEffect(
+                str(entry.get("name", "")),
+                dict(entry.get("fixed", {}) or {}),
+                dict(entry.get("std", {}) or {}),
+            )
+        else:
+            text = str(entry).strip()
+            name, _, rest = text.partition(":")
+            fixed = {}
+            for item in filter(None, (s.strip() for s in rest.split(","))):
+                key, eq, value = item.partition("=")
+                if not eq:
+                    raise ValueError(
+                        f"effect {text!r}: fixed parameters are written name:param=value,... "
+                        f"(got {item!r})"
+                    )
+                fixed[key.strip()] = float(value)
+            spec = FitterEffect(name.strip(), fixed)
+        effect = get_effect(spec.name)  # unknown names fail here, with the library listed
+        names = {q.name: q for q in effect.params}
+        for key, value in spec.fixed.items():
+            if key not in names:
+                raise ValueError(
+                    f"effect {spec.name}: no parameter {key!r} to fix (its parameters: "
+                    f"{', '.join(names) or 'none'})"
+                )
+            q = names[key]
+            if not (math.isfinite(value) and q.lower <= value <= q.upper):
+                raise ValueError(
+                    f"effect {spec.name}: fixed {key} = {value!r} is outside its bounds "
+                    f"[{q.lower}, {q.upper}] {q.unit}"
+                )
+        for key, value in spec.std.items():
+            if key not in spec.fixed:
+                raise ValueError(
+                    f"effect {spec.name}: std given for {key!r}, which is not held (held: "
+                    f"{', '.join(spec.fixed) or 'none'})"
+                )
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"effect {spec.name}: std of {key} = {value!r} must be >= 0")
+        out.append(
+            FitterEffect(
+                effect.name,
+                {k: float(v) for k, v in spec.fixed.items()},
+                {k: float(v) for k, v in spec.std.items()},
+            )
+        )
+    return out
 
 
 @dataclass
