@@ -23,7 +23,7 @@ import typing
 from pathlib import Path
 
 import yaml
-from pydrake.common.yaml import yaml_load_typed
+from pydrake.common.yaml import yaml_load_data, yaml_load_typed
 
 from pcvfe_drake.runs.scenario import DERIVED_FIELDS, Scenario, resolve_scenario_path
 from pcvfe_drake.vehicle.params import PRESETS
@@ -75,6 +75,8 @@ def _normalise_value(hint, value, name: str, problems: list[str]):
         if value is None and type(None) in args:
             return None
         inner = [a for a in args if a is not type(None)]
+        if all(dataclasses.is_dataclass(a) for a in inner) and isinstance(value, dict):
+            return _normalise_variant(inner, value, name, problems)
         if len(inner) > 1:  # a union of scalars (an experiment's override value)
             if not isinstance(value, tuple(inner)):
                 names = " or ".join(a.__name__ for a in inner)
@@ -116,12 +118,28 @@ def _normalise_value(hint, value, name: str, problems: list[str]):
     return value
 
 
+def _normalise_variant(variants, value: dict, name: str, problems: list[str]):
+    """A mapping for a union of dataclasses (Drake's tagged variants: ``!Probe {...}`` in a
+    file, ``_tag: "!Probe"`` in plain data; no tag: the first alternative)."""
+    tag = value.get("_tag")
+    body = {k: v for k, v in value.items() if k != "_tag"}
+    names = {v.__name__: v for v in variants}
+    if tag is None:
+        return _normalise(variants[0], body, f"{name}.", problems)
+    chosen = names.get(str(tag).lstrip("!"))
+    if chosen is None:
+        known = ", ".join(f"!{n}" for n in names)
+        problems.append(f"field {name!r}: unknown variant {tag} (known: {known})")
+        return value
+    return {"_tag": f"!{chosen.__name__}", **_normalise(chosen, body, f"{name}.", problems)}
+
+
 def load_typed_yaml(schema, text: str, source: str, kind: str, defaults=None):
     """YAML ``text`` into dataclass ``schema`` with ``yaml_load_typed`` (on top of ``defaults``
     when given); every error is a ``ValueError`` naming ``source`` and the dotted field. An empty
     text gives ``defaults`` (or the dataclass defaults). ``kind`` names the file in messages."""
     try:
-        raw = yaml.safe_load(text)
+        raw = yaml_load_data(text, private=True)  # tags kept as Drake's "_tag" keys
     except yaml.YAMLError as exc:
         raise ValueError(f"{source}: not valid YAML: {exc}") from exc
     if raw is None:
