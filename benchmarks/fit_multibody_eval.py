@@ -8,7 +8,7 @@ the first catastrophic failure) is simulated with these friction sources:
 * ``st``: PC-VFE with today's single-track fitter (``fitter.effects`` empty);
 * ``effects``: PC-VFE with the effect model the workbench found for that mapping
   (``fitter.effects``, ``EFFECTS`` below or ``--effects``), the controller gets the estimate;
-* ``effects_lb``: the same with ``fitter.unidentified_mu: lower_bound`` (a context whose mu is
+* ``effects_lb``: the same with ``fitter.handing.unidentified: !LowerBound`` (a context whose mu is
   not identifiable hands the controller its used-friction lower bound);
 * ``oracle``: the true mu under the car (the reference for speed).
 
@@ -49,6 +49,7 @@ def run_one(mapping: str, source: str, seed: int, effects: list[str], laps: floa
     from pcvfe_drake.diagrams.run_simulation import simulate_summary
     from pcvfe_drake.diagrams.scenario_io import load_scenario
     from pcvfe_drake.estimation.effect_fit import parse_effects
+    from pcvfe_drake.handing.config import Estimate, LowerBound
 
     scenario = load_scenario("paper_eval")
     fitter = scenario.fitter
@@ -57,7 +58,10 @@ def run_one(mapping: str, source: str, seed: int, effects: list[str], laps: floa
         fitter = dataclasses.replace(
             fitter,
             effects=parse_effects(effects),
-            unidentified_mu="lower_bound" if source == "effects_lb" else "estimate",
+            handing=dataclasses.replace(
+                fitter.handing,
+                unidentified=LowerBound() if source == "effects_lb" else Estimate(),
+            ),
         )
     elif source == "oracle":
         estimator = "oracle"
