@@ -25,6 +25,8 @@ from pathlib import Path
 import yaml
 from pydrake.common.yaml import yaml_load_data, yaml_load_typed
 
+from pcvfe_drake.estimation.context_estimator import LiveFitConfig
+from pcvfe_drake.handing.config import FLAT_FIELDS
 from pcvfe_drake.runs.scenario import DERIVED_FIELDS, Scenario, resolve_scenario_path
 from pcvfe_drake.vehicle.params import PRESETS
 
@@ -59,6 +61,10 @@ def _normalise(schema, data, prefix: str, problems: list[str]):
     for key, value in data.items():
         name = f"{prefix}{key}"
         if key not in fields:
+            moved = FLAT_FIELDS.get(key) if schema is LiveFitConfig else None
+            if moved is not None:
+                problems.append(f"field {name!r} is now {moved}")
+                continue
             problems.append(f"unknown field {name!r} (known: {', '.join(sorted(fields))})")
             continue
         if name in DERIVED_FIELDS:

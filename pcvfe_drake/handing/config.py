@@ -141,6 +141,40 @@ class HandingConfig:
         return isinstance(self.unknown, StatedFloor)
 
 
+_DERIVED = "derived from the planner's share of mu or a constant (docs/handing.md)"
+FLAT_FIELDS: dict[str, str] = {
+    "noise_hold_s": "handing.noise_hold_s",
+    "rise_confirm_s": "handing.confirm_rise_s",
+    "unknown_context": "handing.unknown (!Conservative, !StatedFloor, !Prior, !LastKnown)",
+    "unknown_floor_mu": "handing.floor_mu",
+    "unknown_floor_stated": "handing.unknown: !StatedFloor {}",
+    "unknown_sigmas": "handing.unknown: !Conservative {sigmas: ...}",
+    "unknown_keeps_stiffness": "the behaviour (the small-slip stiffness is always kept)",
+    "unidentified_mu": "handing.unidentified (!Probe, !LowerBound, !Estimate)",
+    "probe_max_excess": "handing.unidentified: !Probe {max_excess: ...}",
+    "probe_fast_step_rel": "handing.unidentified: !Probe {fast_step_rel: ...}",
+    "probe_hold_s": "handing.unidentified: !Probe {hold_s: ...}",
+    "probe_use_fraction": "the NMPC's speed_margin^2, passed in when the diagram is built",
+    "probe_start_evidence": "the behaviour with handing.unknown: !StatedFloor {}",
+    "probe_unknown": "the behaviour with handing.unknown: !StatedFloor {}",
+    "probe_fit_target": "the behaviour of !Probe",
+    "probe_min_force": "evidence relative to the level tried (docs/handing.md)",
+    **dict.fromkeys(
+        (
+            "probe_step_rel",
+            "probe_slip_fraction",
+            "probe_window_s",
+            "probe_linear_ratio",
+            "probe_bend_limit",
+            "probe_bend_margin",
+        ),
+        _DERIVED,
+    ),
+}
+"""The flat ``LiveFitConfig`` fields the handing replaced, and where each went (a scenario that
+names one gets this in its error)."""
+
+
 def _positive(value, where: str) -> None:
     if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
         raise ValueError(f"{where} must be > 0, got {value!r}")

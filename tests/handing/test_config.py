@@ -69,3 +69,6 @@ def test_scenario_files_take_tagged_variants_and_a_saved_scenario_loads_again(tm
         scenario_from_yaml_text("fitter: {handing: {unknown: !Hope {}}}")
     with pytest.raises(ValueError, match="fitter.handing.unidentified.max_exces"):
         scenario_from_yaml_text("fitter: {handing: {unidentified: !Probe {max_exces: 1}}}")
+    # the old flat fields say where they went
+    with pytest.raises(ValueError, match=r"'fitter.rise_confirm_s' is now handing.confirm_rise_s"):
+        scenario_from_yaml_text("fitter: {rise_confirm_s: 1.0}")
