@@ -273,6 +273,7 @@ def _estimate_table(diagram, context) -> list[dict]:
             "identifiable": bool(e.identifiable),
             "below_used": bool(e.below_used),
             "probe": None if e.probe is None else e.probe.to_dict(),
+            "handing": e.handing,
             "mu_interval_95": [float(v) for v in e.mu_interval_95],
             "mu_is_peak": bool(e.mu_is_peak),
             "model_params": {n: float(v) for n, v, _ in e.model_params},

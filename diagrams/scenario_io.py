@@ -23,8 +23,10 @@ import typing
 from pathlib import Path
 
 import yaml
-from pydrake.common.yaml import yaml_load_typed
+from pydrake.common.yaml import yaml_load_data, yaml_load_typed
 
+from pcvfe_drake.estimation.context_estimator import LiveFitConfig
+from pcvfe_drake.handing.config import FLAT_FIELDS
 from pcvfe_drake.runs.scenario import (
     DERIVED_FIELDS,
     REPLACED_FIELDS,
@@ -74,6 +76,10 @@ def _normalise(schema, data, prefix: str, problems: list[str]):
             problems.append(f"field {name!r} was {REPLACED_FIELDS[key]}")
             continue
         if key not in fields:
+            moved = FLAT_FIELDS.get(key) if schema is LiveFitConfig else None
+            if moved is not None:
+                problems.append(f"field {name!r} is now {moved}")
+                continue
             problems.append(f"unknown field {name!r} (known: {', '.join(sorted(fields))})")
             continue
         if name in DERIVED_FIELDS:
@@ -90,6 +96,8 @@ def _normalise_value(hint, value, name: str, problems: list[str]):
         if value is None and type(None) in args:
             return None
         inner = [a for a in args if a is not type(None)]
+        if all(dataclasses.is_dataclass(a) for a in inner) and isinstance(value, dict):
+            return _normalise_variant(inner, value, name, problems)
         if len(inner) > 1:  # a union of scalars (an experiment's override value)
             if not isinstance(value, tuple(inner)):
                 names = " or ".join(a.__name__ for a in inner)
@@ -131,12 +139,31 @@ def _normalise_value(hint, value, name: str, problems: list[str]):
     return value
 
 
+def _normalise_variant(variants, value: dict, name: str, problems: list[str]):
+    """A mapping for a union of dataclasses (Drake's tagged variants: ``!Probe {...}`` in a
+    file, ``_tag: "!Probe"`` in plain data; no tag: the first alternative)."""
+    tag = value.get("_tag")
+    body = {k: v for k, v in value.items() if k != "_tag"}
+    names = {v.__name__: v for v in variants}
+    if tag is None:
+        return _normalise(variants[0], body, f"{name}.", problems)
+    chosen = names.get(str(tag).lstrip("!"))
+    if chosen is None:
+        known = ", ".join(f"!{n}" for n in names)
+        problems.append(f"field {name!r}: unknown variant {tag} (known: {known})")
+        return value
+    return {"_tag": f"!{chosen.__name__}", **_normalise(chosen, body, f"{name}.", problems)}
+
+
 def load_typed_yaml(schema, text: str, source: str, kind: str, defaults=None):
     """YAML ``text`` into dataclass ``schema`` with ``yaml_load_typed`` (on top of ``defaults``
     when given); every error is a ``ValueError`` naming ``source`` and the dotted field. An empty
     text gives ``defaults`` (or the dataclass defaults). ``kind`` names the file in messages."""
     try:
-        raw = yaml.load(text, Loader=_LOADER)
+        if "!" in text:  # tagged variants (``!Probe {}``): kept as Drake's "_tag" keys
+            raw = yaml_load_data(text, private=True)
+        else:  # libyaml's safe loader where available (large world files load fast)
+            raw = yaml.load(text, Loader=_LOADER)
     except yaml.YAMLError as exc:
         raise ValueError(f"{source}: not valid YAML: {exc}") from exc
     if raw is None:

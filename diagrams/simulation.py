@@ -105,6 +105,7 @@ def _add_friction_source(builder, scenario: Scenario, params, station, features,
                 period_s=rates.fitter_period_s,
                 sample_period_s=rates.fitter_sample_period_s,
                 config=scenario.fit_config(),
+                planner_mu_share=scenario.nmpc.speed_margin**2,  # the NMPC's share of mu
             ),
         )
         builder.Connect(features, clustering.GetInputPort("features"))

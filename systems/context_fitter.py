@@ -11,6 +11,7 @@ from pydrake.systems.framework import BasicVector, Context, EventStatus, LeafSys
 
 from pcvfe_drake.contexts.cluster_table import FrameLabels
 from pcvfe_drake.estimation.context_estimator import ContextEstimator, EstimateTable, LiveFitConfig
+from pcvfe_drake.estimation.probe import DEFAULT_PROBE_USE_FRACTION
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import NTHETA, NU, NX
 
@@ -42,13 +43,9 @@ class ContextFitter(LeafSystem):
       sample period after the re-clustering instead of at the next refit update. Left
       unconnected (a station without clustering, or ids from elsewhere), or with
       ``relabel=False``, samples keep the id they were taken with.
-    - ``theta_hat``: 3-vector [mu, C_Sf, C_Sr] of the current context, from state (zero-order
-      hold at the sample rate, no direct feedthrough). Contexts with too little data, and
-      noise/unknown contexts lasting longer than ``noise_hold_s`` (default 1 s; shorter noise
-      keeps the last known context's theta), get the unknown-context policy's theta
-      (``LiveFitConfig.unknown_context``: by default ``conservative``, mu at most 0.3 with the
-      prior's small-slip stiffness mu * C_S kept; ``prior``: the vehicle's nominal values, for the
-      Ford Escort [1.0489, 20.898, 20.898]). Always finite.
+    - ``theta_hat``: 3-vector [mu, C_Sf, C_Sr] for the current frame as the handing decides
+      (``pcvfe_drake.handing``, ``docs/handing.md``), from state (zero-order hold at the sample
+      rate, no direct feedthrough). Always finite.
     - ``estimate_table``: abstract :class:`pcvfe_drake.estimation.context_estimator.EstimateTable`:
     per
       context theta, standard deviations, samples, windows, last update time, status and the
@@ -71,6 +68,7 @@ class ContextFitter(LeafSystem):
         period_s: float = 1.0,
         sample_period_s: float = 0.01,
         config: LiveFitConfig | None = None,
+        planner_mu_share: float = DEFAULT_PROBE_USE_FRACTION,
         **config_overrides,
     ) -> None:
         """
@@ -80,6 +78,8 @@ class ContextFitter(LeafSystem):
             sample_period_s: data sampling period [s].
             config: fitting settings (default ``LiveFitConfig()``); ``sample_period_s`` replaces
                 its data rate.
+            planner_mu_share: the share of the handed mu the planner uses (the NMPC's
+                ``speed_margin^2``), which the handing's exploration judges its levels by.
             config_overrides: individual ``LiveFitConfig`` fields (e.g. ``horizon_steps=10``,
                 ``fit_stiffness=True``); None values are ignored.
         """
@@ -96,9 +96,10 @@ class ContextFitter(LeafSystem):
             raise ValueError(f"ContextFitter: unknown setting(s) {unknown}")
         self._config = replace(base, sample_period_s=float(sample_period_s), **fields)
         self._params = params
+        self._planner_mu_share = float(planner_mu_share)
         self._period_s = float(period_s)
         self._sample_period_s = float(sample_period_s)
-        estimator = ContextEstimator(params, self._config)
+        estimator = ContextEstimator(params, self._config, planner_mu_share=planner_mu_share)
 
         self._state_port = self.DeclareVectorInputPort("state", NX)
         self._actuation_port = self.DeclareVectorInputPort("actuation", NU)
@@ -128,6 +129,11 @@ class ContextFitter(LeafSystem):
     @property
     def config(self) -> LiveFitConfig:
         return self._config
+
+    @property
+    def planner_mu_share(self) -> float:
+        """The share of the handed mu the planner uses (the handing's exploration)."""
+        return self._planner_mu_share
 
     @property
     def period_s(self) -> float:

@@ -8,7 +8,8 @@ import pytest
 
 from pcvfe_drake.cli import main
 from pcvfe_drake.models.data import DriveData, prepare
-from pcvfe_drake.models.synthetic_drive import MeasurementNoise, drive_frame
+from pcvfe_drake.models.synthetic_drive import drive_frame
+from pcvfe_drake.vehicle.measurement_noise import MeasurementNoise
 from pcvfe_drake.vehicle.params import ford_escort
 from pcvfe_drake.vehicle.single_track import NX, PSI_DOT, V, rk4_step
 from pcvfe_drake.workbench.excitation import NotDiagnosable, excitation

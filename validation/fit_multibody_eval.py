@@ -8,7 +8,7 @@ the first catastrophic failure) is simulated with these friction sources:
 * ``st``: PC-VFE with today's single-track fitter (``fitter.effects`` empty);
 * ``effects``: PC-VFE with the effect model the workbench found for that mapping
   (``fitter.effects``, ``EFFECTS`` below or ``--effects``), the controller gets the estimate;
-* ``effects_lb``: the same with ``fitter.unidentified_mu: lower_bound`` (a context whose mu is
+* ``effects_lb``: the same with ``fitter.handing.unidentified: !LowerBound`` (a context whose mu is
   not identifiable hands the controller its used-friction lower bound);
 * ``oracle``: the true mu under the car (the reference for speed).
 
@@ -48,6 +48,7 @@ SOURCES = ("st", "effects", "effects_lb", "oracle")
 def run_one(mapping: str, source: str, seed: int, effects: list[str], laps: float) -> dict:
     from pcvfe_drake.diagrams.run_simulation import simulate_summary
     from pcvfe_drake.diagrams.scenario_io import load_scenario
+    from pcvfe_drake.handing.config import Estimate, LowerBound
     from pcvfe_drake.models.effect_model import EffectModel, parse_effects
 
     scenario = load_scenario("paper_eval")
@@ -58,7 +59,10 @@ def run_one(mapping: str, source: str, seed: int, effects: list[str], laps: floa
         fitter = dataclasses.replace(
             fitter,
             model=EffectModel(effects=parse_effects(effects)),
-            unidentified_mu="lower_bound" if source == "effects_lb" else "estimate",
+            handing=dataclasses.replace(
+                fitter.handing,
+                unidentified=LowerBound() if source == "effects_lb" else Estimate(),
+            ),
         )
     elif source == "oracle":
         estimator = "oracle"

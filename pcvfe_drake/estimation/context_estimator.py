@@ -15,15 +15,12 @@ Rules (the "bad input" behaviour):
 
 * samples with non-finite values are not stored (counted in ``rejected_samples``);
 * noise/unknown samples (id < 0, or non-finite id) are stored with the label -1 and never
-  fitted unless a relabelling gives them a context; while the current id is noise the
-  controller gets the estimate of the last known context while the noise has lasted at most
-  ``noise_hold_s`` (a stray noise frame inside a known terrain does not throw the controller
-  back to the prior), then the unknown-context policy's theta
-  (``pcvfe_drake.estimation.unknown_context``: ``prior``, ``last_known`` or, by default,
-  ``conservative``);
+  fitted unless a relabelling gives them a context;
 * a context with fewer than ``min_windows`` usable windows keeps the prior theta and its table
-  entry says so (status ``"too_little_data"``); while it is the current context the controller
-  gets the unknown-context policy's theta;
+  entry says so (status ``"too_little_data"``);
+* what the controller gets for the current frame, a noise frame or a context without a fit
+  is decided by the handing (``pcvfe_drake.handing``: the fitter's estimates in, the handed
+  theta and each context's state out);
 * a refit whose solver diverges (non-finite loss or estimate) keeps the last good estimate and
   increments the context's ``diverged`` count;
 * :meth:`ContextEstimator.theta_for` always returns finite numbers.
@@ -41,7 +38,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from pcvfe_drake.estimation.context_switch import RiseGuard, check_confirm_s
 from pcvfe_drake.estimation.effect_fit import EffectFitter, identifiability
 from pcvfe_drake.estimation.estimate_table import ContextEstimate, EstimateTable
 from pcvfe_drake.estimation.fit_dataset import (
@@ -59,27 +55,14 @@ from pcvfe_drake.estimation.fit_options import (
     without_model_error,
 )
 from pcvfe_drake.estimation.fitting import fit_gauss_newton
-from pcvfe_drake.estimation.probe import (
-    ProbeState,
-    check_probe_settings,
-    controller_theta,
-    wheel_peak_share,
-)
-from pcvfe_drake.estimation.probe_updates import update_probes
+from pcvfe_drake.estimation.probe import DEFAULT_PROBE_USE_FRACTION, wheel_peak_share
 from pcvfe_drake.estimation.sample_store import NOISE, SampleStore, labels_from_frames
-from pcvfe_drake.estimation.unknown_context import (
-    DEFAULT_FLOOR_MU,
-    DEFAULT_POLICY,
-    DEFAULT_SIGMAS,
-    check_policy,
-    unknown_context_theta,
-    with_friction,
-)
+from pcvfe_drake.handing.config import HandingConfig
+from pcvfe_drake.handing.context_state import ModelError
+from pcvfe_drake.handing.handing import Handing
 from pcvfe_drake.models.effect_model import EffectModel, FitterEffect
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import NU, NX
-
-UNIDENTIFIED_MU = ("estimate", "lower_bound", "probe")
 
 
 @dataclass
@@ -92,24 +75,9 @@ class LiveFitConfig:
         fit_stiffness: fit C_Sf, C_Sr too, with Gaussian priors of ``stiffness_prior_rel``
             times their nominal values (default: mu only).
         stiffness_prior_rel: prior standard deviation of the stiffnesses, relative.
-        prior_theta: theta for noise/unknown contexts and contexts with too little data
-            (default: the vehicle's nominal [mu, C_Sf, C_Sr]).
-        noise_hold_s: how long [s] a noise/unknown context keeps the last known context's
-            theta before the unknown-context policy takes over (0: at once).
-        rise_confirm_s: a switch to a context with more friction waits until the new context
-            has been reported this long (0: off; ``pcvfe_drake.estimation.context_switch``).
-        unknown_context: what the controller gets while the context is unknown (noise beyond
-            ``noise_hold_s``, or a context with no fit yet): ``"prior"``, ``"last_known"`` or
-            ``"conservative"`` (``pcvfe_drake.estimation.unknown_context``).
-        unknown_floor_mu: ``conservative``'s ceiling on mu (the lowest mu expected).
-        unknown_sigmas: ``conservative``'s lower confidence bound, in standard deviations.
-        unknown_floor_stated: ``unknown_floor_mu`` is the operator's stated lowest friction of
-            the course: ``conservative`` never hands less (``unknown_context``), and a probe
-            may take its first step at the id on the data driven at the floor before it
-            (``probe_start_evidence``).
-        unknown_keeps_stiffness: ``conservative`` scales C_Sf, C_Sr by ``prior_mu / mu`` so that
-            the single-track tyre's small-slip stiffness ``mu * C_S`` stays the prior's (only the
-            friction limit is lowered); False: the prior's C_S with the lower mu.
+        prior_theta: the prior theta, the theta of contexts with too little data and the
+            most friction any terrain is believed to have (default: the vehicle's nominal
+            [mu, C_Sf, C_Sr]).
         min_windows: fewer usable windows than this: keep the prior.
         buffer_s: seconds of data kept per context, and of noise samples (at
             ``sample_period_s``; the newest of each label).
@@ -130,17 +98,7 @@ class LiveFitConfig:
         identifiable_std: mu's standard deviation above which a context is not identifiable.
         near_limit_fraction: the data came near the limit when the used friction reached this
             fraction of the fitted mu.
-        unidentified_mu: what the controller gets for a fitted context whose mu is not
-            identifiable: ``"estimate"`` (the fit, default) or ``"lower_bound"``
-            (``max(mu_lower_bound, unknown_floor_mu)``, capped at the estimate, with the
-            stiffnesses scaled so that mu * C_S, the small-slip stiffness, stays the fit's) or
-            ``"probe"`` (exploration: ``pcvfe_drake.estimation.probe``; starts at the lower
-            bound's value and raises it step by step while the tyres show no saturation).
-        probe_*: the probe's numbers, each explained in ``probe``'s module docstring
-            (``probe_use_fraction`` None: 0.64; the scenario fills it from ``nmpc.speed_margin``;
-            ``probe_fast_step_rel`` None: no fast raise; ``probe_start_evidence``,
-            ``probe_unknown``, ``probe_fit_target``: the first step at the id, a step while
-            the terrain is unknown, a level tried in a bend raised to a tight fit).
+        handing: what the controller gets (``pcvfe_drake.handing``; ``docs/handing.md``).
     """
 
     horizon_steps: int = DEFAULT_HORIZON
@@ -156,13 +114,6 @@ class LiveFitConfig:
     max_windows: int = 512
     max_iterations: int = 5
     max_contexts_per_update: int = 2
-    noise_hold_s: float = 1.0
-    rise_confirm_s: float = 0.0
-    unknown_context: str = DEFAULT_POLICY
-    unknown_floor_mu: float = DEFAULT_FLOOR_MU
-    unknown_sigmas: float = DEFAULT_SIGMAS
-    unknown_keeps_stiffness: bool = True
-    unknown_floor_stated: bool = False
     relabel: bool = True
     model: EffectModel = field(default_factory=EffectModel)
     effect_horizon_s: float = 1.0
@@ -171,21 +122,7 @@ class LiveFitConfig:
     effect_min_windows: int = 10
     identifiable_std: float = 0.05
     near_limit_fraction: float = 0.6
-    unidentified_mu: str = "estimate"
-    probe_step_rel: float = 0.1
-    probe_hold_s: float = 3.0
-    probe_max_excess: float = 0.08
-    probe_use_fraction: float | None = None
-    probe_slip_fraction: float = 0.5
-    probe_window_s: float = 1.0
-    probe_fast_step_rel: float | None = 0.25
-    probe_linear_ratio: float = 1.14
-    probe_bend_limit: float = 1.25
-    probe_min_force: float = 0.1
-    probe_start_evidence: bool = False
-    probe_unknown: bool = False
-    probe_bend_margin: float = 0.0
-    probe_fit_target: bool = False
+    handing: HandingConfig = field(default_factory=HandingConfig)
 
     @property
     def effects(self) -> list[FitterEffect]:
@@ -198,12 +135,6 @@ class LiveFitConfig:
         return self.model.model_error_rel
 
     def __post_init__(self) -> None:
-        if self.unidentified_mu not in UNIDENTIFIED_MU:
-            raise ValueError(
-                f"LiveFitConfig.unidentified_mu must be one of {UNIDENTIFIED_MU}, got "
-                f"{self.unidentified_mu!r}"
-            )
-        check_probe_settings(self, "LiveFitConfig")
         for name in ("effect_horizon_s", "effect_stride_s", "identifiable_std"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
@@ -213,9 +144,6 @@ class LiveFitConfig:
                 f"LiveFitConfig.near_limit_fraction must be in (0, 1], got "
                 f"{self.near_limit_fraction!r}"
             )
-        check_policy(
-            self.unknown_context, self.unknown_floor_mu, self.unknown_sigmas, "LiveFitConfig"
-        )
         positive_ints = (
             "horizon_steps",
             "stride_steps",
@@ -234,9 +162,6 @@ class LiveFitConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"LiveFitConfig.{name} must be > 0, got {value!r}")
-        check_confirm_s(self.rise_confirm_s, "LiveFitConfig.rise_confirm_s")
-        if not (math.isfinite(self.noise_hold_s) and self.noise_hold_s >= 0):
-            raise ValueError(f"LiveFitConfig.noise_hold_s must be >= 0, got {self.noise_hold_s!r}")
         if not math.isfinite(self.min_speed_mps):
             raise ValueError(f"LiveFitConfig.min_speed_mps must be finite: {self.min_speed_mps!r}")
         if self.prior_theta is not None:
@@ -246,6 +171,17 @@ class LiveFitConfig:
                     "LiveFitConfig.prior_theta must be 3 positive numbers, "
                     f"got {self.prior_theta!r}"
                 )
+        try:
+            self.model_error()
+        except ValueError as exc:
+            raise ValueError(f"LiveFitConfig.{exc}") from None
+
+    def model_error(self) -> ModelError:
+        """The effect model's error budget and where it was calibrated: the friction of the
+        calibration surface (``model.calibrated_mu``, from the car's model file; None: not
+        known, the budget alone)."""
+        cal = self.model.calibrated_mu
+        return ModelError(self.model_error_rel, None if cal is None else (cal, cal))
 
 
 @dataclass
@@ -258,12 +194,6 @@ class _ContextSlot:
     changes: int = 0
     """Changes to its data (samples received or relabelled in or out), ever increasing."""
     changes_at_fit: int = 0
-    probe: ProbeState = field(default_factory=ProbeState)
-    """The exploration state (``unidentified_mu: probe``)."""
-    handed_fit_mu: float = math.nan
-    """The largest mu its latest identifiable spell handed (NaN: none, or over probe_hold_s ago)."""
-    handed_fit_end_s: float = math.nan
-    """When it was last handed (NaN: still handed) [s]."""
 
 
 def _discarded(old: ContextEstimate, samples: int, t_now: float, what: str) -> ContextEstimate:
@@ -289,23 +219,24 @@ class ContextEstimator:
     _next_rr: int = 0
     rejected_samples: int = 0
     noise_samples: int = 0
-    current_context: int = -1
-    last_known_context: int = -1
-    last_known_time_s: float = -math.inf
     last_sample_time_s: float = -math.inf
     last_fitted_context: int = -1
     labels_version: int = 0
     relabelled_samples: int = 0
-    switch: RiseGuard = field(default_factory=RiseGuard)
-    unknown_probe: ProbeState = field(default_factory=ProbeState)
-    """The unknown phase's probe (``probe_unknown``; not started outside the phase)."""
-    carried: ProbeState = field(default_factory=ProbeState)
-    """The unknown probe at the end of the last phase, for the context that ended it."""
+    planner_mu_share: float = DEFAULT_PROBE_USE_FRACTION
+    """The share of the handed mu the planner uses (``speed_margin^2``), for the handing."""
 
     def __post_init__(self) -> None:
-        self.switch = RiseGuard(self.config.rise_confirm_s)
         prior = self.params.theta if self.config.prior_theta is None else self.config.prior_theta
         self._prior = tuple(float(v) for v in prior)
+        self.handing = Handing(
+            self.config.handing,
+            self._prior,
+            self.params,
+            planner_mu_share=self.planner_mu_share,
+            identifiable_std=self.config.identifiable_std,
+            model_error=self.config.model_error(),
+        )
         capacity = max(1, int(round(self.config.buffer_s / self.config.sample_period_s)))
         self._capacity = capacity
         self._store = SampleStore()
@@ -340,7 +271,7 @@ class ContextEstimator:
     def __deepcopy__(self, memo) -> ContextEstimator:
         other = copy.copy(self)
         other._slots = {k: copy.copy(v) for k, v in self._slots.items()}
-        other.switch = copy.copy(self.switch)
+        other.handing = copy.deepcopy(self.handing, memo)
         other._store = copy.deepcopy(self._store, memo)
         return other
 
@@ -363,12 +294,10 @@ class ContextEstimator:
             )
         cid = float(np.asarray(context_id, dtype=float).reshape(-1)[0])
         ident = int(round(cid)) if math.isfinite(cid) and cid >= 0 else -1
-        self.current_context = ident
+        slot = self._slots.get(ident)
+        self.handing.observe(t, ident, slot is not None and slot.estimate.fitted)
         if math.isfinite(t):
             self.last_sample_time_s = t
-            if ident >= 0:
-                self.last_known_context, self.last_known_time_s = ident, t
-            self.switch.observe(t, ident, self.handed_context())
         if not (math.isfinite(t) and np.all(np.isfinite(state)) and np.all(np.isfinite(inputs))):
             self.rejected_samples += 1
             return -1
@@ -442,80 +371,47 @@ class ContextEstimator:
                     slot.changes += count
         return {k: v for k, v in gained.items() if v}
 
+    @property
+    def current_context(self) -> int:
+        """The latest sample's context id (-1: noise)."""
+        return self.handing.visit.current
+
+    def fits(self) -> dict:
+        """{context id: its ``ContextEstimate``}: what the fitter says, for the handing."""
+        return {k: s.estimate for k, s in self._slots.items()}
+
     def handed_context(self) -> int:
-        """The context whose theta the controller gets now: the current one; while noise, the
-        last known one within ``noise_hold_s`` of its last sample; else -1 (unknown)."""
-        if self.current_context >= 0:
-            return self.current_context
-        held = self.last_sample_time_s - self.last_known_time_s <= self.config.noise_hold_s
-        return self.last_known_context if held else -1
+        """The context being visited (``handing.visit_tracker``): the current one; while noise,
+        the last known one within the noise hold; else -1 (unknown)."""
+        return self.handing.visit.visit()
 
     def theta_for(self, context_id: int | None = None) -> np.ndarray:
-        """theta in use for ``context_id`` (default: the current one): always finite.
+        """theta in use for ``context_id`` (default: what the controller gets now): always
+        finite. An explicit id gets its own theta (the prior until fitted); the current frame's
+        is the handing's decision (``pcvfe_drake.handing.handing.Handing.theta``)."""
+        if context_id is None:
+            return self.handing.theta(self.fits())
+        slot = self._slots.get(int(context_id))
+        if slot is None or not slot.estimate.fitted:
+            theta = np.array(self._prior if slot is None else slot.estimate.theta)
+            return theta if np.all(np.isfinite(theta)) else np.array(self._prior)
+        return self.handing.context_theta(slot.estimate)
 
-        An explicit id gets its own theta (the prior until fitted). The current context
-        (:meth:`handed_context`) without a fit, or unknown, gets the unknown-context policy's
-        theta (``LiveFitConfig.unknown_context``); a switch to more friction not yet confirmed
-        keeps the friction before it (``rise_confirm_s``, ``context_switch.RiseGuard``).
-        """
-        ident = self.handed_context() if context_id is None else int(context_id)
-        slot = self._slots.get(ident)
-        if context_id is None and self.switch.pending(ident):
-            before = self._fitted_or_unknown(self.switch.confirmed)
-            return self.switch.limit(self._fitted_or_unknown(ident), before)
-        if context_id is None and (slot is None or not slot.estimate.fitted):
-            return self.unknown_theta()
-        theta = np.array(self._prior if slot is None else slot.estimate.theta)
-        if slot is not None and slot.estimate.fitted:
-            theta = self._unidentified(slot, theta)
-        return theta if np.all(np.isfinite(theta)) else np.array(self._prior)
-
-    def _fitted_or_unknown(self, ident: int) -> np.ndarray:
-        slot = self._slots.get(ident)
-        return self.theta_for(ident) if slot and slot.estimate.fitted else self.unknown_theta()
-
-    def _unidentified(self, slot: _ContextSlot, theta: np.ndarray) -> np.ndarray:
-        """A fitted context's theta for the controller (``probe.controller_theta``). The
-        context that ends an unknown phase hands the phase's level until its own probe starts
-        (at the next update: no dip back to the floor meanwhile)."""
-        c, probe = self.config, slot.probe
-        level = self.carried if self.carried.started else self.unknown_probe
-        if not probe.started and level.started and slot.estimate.context_id == self.current_context:
-            probe = level
-        return controller_theta(slot.estimate, probe, theta, c.unidentified_mu, c.unknown_floor_mu)
+    def handing_state(self, context_id: int) -> str:
+        """The context's handing state (unknown, exploring, identified, backed off)."""
+        slot = self._slots.get(int(context_id))
+        if slot is None:
+            return "unknown"
+        return self.handing.state(slot.estimate)
 
     def update_probe(self, t_now: float) -> None:
-        """``unidentified_mu: probe``: one step of the current context's probe and, with
-        ``probe_unknown``, of the unknown phase's (called by :meth:`refit`;
-        ``pcvfe_drake.estimation.probe_updates``)."""
-        update_probes(self, t_now)
+        """One step of the handing's exploration (``Handing.update``; called by
+        :meth:`refit`)."""
+        self.handing.update(t_now, self.fits(), self._store)
 
     def unknown_theta(self) -> np.ndarray:
-        """theta the controller gets while the context is unknown (the configured policy)."""
-        cfg = self.config
-        fitted = [
-            (
-                s.estimate.mu,
-                s.estimate.mu_std,
-                s.estimate.mu_lower_bound if s.estimate.mu_is_peak else math.nan,
-            )
-            for s in self._slots.values()
-            if s.estimate.fitted
-        ]
-        last = self._slots.get(self.last_fitted_context)
-        theta = unknown_context_theta(
-            cfg.unknown_context,
-            self._prior,
-            fitted,
-            None if last is None else last.estimate.theta,
-            floor_mu=cfg.unknown_floor_mu,
-            sigmas=cfg.unknown_sigmas,
-            keep_stiffness=cfg.unknown_keeps_stiffness,
-            floor_stated=cfg.unknown_floor_stated,
-        )
-        if self.unknown_probe.started and self.unknown_probe.mu > theta[0]:
-            theta = with_friction(theta, self.unknown_probe.mu)
-        return theta if np.all(np.isfinite(theta)) else np.array(self._prior)
+        """theta the controller gets while the context is unknown (``HandingConfig.unknown``)."""
+        return self.handing.unknown(self.fits())
 
     def pending(self) -> list[int]:
         """Contexts whose data changed since their last refit, in round-robin order."""
@@ -683,10 +579,14 @@ class ContextEstimator:
 
     def table(self, time_s: float = float("nan")) -> EstimateTable:
         """The estimate table (sample counts as of now)."""
-        probing = self.config.unidentified_mu == "probe"
         entries = tuple(
-            replace(slot.estimate, samples=slot.samples, probe=slot.probe if probing else None)
-            for _, slot in sorted(self._slots.items())
+            replace(
+                slot.estimate,
+                samples=slot.samples,
+                probe=self.handing.probe_of(k),
+                handing=self.handing.state(slot.estimate),
+            )
+            for k, slot in sorted(self._slots.items())
         )
         return EstimateTable(
             entries=entries,

@@ -52,7 +52,10 @@ class ContextEstimate:
         mu_is_peak: mu is the friction peak (a fitted effect model with a peak tyre).
         model_params: the fitted effect model's parameters, ``((name, value, std), ...)``
             (empty for the ST fit).
-        probe: the context's exploration state (``unidentified_mu: probe``; None otherwise).
+        probe: the context's exploration state (``handing.unidentified: !Probe``; None
+            otherwise).
+        handing: the context's handing state (``pcvfe_drake.handing.context_state``: unknown,
+            exploring, identified, backed off; empty where not set by the estimator).
 
     The reported 95 % interval of mu is :attr:`mu_interval_95`.
     """
@@ -76,6 +79,7 @@ class ContextEstimate:
     mu_is_peak: bool = False
     model_params: tuple = ()
     probe: ProbeState | None = None
+    handing: str = ""
 
     @property
     def mu(self) -> float:
@@ -128,6 +132,7 @@ class ContextEstimate:
             "mu_interval_95": [finite_or_none(v) for v in self.mu_interval_95],
             "mu_is_peak": self.mu_is_peak,
             "probe": None if self.probe is None else self.probe.to_dict(),
+            "handing": self.handing,
             "model_params": {
                 n: {"value": finite_or_none(v), "std": finite_or_none(sd)}
                 for n, v, sd in self.model_params

@@ -1,96 +1,39 @@
-"""Exploration for a context whose friction peak is not identifiable (``unidentified_mu: probe``).
+"""Exploration for a context whose friction peak is not identifiable (``!Probe``; no pydrake).
 
 With a saturating tyre the friction peak is observable only where the tyres work near it
 (``docs/fitting.md``, "Identifiability"). The NMPC's speed profile uses about
 ``speed_margin^2`` (0.64) of the mu it is handed, so a car handed the used-friction lower bound
 uses 0.64 of it, the bound ratchets down and the peak never becomes observable. The probe breaks
 that loop for one context at a time, as a test driver would: it hands the NMPC a mu above the
-demonstrated bound, raises it step by step while the tyres show no saturation, and backs off at
-the first sign of it. The estimate takes over as soon as the fit is identifiable (the
-``ContextEstimator`` then hands the estimate, not the probe).
+demonstrated bound, raises it while the tyres show no saturation, and backs off at the first
+sign of it. The estimate takes over as soon as the fit is identifiable
+(``pcvfe_drake.handing``). The rules (:func:`probe_step`; numbers in :class:`ProbeSettings`):
 
-The rules (:func:`probe_step`), each number a field of ``LiveFitConfig``:
+* **start** at ``max(mu_lower_bound, floor_mu)``; with a stated floor the first step is taken on
+  the data the context already has: before its id the car drove the new terrain at the floor
+  and those samples joined the context when it was named (paper eq. 5d relabelling);
+* **before the id**, with a stated floor, the unknown value itself is probed, one step above
+  the floor at most (:func:`unknown_probe_update`), and the level is carried into the context
+  that ends the phase where most of its data belong to it (:func:`carried_probe`);
+* **raise** at most after every ``hold_s`` on the context (long enough to drive a bend at the
+  level), to the peak the level's *bend ratio* implies (:func:`bend_ratios`: the slip the tyres
+  needed for their force over the slip a linear tyre would need; over a bend whose demand peaks
+  at a fraction ``q`` of a magic-formula tyre's peak it is :func:`sine_bend_ratio`), by at most
+  ``fast_step_rel``, while the ratio is at most ``linear_ratio`` (the ratio at the planner's
+  share); without evidence (no bend driven at the level) the level is kept;
+* **toward a tight fit**: a level tried in a bend with no sign of saturation is raised at least
+  to a fit whose std is small but whose data never came near its peak, one fast step at most;
+* **bounded** by ``(mu_lower_bound + max_excess) / use_fraction`` (the planner is never asked for
+  more than ``max_excess`` above the friction demonstrated), the prior mu and a ceiling set by a
+  back-off;
+* **back off** on a sign of saturation (:func:`saturated`: a slip angle on either axle over
+  ``SLIP_FRACTION`` of a magic-formula tyre's peak slip at the handed mu; or the level's bend
+  ratio above ``bend_limit``): two steps down, never below the start, and one step below the
+  level that saturated becomes the ceiling.
 
-* **start** at what ``lower_bound`` hands: ``max(mu_lower_bound, unknown_floor_mu)``; with
-  ``probe_start_evidence`` (which needs ``unknown_floor_stated``) the first step is taken at the
-  start, on the data the context already has: before its id the car drove the new terrain on
-  the unknown-context value, the stated floor, and those samples joined the context when it was
-  named (paper eq. 5d relabelling). Their bends are a level tried at the floor: where their bend
-  ratio is at most ``probe_linear_ratio`` the probe starts at the peak they imply, at most one
-  fast step above the floor (and within the bounds below), instead of holding the floor for
-  ``probe_hold_s`` and a new bend (``start_bend``, ``start_mu`` of :func:`probe_step`);
-* **before the id** (``probe_unknown``, which needs ``unknown_floor_stated`` too): while the
-  terrain is unknown the unknown-context value itself is probed, one step above the floor at
-  most (:func:`unknown_probe_update`: a terrain under noise frames may change, and one step
-  above the stated floor asks the car for at most the floor), and the level is carried into the
-  context that ends the phase where most of its data now belong to that context
-  (:func:`carried_probe`);
-* **raise** at most after every ``probe_hold_s`` (3 s) spent on the context without a sign of
-  saturation: the paper's slalom has a bend every 18.7 m, about 3 s at the 5-6 m/s driven
-  there, so each level is tried in a bend before the next; with ``probe_fast_step_rel: null``
-  (the bend ratio not used for the raise) by the factor ``1 + probe_step_rel`` (0.1: the step
-  is a tenth of the friction asked for, so an overshoot past the limit is at most that);
-* **raise to the peak the tyres imply, stop where they bend**: the current level's *bend ratio*
-  (:func:`bend_ratios`: the slip the tyres needed for the force they made, over the slip a linear
-  tyre with the fitted small-slip stiffness would need, a least-squares slope over all the level's
-  samples at force since it was set: a hold keeps the level and its data, as the 1.5 s tail of a
-  bend after a hold read as linear and raised concrete from 0.61 to 0.77 on the straight at its
-  end, project's mapping, seed 5) says how far along its curve a magic-formula tyre (shape 1.35)
-  worked: over a bend whose demand rises and falls as a sine to a fraction ``q`` of the peak the
-  slope is :func:`sine_bend_ratio` (1.075 at q = 0.5, 1.14 at 0.64, 1.25 at 0.80). The planner's
-  demand is ``probe_use_fraction`` (0.64) of the handed mu, so the implied peak is ``0.64 mu / q``
-  (:func:`implied_peak_fraction`), and the probe raises the handed mu to it, by at most
-  ``probe_fast_step_rel`` (0.25) at a time, while the slope is at most ``probe_linear_ratio``
-  (1.14, where the implied peak is the handed mu; read at the ratio plus ``probe_bend_margin``,
-  0 by default, the ratio's noise: a ratio read low implies too high a peak); above it the
-  level is kept, and so it is
-  without the evidence (less than ``MIN_BEND_S`` of samples at ``probe_min_force`` of lateral
-  force, e.g. on a straight: raising the slow step there took concrete from 0.62 to 0.76 on the
-  straight at the terrain's end, seeds 0 and 5). One fast step from a handed mu at most the peak
-  hands at most 1.25 times it, where the slope is 1.25, the back-off limit (the planner then asks
-  for 0.80 of the peak). Under the public simulator's friction mapping the stiffness does not
-  follow mu, so the slope says how far along the curve the tyres work. On the multi-body truth
-  (``python benchmarks/probe_bend_ratio.py RUNS``, 3 s windows of single laps of
-  `paper_eval_effects` and `_project`) the median slope with the handed mu within 10 % of the
-  truth was 1.13 (concrete, public mapping), 1.18 (concrete, project's), 1.23 (grass, project's),
-  but 1.65 on the public mapping's grass (its front axle bends over below 0.30: the fit's low
-  bias, docs/fitting.md); below 0.9 of the truth 0.94-1.07 on brick and concrete. A slope over
-  less than 1 s of force samples was too noisy to act on, and with a fixed 25 % step instead of
-  the implied one the probe passed concrete's 0.60 by a whole step (0.77 on both mappings, seeds 0
-  and 5);
-* **toward a tight fit** (``probe_fit_target``): a context's fit whose std is at most
-  ``identifiable_std`` (and not below the used friction) but whose data never came near its
-  peak is a peak the whole of the context's data support through the fitted model; a level
-  tried in a bend with no sign of saturation (a bend ratio at most ``probe_bend_limit``) is
-  raised at least to it, at most one fast step at a time and within the bounds below. A 3-5 s
-  level's ratio is noisy (concrete's levels read 0.04-0.07 apart on the 100 Hz and 20 Hz
-  samples of one lap), and at a third of the peak (1.03 on a magic-formula tyre) it is two to
-  three such errors from the linear ratio's 1.14: at the floor on concrete (0.6) the project's
-  mapping read 1.14-1.15 on seeds 4 and 8, held the floor 9 s and climbed by x1.08-1.17 steps
-  (fit 0.62 +- 0.014 from 35 s, identified at 50 s: `paper_eval_effects_project`, seed 4);
-* **never above** a bend ratio of ``probe_bend_limit`` (1.25: q = 0.80, a handed mu 1.25
-  times the peak on a magic-formula tyre): above it the level counts as saturated (back-off
-  below);
-* **bounded** by ``(mu_lower_bound + probe_max_excess) / probe_use_fraction``: the planner is
-  never asked to use more than ``probe_max_excess`` (0.08, about one step on sand's 0.45) more
-  friction than the car has demonstrated; the bound moves up only as the car actually uses
-  more. ``probe_use_fraction`` is the planner's share of mu (``speed_margin^2``; the scenario
-  fills it from ``nmpc.speed_margin``);
-* **never above** the prior mu (the most the operator believes any terrain has), nor above a
-  ceiling set by an earlier back-off;
-* **back off** on a sign of saturation (:func:`saturated`: a large slip angle on either axle, i.e.
-  side slip at the rear or yaw response short of the steering at the front; or the current
-  level's bend ratio above ``probe_bend_limit``): two steps down, but
-  never below the start, and the level one step below the one that saturated becomes the context's
-  ceiling (at least the start). "Large" is ``probe_slip_fraction`` (0.5) of the slip at which a
-  magic-formula tyre (shape ``MF_SHAPE`` = 1.35, as ``peak_tyre``) with the fitted small-slip
-  stiffness ``K`` would peak at the mu being handed (:func:`peak_slip_rad`: ``tan(pi / (2 C)) C mu
-  / K``, 0.043 rad for mu 0.3 at the Ford Escort's K = 21.9 /rad). At half that slip such a tyre
-  already delivers 92 % of its peak, about twice the slip a linear tyre needs for the force; the
-  planner asks for 0.64 of the handed mu, which needs only a quarter of the peak slip (0.24) if
-  the peak is where the probe assumes. A larger slip says the peak is lower than the handed mu.
-
-No pydrake.
+Evidence is judged relative to the level tried: a sample counts toward a bend ratio when its
+force is at least ``EVIDENCE_FRACTION`` of the planner's demand at that level
+(:func:`evidence_force`).
 """
 
 from __future__ import annotations
@@ -100,11 +43,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pcvfe_drake.estimation.unknown_context import with_friction
 from pcvfe_drake.json_numbers import finite_or_none
 from pcvfe_drake.models.chassis_effects import wheel_slip_offsets
 from pcvfe_drake.vehicle.single_track import BETA, DELTA, PSI_DOT, V
 
+WINDOW_S = 1.0
+"""The newest span [s] checked for saturation."""
+SLIP_FRACTION = 0.5
+"""A slip angle over this fraction of the handed mu's peak slip is a sign of saturation: at half
+its peak slip a magic-formula tyre already delivers 92 % of its peak, twice the slip a linear
+tyre needs for that force, while the planner's demand needs about a quarter of it."""
+EVIDENCE_FRACTION = 0.5
+"""A sample is bend evidence when its force is at least this fraction of the planner's demand at
+the level tried: a bend whose demand rises and falls as a sine spends two thirds of its time
+there."""
+OVERSHOOT = 1.25
+"""The bend limit is the bend ratio of a handed mu this many times the peak (one default fast
+step past it)."""
 DEFAULT_PROBE_USE_FRACTION = 0.64
 """The planner's share of mu when the scenario does not say (the NMPC's default 0.8^2)."""
 MIN_PROBE_MU = 0.05
@@ -146,6 +101,7 @@ class ProbeState:
         last_step_s: time of the last raise or back-off [s].
         steps: raises so far.
         backoffs: back-offs so far.
+        backed_off: the last move was a back-off (no raise since).
     """
 
     mu: float = float("nan")
@@ -153,6 +109,7 @@ class ProbeState:
     last_step_s: float = float("nan")
     steps: int = 0
     backoffs: int = 0
+    backed_off: bool = False
 
     @property
     def started(self) -> bool:
@@ -164,49 +121,51 @@ class ProbeState:
             "ceiling": finite_or_none(self.ceiling),
             "steps": self.steps,
             "backoffs": self.backoffs,
+            "backed_off": self.backed_off,
         }
 
 
-PROBE_POSITIVE = (
-    "probe_step_rel",
-    "probe_hold_s",
-    "probe_max_excess",
-    "probe_slip_fraction",
-    "probe_window_s",
-    "probe_linear_ratio",
-    "probe_bend_limit",
-    "probe_min_force",
-)
+@dataclass(frozen=True)
+class ProbeSettings:
+    """The probe's numbers (``Handing`` builds them from ``HandingConfig`` and the planner's
+    share of mu).
 
+    Attributes:
+        use_fraction: the planner's share of the handed mu (``speed_margin^2``).
+        floor_mu: the floor the probe starts at (``HandingConfig.floor_mu``).
+        max_excess, fast_step_rel, hold_s: ``!Probe``'s fields.
+        start_evidence: the data before a context's id were driven at the stated floor, so its
+            first step may be taken on them (``!StatedFloor``).
+        step_rel: the slow step and the back-off's step (a tenth of the friction asked for: an
+            overshoot past the limit is at most that).
+    """
 
-def check_probe_settings(cfg, where: str) -> None:
-    """Raise ValueError naming ``where`` and the field when a probe setting of ``cfg`` (a
-    ``LiveFitConfig``) is invalid."""
-    use = cfg.probe_use_fraction
-    if use is not None and not (0 < use <= 1):
-        raise ValueError(
-            f"{where}.probe_use_fraction must be in (0, 1], got {use!r} (the planner's share of "
-            "mu, speed_margin^2)"
-        )
-    fast = cfg.probe_fast_step_rel
-    for name in PROBE_POSITIVE + (() if fast is None else ("probe_fast_step_rel",)):
-        value = getattr(cfg, name)
-        if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{where}.{name} must be > 0, got {value!r}")
-    if not cfg.probe_linear_ratio < cfg.probe_bend_limit:
-        raise ValueError(
-            f"{where}.probe_linear_ratio ({cfg.probe_linear_ratio!r}) must be below "
-            f"probe_bend_limit ({cfg.probe_bend_limit!r}): a level cannot be both linear and bent"
-        )
-    margin = cfg.probe_bend_margin
-    if not (math.isfinite(margin) and margin >= 0):
-        raise ValueError(f"{where}.probe_bend_margin must be >= 0, got {margin!r}")
-    if (cfg.probe_start_evidence or cfg.probe_unknown) and not cfg.unknown_floor_stated:
-        raise ValueError(
-            f"{where}.probe_start_evidence and probe_unknown need unknown_floor_stated: true (the "
-            "data before a context's id count as a level tried at the floor only when the "
-            "unknown-context value is the floor)"
-        )
+    use_fraction: float = DEFAULT_PROBE_USE_FRACTION
+    floor_mu: float = 0.3
+    max_excess: float = 0.12
+    fast_step_rel: float | None = 0.4
+    hold_s: float = 3.0
+    start_evidence: bool = False
+    step_rel: float = 0.1
+
+    def __post_init__(self) -> None:
+        if not (0 < self.use_fraction <= 1):
+            raise ValueError(
+                f"the planner's share of mu must be in (0, 1], got {self.use_fraction!r} "
+                "(speed_margin^2)"
+            )
+
+    @property
+    def linear_ratio(self) -> float:
+        """The bend ratio at which the implied peak is the handed mu: a bend whose demand peaks
+        at the planner's share of it (:func:`sine_bend_ratio`; 1.14 at 0.64)."""
+        return sine_bend_ratio(self.use_fraction)
+
+    @property
+    def bend_limit(self) -> float:
+        """The bend ratio above which a level counts as saturated: the planner's demand on a
+        handed mu ``OVERSHOOT`` times the peak (1.25 at 0.64)."""
+        return sine_bend_ratio(min(OVERSHOOT * self.use_fraction, 0.99))
 
 
 def axle_slip_angles(states: np.ndarray, lf: float, lr: float) -> tuple[np.ndarray, np.ndarray]:
@@ -444,7 +403,6 @@ def probe_step(
     bend_limit: float = math.inf,
     start_bend: float = math.nan,
     start_mu: float = math.nan,
-    bend_margin: float = 0.0,
     fit_mu: float = math.nan,
 ) -> ProbeState:
     """The probe after one update at ``t_now`` (see the module docstring). ``bend``: the larger
@@ -454,8 +412,7 @@ def probe_step(
     used for the raise, which is ``step_rel`` after every ``hold_s``). ``start_bend``: the
     bend ratio of the context's data before the probe started, driven at ``start_mu`` (NaN: no
     such evidence; the probe starts at its base and holds it ``hold_s``); used only by the
-    first call. ``bend_margin``: the implied peak is read at the bend ratio plus this margin
-    (the ratio's noise: a ratio read low implies a peak too high). ``fit_mu``: the context's
+    first call. ``fit_mu``: the context's
     fitted peak where the fit is tight but not identifiable (``probe_fit_target``; NaN: not
     used): a level tried in a bend (a finite ratio, at most ``bend_limit``: no sign of
     saturation) is raised at least to it, still at most one fast step and within the bounds."""
@@ -471,7 +428,7 @@ def probe_step(
             return start  # bent (and no fit above the base), or no evidence (NaN): the base
         implied = 0.0
         if start_bend <= linear_ratio:
-            implied = use_fraction / implied_peak_fraction(start_bend + bend_margin) * start_mu
+            implied = use_fraction / implied_peak_fraction(start_bend) * start_mu
         cap = min(prior_mu, (lb + max_excess) / use_fraction)
         raised = min(start_mu * (1.0 + fast_step_rel), max(implied, target), cap)
         if raised <= base:
@@ -488,6 +445,7 @@ def probe_step(
             last_step_s=t_now,
             steps=state.steps,
             backoffs=state.backoffs + 1,
+            backed_off=True,
         )
     if t_now - state.last_step_s < hold_s:
         return state
@@ -497,7 +455,7 @@ def probe_step(
         # to the peak the bend implies (the planner's demand, use_fraction of the handed mu, at
         # the fraction q of it), at most the fast step; bent beyond linear_ratio, or no
         # evidence (a straight): stay
-        q = implied_peak_fraction(bend + bend_margin)
+        q = implied_peak_fraction(bend)
         implied = use_fraction / q - 1.0 if bend <= linear_ratio else 0
         if bend <= bend_limit and math.isfinite(fit_mu):  # tried in a bend, not saturated
             implied = max(implied, fit_mu / state.mu - 1.0)
@@ -512,7 +470,7 @@ def probe_after_fit(
     state: ProbeState, t_now: float, fit_mu: float, base: float, step_rel: float
 ) -> ProbeState:
     """The back-off at ``t_now`` on a sign of saturation judged at an identifiable fit's level
-    ``fit_mu``, handed to the context (not identifiable again) within the last ``probe_hold_s``:
+    ``fit_mu``, handed to the context (not identifiable again) within the last ``hold_s``:
     the car's speed and slips still answer the fit's level, not the probe's, so the ceiling
     becomes one step below ``fit_mu`` and the level at most two steps below it, never below
     the start ``base`` (as :func:`probe_step`). Judged at the probe's own lower level, the slips
@@ -521,73 +479,80 @@ def probe_after_fit(
     mu = state.mu if state.started else base
     ceiling = max(fit_mu / (1.0 + step_rel), min(base, fit_mu), MIN_PROBE_MU)
     down = max(min(mu, fit_mu / (1.0 + step_rel) ** 2), min(base, mu), MIN_PROBE_MU)
-    return ProbeState(down, min(state.ceiling, ceiling), t_now, state.steps, state.backoffs + 1)
+    ceiling = min(state.ceiling, ceiling)
+    return ProbeState(down, ceiling, t_now, state.steps, state.backoffs + 1, True)
 
 
-def _step_settings(cfg) -> dict:
-    """:func:`probe_step`'s step, hold and limit settings from a ``LiveFitConfig``."""
+def _step_settings(settings: ProbeSettings) -> dict:
+    """:func:`probe_step`'s step, hold and limit settings."""
     return {
-        "step_rel": cfg.probe_step_rel,
-        "hold_s": cfg.probe_hold_s,
-        "max_excess": cfg.probe_max_excess,
-        "fast_step_rel": cfg.probe_fast_step_rel,
-        "linear_ratio": cfg.probe_linear_ratio,
-        "bend_limit": cfg.probe_bend_limit,
-        "bend_margin": cfg.probe_bend_margin,
+        "step_rel": settings.step_rel,
+        "hold_s": settings.hold_s,
+        "max_excess": settings.max_excess,
+        "fast_step_rel": settings.fast_step_rel,
+        "linear_ratio": settings.linear_ratio,
+        "bend_limit": settings.bend_limit,
     }
+
+
+def evidence_force(use_fraction: float, mu: float) -> float:
+    """The least lateral force per load [g] a sample needs to count as bend evidence for a level
+    ``mu``: ``EVIDENCE_FRACTION`` of the planner's demand ``use_fraction * mu`` (relative to the
+    level tried: at a low level the planner never asks for an absolute threshold's force)."""
+    return EVIDENCE_FRACTION * use_fraction * mu
 
 
 def probe_update(
     state: ProbeState,
     t_now: float,
-    cfg,
+    settings: ProbeSettings,
     vehicle,
     lower_bound: float,
     handed: np.ndarray,
     since,
     prior_mu: float,
-    use_fraction: float,
     drove_mu: float = math.nan,
     fit_mu: float = math.nan,
 ) -> ProbeState:
     """One step of a fitted, not identifiable context's probe (:func:`probe_step`) with the
     evidence of its own samples: ``since(t0)`` returns the context's ``(times, states)`` from
-    ``t0`` on; ``cfg`` is the ``LiveFitConfig``, ``vehicle`` the ``VehicleParams``,
-    ``handed`` the theta the car drove with. Saturation is checked on the newest
-    ``probe_window_s``, at ``drove_mu`` where it is above the handed mu (an identifiable fit's,
-    handed within ``probe_hold_s``; a back-off then steps down from it: :func:`probe_after_fit`);
-    the bend ratio on the current level's data, all of it (the newest ``probe_hold_s`` before
-    the first step); with ``probe_start_evidence`` the first step also gets the bend ratio of
-    all the context's data, driven at the stated floor; ``fit_mu``: the tight fit's peak the
-    level rises to (``probe_step``; NaN: none)."""
-    _, recent = since(t_now - cfg.probe_window_s)
-    level = state.last_step_s if state.started else t_now - cfg.probe_hold_s
+    ``t0`` on; ``vehicle`` is the ``VehicleParams``, ``handed`` the theta the car drove with.
+    Saturation is checked on the newest ``WINDOW_S``, at ``drove_mu`` where it is above the
+    handed mu (an identified fit's, handed within ``hold_s``; a back-off then steps down from
+    it: :func:`probe_after_fit`); the bend ratio on the current level's data, all of it (the
+    newest ``hold_s`` before the first step); with ``settings.start_evidence`` the first step
+    also gets the bend ratio of all the context's data, driven at the stated floor; ``fit_mu``:
+    the tight fit's peak the level rises to (NaN: none)."""
+    use = settings.use_fraction
+    _, recent = since(t_now - WINDOW_S)
+    level = state.last_step_s if state.started else t_now - settings.hold_s
     t_level, s_level = since(level)
     stiffness = handed[0] * handed[1:]  # mu * C_S per axle: the fit's small-slip stiffness
     judged = max(handed[0], drove_mu) if math.isfinite(drove_mu) else handed[0]
-    limit = cfg.probe_slip_fraction * peak_slip_rad(judged, stiffness)
+    limit = SLIP_FRACTION * peak_slip_rad(judged, stiffness)
     is_saturated = saturated(recent, vehicle.lf, vehicle.lr, limit)
     if is_saturated and judged > handed[0]:
-        base = probe_base(lower_bound, cfg.unknown_floor_mu, prior_mu)
-        return probe_after_fit(state, t_now, judged, base, cfg.probe_step_rel)
-    force = cfg.probe_min_force
-    bend = level_bend(t_level, s_level, vehicle, stiffness, force, use_fraction * handed[0])
+        base = probe_base(lower_bound, settings.floor_mu, prior_mu)
+        return probe_after_fit(state, t_now, judged, base, settings.step_rel)
+    force = evidence_force(use, handed[0])
+    bend = level_bend(t_level, s_level, vehicle, stiffness, force, use * handed[0])
     start_bend = start_mu = math.nan
-    if cfg.probe_start_evidence and not state.started:
+    if settings.start_evidence and not state.started:
         # the data before the start, driven at the floor (the unknown-context value)
-        start_mu = cfg.unknown_floor_mu
+        start_mu = settings.floor_mu
         t_all, s_all = since(-math.inf)
-        start_bend = level_bend(t_all, s_all, vehicle, stiffness, force, use_fraction * start_mu)
+        start_force = evidence_force(use, start_mu)
+        start_bend = level_bend(t_all, s_all, vehicle, stiffness, start_force, use * start_mu)
     return probe_step(
         state,
         t_now,
         lower_bound=lower_bound,
-        floor_mu=cfg.unknown_floor_mu,
+        floor_mu=settings.floor_mu,
         prior_mu=prior_mu,
         is_saturated=is_saturated,
-        use_fraction=use_fraction,
+        use_fraction=use,
         bend=bend,
-        **_step_settings(cfg),
+        **_step_settings(settings),
         start_bend=start_bend,
         start_mu=start_mu,
         fit_mu=fit_mu,
@@ -597,33 +562,31 @@ def probe_update(
 def unknown_probe_update(
     state: ProbeState,
     t_now: float,
-    cfg,
+    settings: ProbeSettings,
     vehicle,
     used: float,
     stiffness_per_rad,
     since,
     prior_mu: float,
-    use_fraction: float,
 ) -> ProbeState:
-    """One step of the unknown phase's probe (``probe_unknown``): while the controller gets the
+    """One step of the unknown phase's probe (``!StatedFloor``): while the controller gets the
     unknown-context value (the stated floor), the bends driven since the phase began are read as
     a level tried at the floor, and where they read linear the value is raised once, to at most
     one fast step above the floor (:func:`probe_step`'s rules; ``used``: the lateral friction
     used in the level's data, ``stiffness_per_rad``: the small-slip stiffness the unknown value
     hands, ``since(t0)``: all samples' ``(times, states)`` from ``t0`` on, whatever their
     label). One step and no more: the terrain under a noise frame is unknown and may change
-    under it, and a level one fast step (at most ``1 / 0.72``, the largest share of the handed mu
-    the car used) above the stated floor asks the car for at most the floor, the least friction
-    any terrain of the course has. A sign of saturation backs it off to the floor, where it stays
-    for the rest of the phase."""
-    floor = cfg.unknown_floor_mu
+    under it, and a level one fast step above the stated floor asks the car for at most about
+    the floor. A sign of saturation backs it off to the floor, where it stays for the rest of
+    the phase."""
+    floor, use = settings.floor_mu, settings.use_fraction
     if not state.started:
         return ProbeState(mu=floor, last_step_s=t_now)
-    _, recent = since(t_now - cfg.probe_window_s)
+    _, recent = since(t_now - WINDOW_S)
     t_level, s_level = since(state.last_step_s)
-    force = cfg.probe_min_force
-    bend = level_bend(t_level, s_level, vehicle, stiffness_per_rad, force, use_fraction * state.mu)
-    limit = cfg.probe_slip_fraction * peak_slip_rad(state.mu, stiffness_per_rad)
+    force = evidence_force(use, state.mu)
+    bend = level_bend(t_level, s_level, vehicle, stiffness_per_rad, force, use * state.mu)
+    limit = SLIP_FRACTION * peak_slip_rad(state.mu, stiffness_per_rad)
     new = probe_step(
         state,
         t_now,
@@ -631,12 +594,12 @@ def unknown_probe_update(
         floor_mu=floor,
         prior_mu=prior_mu,
         is_saturated=saturated(recent, vehicle.lf, vehicle.lr, limit),
-        use_fraction=use_fraction,
+        use_fraction=use,
         bend=bend,
-        **_step_settings(cfg),
+        **_step_settings(settings),
     )
     if new.backoffs > state.backoffs:  # back to the floor for the rest of the phase
-        return ProbeState(floor, floor, t_now, max(new.steps, 1), new.backoffs)
+        return ProbeState(floor, floor, t_now, max(new.steps, 1), new.backoffs, True)
     return state if new.steps > 1 else new
 
 
@@ -652,47 +615,3 @@ def carried_probe(carried: ProbeState, labels: np.ndarray, ident: int) -> ProbeS
     if float(np.mean(labels == ident)) < 0.8:
         return None
     return ProbeState(mu=carried.mu, last_step_s=carried.last_step_s, steps=carried.steps)
-
-
-def controller_theta(
-    estimate, probe: ProbeState, theta: np.ndarray, unidentified_mu: str, floor_mu: float
-) -> np.ndarray:
-    """The theta the controller gets for a fitted context (``ContextEstimate`` ``estimate``,
-    its fit's ``theta``); the stiffnesses are always scaled to keep the fit's ``mu * C_S``:
-
-    * a friction peak fitted below the friction the data used (``below_used``) is impossible:
-      mu is raised to the used friction (the smallest peak the data allow);
-    * ``unidentified_mu: lower_bound``: a context whose mu is not identifiable gets
-      ``max(mu_lower_bound, floor_mu)`` (at most its estimate);
-    * ``unidentified_mu: probe``: such a context gets the probe's mu (before its first step
-      the lower bound's value), at most the upper end of the estimate's 95 % interval ``mu +
-      1.96 std`` (a value the context's data do not exclude; no limit when the estimate is
-      below the used friction or has no std); an identifiable estimate is handed as it is, but
-      never below ``floor_mu`` (the lowest friction the operator expects on the course, where
-      the probe starts): on the multi-body truth the peak fit is biased low, and with a
-      model-error budget relative to mu a low enough estimate counts as identifiable (grass
-      0.17 +- 0.044 for 0.30 on `paper_eval_effects` seed 0: the car then crawled at 3.8 m/s
-      on grass and the conservative unknown-context value slowed the next terrain too). The
-      cap of a not yet identifiable estimate is floored there too: a context's first fit on a
-      few seconds of data can read low with a small std (grass 0.18-0.29 with
-      `paper_eval_effects_project`'s budget 0.02), and a cap below the floor would hand less
-      than the floor the probe starts from and an identifiable fit is raised to.
-    """
-    mu = float(theta[0])
-    bound = estimate.mu_lower_bound if math.isfinite(estimate.mu_lower_bound) else 0.0
-    if estimate.below_used:
-        mu = max(mu, bound)
-    if not estimate.identifiable and unidentified_mu in ("lower_bound", "probe"):
-        cap = math.inf if estimate.below_used else mu
-        start = max(bound, floor_mu)
-        if unidentified_mu == "probe":
-            std = estimate.mu_std
-            cap = mu + 1.96 * std if math.isfinite(std) and not estimate.below_used else math.inf
-            cap = max(cap, floor_mu)
-            start = probe.mu if probe.started else start
-        mu = min(start, cap)
-    elif estimate.identifiable and unidentified_mu == "probe":
-        mu = max(mu, floor_mu)
-    if mu == theta[0]:
-        return theta
-    return with_friction(theta, mu)

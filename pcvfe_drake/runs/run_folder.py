@@ -254,7 +254,7 @@ def run_facts(record: RunRecord, sim_time_s: float) -> dict[str, Any]:
     summary["estimator"] = scenario.estimator
     summary["friction_mapping"] = scenario.friction_mapping
     summary["sensing"] = scenario.sensing.model
-    summary["unknown_context"] = scenario.fitter.unknown_context
+    summary["unknown_context"] = type(scenario.fitter.handing.unknown).__name__
     summary["stop_reason"] = record.stop_reason
     if record.interrupt_signal is not None:
         summary["interrupt_signal"] = record.interrupt_signal

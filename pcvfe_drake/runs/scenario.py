@@ -20,6 +20,7 @@ Shipped scenarios live in ``pcvfe_drake/data/scenarios/<name>.yaml``:
 
 import dataclasses
 import math
+import types
 import typing
 from dataclasses import dataclass, field
 
@@ -271,12 +272,9 @@ class Scenario:
             model = resolve_model(
                 self.fitter.model, self.vehicle, self.truth_model, self.friction_mapping
             )
-        fitter = dataclasses.replace(
+        return dataclasses.replace(
             self.fitter, sample_period_s=self.rates.fitter_sample_period_s, model=model
         )
-        if fitter.probe_use_fraction is None:  # the planner uses speed_margin^2 of mu
-            fitter = dataclasses.replace(fitter, probe_use_fraction=self.nmpc.speed_margin**2)
-        return fitter
 
     def ukf_config(self) -> UkfConfig:
         """``ukf`` with its filter step (``rates.fitter_sample_period_s``) filled in."""
@@ -296,10 +294,27 @@ class Scenario:
         """Every field as plain data, without the :data:`DERIVED_FIELDS` (a file that can be
         loaded again)."""
         data = dataclasses.asdict(self)
+        variant_tags(self, data)
         for dotted in DERIVED_FIELDS:
             group, name = dotted.split(".")
             data[group].pop(name, None)
         return data
+
+
+def variant_tags(obj, data: dict) -> dict:
+    """Mark the variants in ``data`` (``dataclasses.asdict(obj)``) the way Drake's YAML does in
+    plain data: a field typed as a union of dataclasses gets ``_tag: "!ClassName"`` in its
+    mapping (``yaml_load_typed`` reads it; in a YAML file it is the ``!ClassName`` tag).
+    Returns ``data``."""
+    hints = typing.get_type_hints(type(obj))
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if not (dataclasses.is_dataclass(value) and isinstance(data.get(f.name), dict)):
+            continue
+        if typing.get_origin(hints[f.name]) in (typing.Union, types.UnionType):
+            data[f.name]["_tag"] = "!" + type(value).__name__
+        variant_tags(value, data[f.name])
+    return data
 
 
 def resolve_field_types(schema: type) -> type:

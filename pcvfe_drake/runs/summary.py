@@ -217,6 +217,7 @@ def mu_estimates(
                 "identifiable": entry.get("identifiable"),
                 "below_used": entry.get("below_used"),
                 "probe": entry.get("probe"),
+                "handing": entry.get("handing"),
                 "model_params": entry.get("model_params") or None,
             }
         else:

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from pcvfe_drake.models.synthetic_drive import SURVEY_INS_NOISE, MeasurementNoise
+from pcvfe_drake.vehicle.measurement_noise import SURVEY_INS_NOISE, MeasurementNoise
 from pcvfe_drake.vehicle.params import load_vehicle
 
 CIRCLE_RADIUS_M = 15.0

@@ -1,10 +1,9 @@
 """Why the unknown-context policy changes the tracking error: one lap per policy, split by phase.
 
-One lap of a scenario (default ``paper_sim``), same seed, three settings of what PC-VFE hands the
-NMPC while the terrain is unknown: ``prior`` (mu 1.05, nominal stiffness), ``conservative`` with
-the prior's C_S as they are (``fitter.unknown_keeps_stiffness: false``: the NMPC's single-track
-tyre, whose small-slip stiffness is ``mu * C_S``, then believes tyres 3.5x softer) and
-``conservative`` keeping the prior's ``mu * C_S`` (the default). Per run: mean speed, lateral
+One lap of a scenario (default ``paper_sim``), same seed, two settings of what PC-VFE hands the
+NMPC while the terrain is unknown (``fitter.handing.unknown``): ``!Prior`` (mu 1.05, nominal
+stiffness) and ``!Conservative`` keeping the prior's ``mu * C_S`` (the default; lowering mu alone,
+the third setting this study once compared, is no longer a setting). Per run: mean speed, lateral
 error RMS and max on the true state, the RMS split by whether mu_hat was below the true mu
 by more than 0.05 (the policy at work on a grippier terrain), within 0.05, or above, the
 time-weighted mu error and the peak friction utilisation.
@@ -27,14 +26,11 @@ import pandas as pd
 from pcvfe_drake.diagrams.run_simulation import simulate_summary
 from pcvfe_drake.diagrams.scenario_io import load_scenario
 from pcvfe_drake.diagrams.world_io import scenario_course
+from pcvfe_drake.handing.config import Conservative, Prior
 
 SETTINGS = {
-    "prior": {"fitter.unknown_context": "prior"},
-    "conservative_softer_tyres": {
-        "fitter.unknown_context": "conservative",
-        "fitter.unknown_keeps_stiffness": False,
-    },
-    "conservative": {"fitter.unknown_context": "conservative"},
+    "prior": {"fitter.handing.unknown": Prior()},
+    "conservative": {"fitter.handing.unknown": Conservative()},
 }
 TOL = 0.05
 

@@ -188,19 +188,19 @@ def test_ctrl_c_or_an_error_keeps_what_was_logged(tmp_path, monkeypatch, stop):
 def test_the_scenario_configs_reach_the_systems():
     """The diagram is built from the scenario's own configs, with the rates filled in."""
     from pcvfe_drake.estimation.context_estimator import LiveFitConfig
+    from pcvfe_drake.handing.config import HandingConfig
 
+    handing = HandingConfig(noise_hold_s=0.5)
     s = dataclasses.replace(
         short_scenario(1.0),
-        fitter=LiveFitConfig(horizon_steps=8, stride_steps=4, min_windows=10, noise_hold_s=0.5),
+        fitter=LiveFitConfig(horizon_steps=8, stride_steps=4, min_windows=10, handing=handing),
     )
     s.nmpc.horizon = 30
     s.rates.nmpc_period_s = 0.04
     parts = MakeSimulation(s)
     fitter = parts.diagram.GetSubsystemByName("fitter")
-    # the data rate from rates, the probe's planner share from nmpc.speed_margin
-    want = dataclasses.replace(
-        s.fitter, sample_period_s=0.01, probe_use_fraction=s.nmpc.speed_margin**2
-    )
-    assert fitter._config == want
+    # the data rate from rates, the handing's planner share from nmpc.speed_margin
+    assert fitter._config == dataclasses.replace(s.fitter, sample_period_s=0.01)
+    assert fitter.planner_mu_share == s.nmpc.speed_margin**2
     nmpc = parts.diagram.GetSubsystemByName("nmpc")
     assert (nmpc.controller.config.horizon, nmpc.controller.config.dt_s) == (30, 0.04)

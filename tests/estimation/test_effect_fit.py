@@ -19,6 +19,7 @@ from pcvfe_drake.estimation.effect_fit import (
     friction_used,
     small_slip_stiffness,
 )
+from pcvfe_drake.handing.config import HandingConfig, LowerBound
 from pcvfe_drake.models.effect_model import EffectModel, FitterEffect, parse_effects
 from pcvfe_drake.runs.drivelog import write_drive_log
 from pcvfe_drake.vehicle.params import ford_escort
@@ -62,8 +63,8 @@ def test_parse_effects_forms_and_errors():
         parse_effects(["steering_lag:tau=-3"])
     with pytest.raises(ValueError, match="param=value"):
         parse_effects(["steering_lag:tau"])
-    with pytest.raises(ValueError, match="unidentified_mu"):
-        LiveFitConfig(unidentified_mu="maybe")
+    with pytest.raises(ValueError, match="HandingConfig.unidentified"):
+        LiveFitConfig(handing=HandingConfig(unidentified="maybe"))
 
 
 def test_controller_theta_keeps_the_small_slip_stiffness():
@@ -160,13 +161,13 @@ def test_estimator_effect_path_and_lower_bound(saturating_log):
     np.testing.assert_allclose(est.theta_for(0), entry.theta)
     # lower_bound: a context whose mu is not identifiable hands the controller the bound,
     # keeping mu * C_S (the small-slip stiffness)
-    strict = run(unidentified_mu="lower_bound", identifiable_std=1e-9)
+    strict = run(handing=HandingConfig(unidentified=LowerBound()), identifiable_std=1e-9)
     e2 = strict.table().get(0)
     assert not e2.identifiable
     th = strict.theta_for(0)
     assert th[0] == pytest.approx(max(e2.mu_lower_bound, 0.3))
     np.testing.assert_allclose(th[0] * th[1:], e2.mu * np.array(e2.theta[1:]), rtol=1e-9)
-    loose = run(unidentified_mu="lower_bound", near_limit_fraction=0.1)
+    loose = run(handing=HandingConfig(unidentified=LowerBound()), near_limit_fraction=0.1)
     assert loose.table().get(0).identifiable
     np.testing.assert_allclose(loose.theta_for(0), loose.table().get(0).theta)
 

@@ -18,6 +18,7 @@ from pcvfe_drake.estimation.fit_options import (
     joint_options,
 )
 from pcvfe_drake.estimation.fitting import fit_adam, fit_contexts, fit_gauss_newton
+from pcvfe_drake.handing.config import HandingConfig, Prior
 from pcvfe_drake.models.synthetic_drive import drive_frame, s_curve_drive
 from pcvfe_drake.vehicle.measurement_noise import MeasurementNoise
 from pcvfe_drake.vehicle.params import ford_escort
@@ -321,16 +322,15 @@ def test_a_10_hz_log_is_fitted_with_rk4_substeps(params):
 
 def test_short_noise_keeps_the_last_context_estimate_then_falls_back_to_the_prior():
     params = ford_escort()
-    est = ContextEstimator(params, LiveFitConfig(noise_hold_s=0.5, unknown_context="prior"))
+    handing = HandingConfig(noise_hold_s=0.5, unknown=Prior(), confirm_rise_s=0.0)
+    est = ContextEstimator(params, LiveFitConfig(handing=handing))
     state = np.array([0.0, 0.0, 0.0, 5.0, 0.0, 0.0, 0.0])
     est.add_sample(0.0, state, [0.0, 0.0], [3])
     slot = est._slots[3]
     slot.estimate = replace(slot.estimate, theta=(0.45, params.C_Sf, params.C_Sr), fits=1)
     np.testing.assert_allclose(est.theta_for(), [0.45, params.C_Sf, params.C_Sr])
-    est.add_sample(0.3, state, [0.0, 0.0], [-1])  # 0.3 s of noise: still the context's estimate
+    est.add_sample(0.3, state, [0.0, 0.0], [-1])  # 0.3 s of noise: the lower, the context's
     assert est.theta_for()[0] == 0.45
     est.add_sample(0.6, state, [0.0, 0.0], [-1])  # 0.6 s: the prior
     np.testing.assert_allclose(est.theta_for(), est.prior_theta)
     assert est.theta_for(-1)[0] == params.mu  # an explicit noise id is always the prior
-    with pytest.raises(ValueError, match="noise_hold_s"):
-        LiveFitConfig(noise_hold_s=-1.0)

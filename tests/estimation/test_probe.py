@@ -1,4 +1,4 @@
-"""Exploration for contexts whose friction peak is not identifiable (``unidentified_mu: probe``):
+"""Exploration for contexts whose friction peak is not identifiable (``handing: !Probe``):
 the policy's steps, its bounds and back-off on a synthetic context, the saturation signs, the
 estimator's use of it, and the impossible case of a peak fitted below the used friction."""
 
@@ -9,10 +9,32 @@ import pytest
 
 from pcvfe_drake.estimation.context_estimator import ContextEstimator, LiveFitConfig
 from pcvfe_drake.estimation.effect_fit import friction_used
-from pcvfe_drake.estimation.probe import ProbeState, axle_slip_angles, probe_step, saturated
+from pcvfe_drake.estimation.probe import (
+    ProbeSettings,
+    ProbeState,
+    axle_slip_angles,
+    probe_step,
+    saturated,
+)
+from pcvfe_drake.handing.config import Conservative, HandingConfig, Probe, StatedFloor
+from pcvfe_drake.handing.context_state import ContextHanding
 from pcvfe_drake.vehicle.params import ford_escort
 
 RULES = dict(step_rel=0.1, hold_s=3.0, max_excess=0.08, use_fraction=0.64)
+SMALL_STEPS = Probe(max_excess=0.08, fast_step_rel=0.25)
+"""The probe with a 25 % fast step and 0.08 of excess (the numbers below are worked for them)."""
+
+
+def probing(floor_stated: bool = False, probe: Probe = SMALL_STEPS, **cfg) -> LiveFitConfig:
+    """A fitter config whose handing probes (with a stated floor: the phase before the id too;
+    no rise confirmation: these tests drive one context)."""
+    unknown = StatedFloor() if floor_stated else Conservative()
+    handing = HandingConfig(unknown=unknown, unidentified=probe, confirm_rise_s=0.0)
+    return LiveFitConfig(handing=handing, **cfg)
+
+
+def _probe(est, ident=0):
+    return est.handing.contexts[ident].probe
 
 
 def _step(state, t, lb, sat=False, prior=1.05, floor=0.3):
@@ -121,9 +143,7 @@ def _first_fit(est, mu: float, mu_lower_bound: float):
 
 
 def _fitted_estimator(**cfg):
-    est = ContextEstimator(
-        ford_escort(), LiveFitConfig(unidentified_mu="probe", sample_period_s=0.02, **cfg)
-    )
+    est = ContextEstimator(ford_escort(), probing(sample_period_s=0.02, **cfg))
     est.add_sample(0.0, np.array([0, 0, 0, 8.0, 0, 0, 0]), [0, 0], [0])
     return est, _first_fit(est, 1.5, 0.2)
 
@@ -142,21 +162,20 @@ def test_estimator_probes_a_not_identifiable_context_and_backs_off():
         _feed(est, 0.02 + 3.0 * k, 3.0 * (k + 1))
         est.update_probe(3.0 * (k + 1))
     assert est.theta_for()[0] == pytest.approx(0.3) and est.table().get(0).probe.steps == 0
-    est, slot = _fitted_estimator(probe_fast_step_rel=None)
+    est, slot = _fitted_estimator()
     th0 = est.theta_for()
     assert th0[0] == pytest.approx(0.3)  # before the first update: the lower bound's value
     np.testing.assert_allclose(th0[0] * th0[1:], 1.5 * np.array(slot.estimate.theta[1:]))
-    mus = []
-    for k in range(8):
-        _feed(est, 0.02 + 3.0 * k, 3.0 * (k + 1))
-        est.update_probe(3.0 * (k + 1))
-        mus.append(est.theta_for()[0])
-    assert mus[0] == pytest.approx(0.3) and mus[1] == pytest.approx(0.33)
-    assert mus[-1] == pytest.approx(0.28 / 0.64)  # bounded by the demonstrated 0.2
+    est.update_probe(0.0)
+    _feed(est, 0.02, 24.0)
+    est.update_probe(24.0)
+    assert est.theta_for()[0] == pytest.approx(0.3)  # a straight: no evidence, no raise
+    est.handing.contexts[0].probe = ProbeState(mu=0.28 / 0.64, last_step_s=21.0, steps=3)
     # the rear slides: back off at once
     _feed(est, 24.02, 24.6, beta=0.1)
     est.update_probe(24.6)
     assert est.theta_for()[0] == pytest.approx(0.28 / 0.64 / 1.21)
+    assert est.table().get(0).handing == "backed_off"
     entry = est.table().get(0)
     assert entry.probe.backoffs == 1 and entry.probe.ceiling == pytest.approx(0.28 / 0.64 / 1.1)
     assert est.table().to_dict()["entries"][0]["probe"]["backoffs"] == 1
@@ -173,14 +192,6 @@ def test_estimator_probes_a_not_identifiable_context_and_backs_off():
         identifiable=False,
     )
     assert est.theta_for()[0] == pytest.approx(0.32 + 1.96 * 0.01)
-
-
-def test_probe_settings_are_checked():
-    with pytest.raises(ValueError, match="probe_use_fraction"):
-        LiveFitConfig(probe_use_fraction=1.5)
-    with pytest.raises(ValueError, match="probe_hold_s"):
-        LiveFitConfig(probe_hold_s=0.0)
-    assert "probe" in repr(LiveFitConfig(unidentified_mu="probe"))
 
 
 def test_peak_below_the_used_friction_is_raised_to_it():
@@ -325,14 +336,11 @@ def test_magic_formula_bend_ratios_behind_the_thresholds():
 
     assert ratio_at(0.5) == pytest.approx(1.1, abs=0.01)
     assert ratio_at(1.0) == pytest.approx(3.12, abs=0.01)
-    # over a whole bend (force q sin of the peak): the probe's thresholds
-    cfg = LiveFitConfig()
-    # probe_linear_ratio: the planner's share (0.64) of a handed mu equal to the peak
-    assert sine_bend_ratio(0.64) == pytest.approx(cfg.probe_linear_ratio, abs=0.005)
-    # probe_bend_limit: one fast step (25 %) above that
-    q = 0.64 * (1 + cfg.probe_fast_step_rel)
-    assert q == pytest.approx(0.80) and sine_bend_ratio(q) == pytest.approx(1.25, abs=0.01)
-    assert cfg.probe_bend_limit == 1.25
+    # over a whole bend (force q sin of the peak): the probe's thresholds, derived from the
+    # planner's share (0.64) of a handed mu equal to the peak, and one 25 % step above it
+    settings = ProbeSettings(use_fraction=0.64)
+    assert sine_bend_ratio(0.64) == settings.linear_ratio == pytest.approx(1.14, abs=0.005)
+    assert settings.bend_limit == sine_bend_ratio(0.80) == pytest.approx(1.25, abs=0.01)
 
 
 FAST = dict(fast_step_rel=0.25, linear_ratio=1.14, bend_limit=1.25)
@@ -484,7 +492,7 @@ def test_estimator_reads_the_bend_ratio_of_the_current_level():
     """The estimator's probe: fast steps while the slalom's data are linear, a back-off as soon
     as the current level's data bend past the limit (no large slip angles involved)."""
     params = ford_escort()
-    est = ContextEstimator(params, LiveFitConfig(unidentified_mu="probe", sample_period_s=0.01))
+    est = ContextEstimator(params, probing(sample_period_s=0.01))
     est.add_sample(0.0, np.array([0, 0, 0, 6.0, 0, 0, 0]), [0, 0], [0])
     _first_fit(est, 1.0, 0.3)  # handed stiffness mu * C_S = C_S: _mf_slalom's
 
@@ -509,7 +517,7 @@ def test_estimator_reads_the_bend_ratio_of_the_current_level():
     assert est.table().get(0).probe.backoffs == 1
 
 
-def test_probe_hands_an_identifiable_estimate_but_never_below_the_floor():
+def test_an_identified_estimate_is_handed_also_below_the_floor():
     est, slot = _fitted_estimator()
     slot.estimate = replace(
         slot.estimate, theta=(0.55, *slot.estimate.theta[1:]), identifiable=True
@@ -518,13 +526,9 @@ def test_probe_hands_an_identifiable_estimate_but_never_below_the_floor():
     low = replace(slot.estimate, theta=(0.17, *slot.estimate.theta[1:]))
     slot.estimate = low
     th = est.theta_for()
-    assert th[0] == pytest.approx(0.3)  # unknown_floor_mu: the lowest friction expected
-    np.testing.assert_allclose(th[0] * th[1:], 0.17 * np.array(low.theta[1:]))  # stiffness kept
-    # the other policies hand such an estimate as it is
-    plain = ContextEstimator(ford_escort(), LiveFitConfig(unidentified_mu="lower_bound"))
-    plain.add_sample(0.0, np.array([0, 0, 0, 8.0, 0, 0, 0]), [0, 0], [0])
-    plain._slots[0].estimate = replace(low, context_id=0)
-    assert plain.theta_for()[0] == pytest.approx(0.17)
+    assert th[0] == pytest.approx(0.17)  # the floor is a guess, the fit a measurement
+    np.testing.assert_array_equal(th, low.theta)
+    assert est.table().get(0).handing == "identified"
 
 
 def test_probe_cap_of_a_not_identifiable_estimate_is_never_below_the_floor():
@@ -538,7 +542,7 @@ def test_probe_cap_of_a_not_identifiable_estimate_is_never_below_the_floor():
     assert th[0] == pytest.approx(0.3)  # not the cap 0.18 + 1.96 * 0.01
     np.testing.assert_allclose(th[0] * th[1:], 0.18 * np.array(low.theta[1:]))  # stiffness kept
     # a cap above the floor still limits the probe's level
-    slot.probe = ProbeState(mu=0.5, last_step_s=0.0, steps=2)
+    est.handing.contexts[0] = ContextHanding(ProbeState(mu=0.5, last_step_s=0.0, steps=2))
     slot.estimate = replace(low, theta=(0.32, *low.theta[1:]))
     assert est.theta_for()[0] == pytest.approx(0.32 + 1.96 * 0.01)
 
@@ -621,9 +625,7 @@ def test_estimator_starts_the_probe_on_the_bends_driven_before_the_id():
     params = ford_escort()
 
     def first_level(peak, **cfg):
-        est = ContextEstimator(
-            params, LiveFitConfig(unidentified_mu="probe", sample_period_s=0.01, **cfg)
-        )
+        est = ContextEstimator(params, probing(sample_period_s=0.01, **cfg))
         t, x, _ = _mf_slalom(peak, 0.2, seconds=6.0)  # two bends before the first fit
         for ti, xi in zip(t, x, strict=True):
             est.add_sample(float(ti), xi, [0, 0], [0])
@@ -631,12 +633,10 @@ def test_estimator_starts_the_probe_on_the_bends_driven_before_the_id():
         est.update_probe(6.0)
         return est.theta_for()[0], est.table().get(0).probe.steps
 
-    stated = dict(unknown_floor_stated=True, probe_start_evidence=True)
+    stated = dict(floor_stated=True)
     assert first_level(2.0) == (pytest.approx(0.3), 0)  # without it: the base, held
     assert first_level(2.0, **stated) == (pytest.approx(0.3 * 1.25), 1)  # linear: one step
     assert first_level(0.25, **stated) == (pytest.approx(0.3), 0)  # bent: the base
-    with pytest.raises(ValueError, match="unknown_floor_stated"):
-        LiveFitConfig(probe_start_evidence=True)
 
 
 def test_unknown_phase_probe_takes_one_step_above_the_floor_and_backs_off():
@@ -646,13 +646,7 @@ def test_unknown_phase_probe_takes_one_step_above_the_floor_and_backs_off():
     from pcvfe_drake.estimation.probe import unknown_probe_update
 
     vp = ford_escort()
-    cfg = LiveFitConfig(
-        unidentified_mu="probe",
-        unknown_floor_stated=True,
-        probe_unknown=True,
-        probe_fast_step_rel=0.4,
-        probe_max_excess=0.12,
-    )
+    cfg = ProbeSettings(floor_mu=0.3, fast_step_rel=0.4, max_excess=0.12, start_evidence=True)
 
     def run(peak, seconds=9.0, beta=0.0):
         t, x, k = _mf_slalom(peak, 0.2, seconds=seconds)
@@ -664,7 +658,7 @@ def test_unknown_phase_probe_takes_one_step_above_the_floor_and_backs_off():
                 keep = (t >= t0) & (t <= now)
                 return t[keep], x[keep]
 
-            s = unknown_probe_update(s, float(now), cfg, vp, 0.3, k, since, 1.05, 0.64)
+            s = unknown_probe_update(s, float(now), cfg, vp, 0.3, k, since, 1.05)
             history.append(s.mu)
         return s, history
 
@@ -679,7 +673,7 @@ def test_unknown_phase_probe_takes_one_step_above_the_floor_and_backs_off():
     t, x, k = _mf_slalom(2.0, 0.2, seconds=3.0)
     x[:, 6] -= 0.1  # the rear slides
     back = unknown_probe_update(
-        raised, 3.0, cfg, vp, 0.3, k, lambda t0: (t[t >= t0], x[t >= t0]), 1.05, 0.64
+        raised, 3.0, cfg, vp, 0.3, k, lambda t0: (t[t >= t0], x[t >= t0]), 1.05
     )
     assert back.mu == pytest.approx(0.3) and back.backoffs == 1
 
@@ -695,15 +689,7 @@ def test_the_unknown_phase_level_is_carried_into_the_context_it_was_tried_on():
     assert carried_probe(backed, np.array([3] * 10), 3) is None  # backed off: not carried
     # the estimator: the phase's step, then the new context starts from it
     params = ford_escort()
-    est = ContextEstimator(
-        params,
-        LiveFitConfig(
-            unidentified_mu="probe",
-            sample_period_s=0.01,
-            unknown_floor_stated=True,
-            probe_unknown=True,
-        ),
-    )
+    est = ContextEstimator(params, probing(floor_stated=True, sample_period_s=0.01))
     t, x, _ = _mf_slalom(2.0, 0.2, seconds=8.0)
     for now in range(9):  # a context named but not fitted yet: the unknown value
         for ti, xi in zip(t, x, strict=True):
@@ -711,43 +697,16 @@ def test_the_unknown_phase_level_is_carried_into_the_context_it_was_tried_on():
                 est.add_sample(float(ti), xi, [0, 0], [0])
         est.update_probe(float(now))
     assert est.theta_for()[0] == pytest.approx(0.3 * 1.25)  # one step, default fast step
-    step_s = est.unknown_probe.last_step_s
-    slot = _first_fit(est, 1.0, 0.3)
+    step_s = est.handing.unknown_probe.last_step_s
+    _first_fit(est, 1.0, 0.3)
     # fitted: until its probe's next update it hands the phase's level, no dip to the floor
     assert est.theta_for()[0] == pytest.approx(0.3 * 1.25)
     # its fit ends the phase: the context starts at the phase's level, whose data since the
     # phase's step (over 3 s, linear) give the next step at once
     est.update_probe(8.5)
-    assert not est.unknown_probe.started and slot.probe.steps == 2
-    assert est.theta_for()[0] == pytest.approx(0.3 * 1.25**2) and slot.probe.last_step_s == 8.5
+    assert not est.handing.unknown_probe.started and _probe(est).steps == 2
+    assert est.theta_for()[0] == pytest.approx(0.3 * 1.25**2) and _probe(est).last_step_s == 8.5
     assert 3.0 <= step_s <= 5.0
-
-
-def test_a_bend_margin_reads_the_implied_peak_lower():
-    from pcvfe_drake.estimation.probe import implied_peak_fraction, sine_bend_ratio
-
-    s, bend = ProbeState(mu=0.6, last_step_s=0.0), sine_bend_ratio(0.55)
-
-    def step(margin):
-        return probe_step(
-            s,
-            3.0,
-            lower_bound=0.6,
-            floor_mu=0.3,
-            prior_mu=1.05,
-            is_saturated=False,
-            bend=bend,
-            bend_margin=margin,
-            **{**RULES, "max_excess": 0.5},
-            **FAST,
-        ).mu
-
-    assert step(0.0) == pytest.approx(0.64 * 0.6 / 0.55, rel=5e-3)  # to the implied peak
-    q = implied_peak_fraction(bend + 0.02)
-    assert q > 0.57 and step(0.02) == pytest.approx(0.64 * 0.6 / q, rel=1e-6)
-    assert step(0.2) == pytest.approx(0.6)  # read past probe_linear_ratio: no raise
-    with pytest.raises(ValueError, match="probe_bend_margin"):
-        LiveFitConfig(probe_bend_margin=-0.1)
 
 
 def test_a_back_off_after_an_identifiable_fit_is_judged_at_the_fit_level():
@@ -759,7 +718,7 @@ def test_a_back_off_after_an_identifiable_fit_is_judged_at_the_fit_level():
     def run(beta_per_limit):
         est, slot = _fitted_estimator()
         slot.estimate = replace(slot.estimate, theta=(0.6, *slot.estimate.theta[1:]), fits=2)
-        slot.probe = ProbeState(mu=0.42, last_step_s=0.0, steps=1)
+        est.handing.contexts[0] = ContextHanding(ProbeState(mu=0.42, last_step_s=0.0, steps=1))
         theta = np.array(slot.estimate.theta)
         k = theta[0] * theta[1:]
         low = 0.5 * peak_slip_rad(0.42, k)[1]  # the rear's slip limits at the two levels
@@ -839,7 +798,7 @@ def test_a_level_tried_in_a_bend_rises_to_a_tight_fit_not_yet_identifiable():
 
 
 def test_estimator_hands_the_probe_a_tight_fit_as_its_target(monkeypatch):
-    import pcvfe_drake.estimation.probe_updates as updates
+    import pcvfe_drake.handing.handing as updates
 
     seen = []
     original = updates.probe_update
@@ -849,13 +808,12 @@ def test_estimator_hands_the_probe_a_tight_fit_as_its_target(monkeypatch):
         return original(*args, **kwargs)
 
     monkeypatch.setattr(updates, "probe_update", spy)
-    for target, std, below, expected in (
-        (True, 0.01, False, 0.62),
-        (False, 0.01, False, None),  # the setting off
-        (True, 0.2, False, None),  # a loose fit is no target
-        (True, 0.01, True, None),  # a fit below the used friction neither
+    for std, below, expected in (
+        (0.01, False, 0.62),
+        (0.2, False, None),  # a loose fit is no target
+        (0.01, True, None),  # a fit below the used friction neither
     ):
-        est, slot = _fitted_estimator(probe_fit_target=target)
+        est, slot = _fitted_estimator()
         slot.estimate = replace(slot.estimate, theta=(0.62, *slot.estimate.theta[1:]))
         slot.estimate = replace(slot.estimate, theta_std=(std, np.nan, np.nan), below_used=below)
         _feed(est, 0.02, 1.0)

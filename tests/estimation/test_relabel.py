@@ -10,6 +10,7 @@ import pytest
 from pcvfe_drake.contexts.clustering import ClusteringParams, ContextClusterer
 from pcvfe_drake.estimation.context_estimator import ContextEstimator, LiveFitConfig
 from pcvfe_drake.estimation.sample_store import SampleStore, labels_from_frames
+from pcvfe_drake.handing.config import HandingConfig, Prior
 from pcvfe_drake.models.synthetic_drive import s_curve_drive
 from pcvfe_drake.vehicle.params import ford_escort
 
@@ -118,7 +119,7 @@ def _drive(params):
 
 def test_noise_samples_of_a_new_terrain_count_after_the_recluster(params):
     times, states, inputs, ids = _drive(params)
-    cfg = LiveFitConfig(unknown_context="prior")
+    cfg = LiveFitConfig(handing=HandingConfig(unknown=Prior()))
     est = ContextEstimator(params, cfg)
     for k in range(times.size):
         est.add_sample(times[k], states[k], inputs[k], [ids[k]])
@@ -167,7 +168,7 @@ def test_a_context_that_grows_by_relabelling_is_refitted_and_one_that_shrinks_to
 
 
 def test_memory_stays_bounded_and_the_current_id_still_drives_the_controller(params):
-    cfg = LiveFitConfig(buffer_s=1.0, unknown_context="prior")  # 100 samples per label
+    cfg = LiveFitConfig(buffer_s=1.0, handing=HandingConfig(unknown=Prior()))  # 100 per label
     est = ContextEstimator(params, cfg)
     for k in range(5000):
         est.add_sample(0.01 * k, STATE, [0.0, 0.0], [(k // 700) % 3 - 1])

@@ -11,6 +11,7 @@ from pydrake.trajectories import PiecewisePolynomial
 
 from pcvfe_drake.contexts.cluster_table import FrameLabels
 from pcvfe_drake.estimation.context_estimator import EstimateTable
+from pcvfe_drake.handing.config import HandingConfig
 from pcvfe_drake.models.synthetic_drive import s_curve_drive
 from pcvfe_drake.systems.context_fitter import ContextFitter
 from pcvfe_drake.vehicle.params import ford_escort
@@ -87,7 +88,7 @@ def test_recorded_drive_converges_and_switches_context(params):
         for y in (states, inputs, ctx[None, :].T)
     ]
     fitter = builder.AddNamedSystem(
-        "fitter", ContextFitter(params, period_s=1.0, noise_hold_s=0.25)
+        "fitter", ContextFitter(params, period_s=1.0, handing=HandingConfig(noise_hold_s=0.25))
     )
     for source, name in zip(sources, ("state", "actuation", "context_id"), strict=True):
         builder.Connect(source.get_output_port(), fitter.GetInputPort(name))
