@@ -101,6 +101,7 @@ def _add_friction_source(builder, scenario: Scenario, params, station, features,
                 params,
                 period_s=rates.fitter_period_s,
                 sample_period_s=rates.fitter_sample_period_s,
+                latency_s=rates.fitter_latency_s,
                 config=scenario.fit_config(),
             ),
         )

@@ -58,7 +58,9 @@ class ContextFitter(LeafSystem):
     appends (t, state, actuation) with the current context id to the sample store and sets
     ``theta_hat`` (and relabels and refits when ``frame_labels`` has a new version); a periodic
     unrestricted update every ``period_s`` (default 1 s = 1 Hz, first at t = ``period_s``)
-    refits contexts whose data changed, bounded per update (see
+    starts a refit of the contexts whose data changed, on the data up to then, published
+    ``latency_s`` later (the declared latency, in simulated time: the NMPC never waits for a
+    refit, and a seed still gives one result; 0: published at once), bounded per update (see
     :class:`pcvfe_drake.estimation.context_estimator.LiveFitConfig`: ``max_contexts_per_update``,
     ``max_windows``, ``max_iterations``). When both fire at once the sample is taken first. The
     :class:`ContextEstimator` (sample store, estimates) lives in the context's abstract state.
@@ -70,6 +72,7 @@ class ContextFitter(LeafSystem):
         *,
         period_s: float = 1.0,
         sample_period_s: float = 0.01,
+        latency_s: float = 0.0,
         config: LiveFitConfig | None = None,
         **config_overrides,
     ) -> None:
@@ -78,6 +81,9 @@ class ContextFitter(LeafSystem):
             params: the vehicle (model, bounds, nominal theta / prior).
             period_s: refit period [s].
             sample_period_s: data sampling period [s].
+            latency_s: declared latency of a refit [s]: a refit started at t (on the data up
+                to t) is published at the first sample update at or after t + latency_s, in
+                simulated time (0: at once, in the event that starts it).
             config: fitting settings (default ``LiveFitConfig()``); ``sample_period_s`` replaces
                 its data rate.
             config_overrides: individual ``LiveFitConfig`` fields (e.g. ``horizon_steps=10``,
@@ -89,6 +95,12 @@ class ContextFitter(LeafSystem):
                 raise ValueError(
                     f"ContextFitter: {name} must be a positive number of seconds, got {value!r}"
                 )
+        if not (isinstance(latency_s, int | float) and 0 <= latency_s < period_s):
+            raise ValueError(
+                f"ContextFitter: latency_s must be >= 0 and below period_s ({period_s!r} s), "
+                f"got {latency_s!r}"
+            )
+        self._latency_s = float(latency_s)
         base = LiveFitConfig() if config is None else config
         fields = {k: v for k, v in config_overrides.items() if v is not None}
         unknown = sorted(set(fields) - set(LiveFitConfig.__dataclass_fields__))
@@ -135,6 +147,11 @@ class ContextFitter(LeafSystem):
         return self._period_s
 
     @property
+    def latency_s(self) -> float:
+        """Declared latency of a refit [s]."""
+        return self._latency_s
+
+    @property
     def sample_period_s(self) -> float:
         """Sampling period [s]."""
         return self._sample_period_s
@@ -157,8 +174,10 @@ class ContextFitter(LeafSystem):
             self._actuation_port.Eval(context),
             self._context_id_port.Eval(context),
         )
+        t = context.get_time()
         if self._relabel(context, estimator):
-            estimator.refit(context.get_time())  # a new terrain's first fit without waiting
+            estimator.start_refit(t)  # a new terrain's first fit without waiting for the period
+        estimator.finish_refit(t, self._latency_s)
         self._set_theta(state, estimator)
         return EventStatus.Succeeded()
 
@@ -175,7 +194,8 @@ class ContextFitter(LeafSystem):
     def _on_refit(self, context: Context, state: State) -> EventStatus:
         estimator = state.get_mutable_abstract_state(self._estimator_index).get_mutable_value()
         self._relabel(context, estimator)
-        estimator.refit(context.get_time())
+        estimator.start_refit(context.get_time())
+        estimator.finish_refit(context.get_time(), self._latency_s)
         self._set_theta(state, estimator)
         return EventStatus.Succeeded()
 

@@ -64,6 +64,7 @@ from pcvfe_drake.estimation.fit_options import (
     without_model_error,
 )
 from pcvfe_drake.estimation.fitting import fit_gauss_newton
+from pcvfe_drake.estimation.incremental_fit import WindowInformation
 from pcvfe_drake.estimation.probe import (
     ProbeState,
     check_probe_settings,
@@ -84,6 +85,10 @@ from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import NU, NX
 
 UNIDENTIFIED_MU = ("estimate", "lower_bound", "probe")
+DELAY_BIN_S = 0.01
+"""Bin width [s] of the sample-to-estimate histogram (the data rate)."""
+DELAY_BINS = 3000
+"""Bins of that histogram (the last one holds every longer wait)."""
 
 
 @dataclass
@@ -130,6 +135,10 @@ class LiveFitConfig:
         effect_horizon_s, effect_stride_s, effect_max_windows, effect_min_windows: the
             effect fit's windows (horizon, spacing, the newest this many per refit, fewer than
             this many: keep the prior).
+        effect_incremental: refit the effect model incrementally (``incremental_fit``: the
+            windows already fitted keep their information, only new windows are rolled out);
+            False: every refit is the batch fit, the reference the incremental one is tested
+            against.
         identifiable_std: mu's standard deviation above which a context is not identifiable.
         model_error_rel: model-error budget added to mu's std (``FitOptions.model_error_rel``;
             0: none): ``sqrt(std^2 + (model_error_rel * mu)^2)``.
@@ -174,6 +183,7 @@ class LiveFitConfig:
     effect_stride_s: float = 0.5
     effect_max_windows: int = 100
     effect_min_windows: int = 10
+    effect_incremental: bool = True
     identifiable_std: float = 0.05
     model_error_rel: float = 0.0
     near_limit_fraction: float = 0.6
@@ -265,6 +275,14 @@ class _ContextSlot:
     """The largest mu its latest identifiable spell handed (NaN: none, or over probe_hold_s ago)."""
     handed_fit_end_s: float = math.nan
     """When it was last handed (NaN: still handed) [s]."""
+    estimate_data_end_s: float = math.nan
+    """The newest sample time its published fit used [s] (NaN: none)."""
+    delay_counts: np.ndarray | None = None
+    """Histogram of its samples' waits from sample to published fit (``DELAY_BIN_S`` bins;
+    replaced, never changed in place: the estimator's copies share it)."""
+    fit_info: WindowInformation | None = None
+    """The effect fit's stored window information (``incremental_fit``; None: the next refit
+    is a batch fit: none yet, or the context's samples were relabelled)."""
 
 
 def _discarded(old: ContextEstimate, samples: int, t_now: float, what: str) -> ContextEstimate:
@@ -302,6 +320,8 @@ class ContextEstimator:
     """The unknown phase's probe (``probe_unknown``; not started outside the phase)."""
     carried: ProbeState = field(default_factory=ProbeState)
     """The unknown probe at the end of the last phase, for the context that ended it."""
+    refit_started_s: float = math.nan
+    """Start [s] of the refit in flight (:meth:`start_refit`; its data end there), NaN: none."""
 
     def __post_init__(self) -> None:
         self.switch = RiseGuard(self.config.rise_confirm_s)
@@ -441,6 +461,7 @@ class ContextEstimator:
                     slot = self._slot(ident)
                     slot.samples += sign * count
                     slot.changes += count
+                    slot.fit_info = None  # not an append: the next refit is a batch fit
         return {k: v for k, v in gained.items() if v}
 
     def handed_context(self) -> int:
@@ -524,25 +545,50 @@ class ContextEstimator:
         later = [k for k in ids if k >= self._next_rr]
         return later + [k for k in ids if k < self._next_rr]
 
-    def refit(self, t_now: float, fit=fit_gauss_newton) -> list[int]:
+    def start_refit(self, t_now: float) -> bool:
+        """Start a refit at ``t_now``: it will use the data up to ``t_now`` (False: one is in
+        flight already, this start is dropped)."""
+        if math.isfinite(self.refit_started_s):
+            return False
+        self.refit_started_s = float(t_now)
+        return True
+
+    def finish_refit(self, t_now: float, latency_s: float, fit=fit_gauss_newton):
+        """Finish the refit in flight once its declared latency has passed (``t_now >=
+        start + latency_s``): it runs on the data up to its start and is published at
+        ``t_now``, so a simulation gives one result whatever the computer (the simulated
+        time of publication comes from the declared latency, not from the wall clock).
+        Returns the refitted ids, None when nothing was due."""
+        start = self.refit_started_s
+        if not math.isfinite(start) or t_now < start + latency_s - 1e-9:
+            return None
+        self.refit_started_s = math.nan
+        return self.refit(t_now, fit, data_until_s=start)
+
+    def refit(self, t_now: float, fit=fit_gauss_newton, data_until_s: float | None = None):
         """Refit up to ``max_contexts_per_update`` pending contexts; returns their ids.
 
         ``fit`` is the solver (``fit_gauss_newton`` signature); replaceable for testing.
+        ``data_until_s``: use only the samples up to this time (a refit started then and
+        published at ``t_now``; default: all).
         """
         self.update_probe(t_now)
         done = []
         for ident in self.pending()[: self.config.max_contexts_per_update]:
-            self._refit_one(ident, t_now, fit)
+            self._refit_one(ident, t_now, fit, data_until_s)
             done.append(ident)
             self._next_rr = ident + 1
         return done
 
-    def _refit_one(self, ident: int, t_now: float, fit) -> None:
+    def _refit_one(self, ident: int, t_now: float, fit, data_until_s=None) -> None:
         cfg = self.config
         slot = self._slots[ident]
         slot.changes_at_fit = slot.changes
         old = slot.estimate
-        rows = np.flatnonzero(self._store.labels() == ident)[-self._capacity :]
+        mine = self._store.labels() == ident
+        if data_until_s is not None:
+            mine &= self._store.times() <= data_until_s + 1e-9
+        rows = np.flatnonzero(mine)[-self._capacity :]
         t, states, inputs = self._store.rows(rows)
         if self._effect_fitter is not None:
             self._refit_effects(slot, t, states, inputs, t_now)
@@ -608,6 +654,7 @@ class ContextEstimator:
             message="; ".join(result.warnings),
             **self._identifiability(old, t, states, result.theta[0], std[0], False),
         )
+        self._published(slot, t, float(t[-1]), t_now)
 
     def _refit_effects(self, slot: _ContextSlot, t, states, inputs, t_now: float) -> None:
         """``fitter.effects``: refit the context with the workbench's effect model."""
@@ -616,8 +663,14 @@ class ContextEstimator:
         samples = slot.samples
         previous = tuple(v for _, v, _ in old.model_params) if old.fitted else None
         try:
-            result = self._effect_fitter(t, states, inputs, previous, self._prior[0])
+            if cfg.effect_incremental:
+                result, slot.fit_info = self._effect_fitter.refit(
+                    t, states, inputs, slot.fit_info, self._prior[0], previous
+                )
+            else:
+                result = self._effect_fitter(t, states, inputs, previous, self._prior[0])
         except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
+            slot.fit_info = None
             slot.estimate = _discarded(old, samples, t_now, f"failed ({type(exc).__name__}: {exc})")
             return
         if result is None:
@@ -631,6 +684,7 @@ class ContextEstimator:
             )
             return
         if not (np.all(np.isfinite(result.theta)) and math.isfinite(result.loss)):
+            slot.fit_info = None
             slot.estimate = _discarded(old, samples, t_now, "diverged")
             return
         peak = result.mu_is_peak
@@ -662,6 +716,34 @@ class ContextEstimator:
                 )
             ),
             **self._identifiability(old, t, states, result.theta[0], result.std[0], peak, share),
+        )
+        self._published(slot, t, result.data_end_s, t_now)
+
+    def _published(self, slot: _ContextSlot, t: np.ndarray, data_end_s: float, t_now: float):
+        """A fit using the samples up to ``data_end_s`` is published at ``t_now``: the samples
+        newer than the previous fit's data waited ``t_now - t_sample``; the entry gets
+        ``data_end_s`` and the waits' p50 and p99."""
+        previous = slot.estimate_data_end_s
+        new = (
+            t[(t > previous) & (t <= data_end_s + 1e-9)]
+            if math.isfinite(previous)
+            else t[t <= data_end_s + 1e-9]
+        )
+        bins = np.minimum((np.maximum(t_now - new, 0.0) / DELAY_BIN_S).astype(int), DELAY_BINS - 1)
+        counts = np.bincount(bins, minlength=DELAY_BINS)
+        if slot.delay_counts is not None:
+            counts = counts + slot.delay_counts
+        slot.delay_counts = counts
+        slot.estimate_data_end_s = float(data_end_s)
+        total = int(counts.sum())
+        quantiles = (math.nan, math.nan)
+        if total:
+            cum = np.cumsum(counts)
+            quantiles = tuple(
+                float((np.searchsorted(cum, q * total) + 1) * DELAY_BIN_S) for q in (0.5, 0.99)
+            )
+        slot.estimate = replace(
+            slot.estimate, data_end_s=float(data_end_s), sample_to_estimate_s=(*quantiles, total)
         )
 
     def _identifiability(
