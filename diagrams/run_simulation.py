@@ -351,6 +351,7 @@ def run_simulation(
         log_path=folder.drive_log if writing else None,
         debug_layers=debug_layers,
         station=station,
+        refit_worker=realtime_rate is not None,  # paced to the wall clock: refits off the loop
     )
     diagram, course, run_log = parts.diagram, parts.course, parts.run_log
     simulator = Simulator(diagram)

@@ -91,9 +91,8 @@ def test_incremental_refits_equal_the_batch_fit_within_its_std(drive):
         batch = fitter(t[:n], S[:n], U[:n], previous=first.model_theta, mu_start=1.0489)
         assert result.incremental and result.n_windows == batch.n_windows
         assert info.keys.size == batch.n_windows
-        # one batched rollout: the new windows only (the estimate moved less than the
-        # relinearisation distance)
-        assert result.rollouts <= 2
+        # one batched rollout per iteration (the new windows, then the relinearised ones)
+        assert 1 <= result.rollouts <= fitter.max_iterations
         std = batch.model_std[0]
         assert abs(result.model_theta[0] - batch.model_theta[0]) <= std
         assert result.model_std[0] == pytest.approx(std, rel=0.5)
@@ -149,4 +148,4 @@ def test_estimator_resets_on_relabel_and_publishes_after_the_declared_latency(dr
     assert count > 0 and 0.3 <= p50 <= p99 <= t[n - 1] + 0.4
     assert est._slots[0].fit_info is not None
     est.relabel(t[:n], np.full(n, -1), 0.02, version=1)  # the samples leave the context
-    assert est._slots[0].fit_info is None
+    assert est._slots[0].fit_info.keys.size == 0  # every window re-evaluated next time

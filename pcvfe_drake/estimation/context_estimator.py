@@ -281,8 +281,8 @@ class _ContextSlot:
     """Histogram of its samples' waits from sample to published fit (``DELAY_BIN_S`` bins;
     replaced, never changed in place: the estimator's copies share it)."""
     fit_info: WindowInformation | None = None
-    """The effect fit's stored window information (``incremental_fit``; None: the next refit
-    is a batch fit: none yet, or the context's samples were relabelled)."""
+    """The effect fit's stored window information (``incremental_fit``; None: none yet, the
+    next refit is a batch fit; after a relabelling it keeps the estimate and no window)."""
 
 
 def _discarded(old: ContextEstimate, samples: int, t_now: float, what: str) -> ContextEstimate:
@@ -322,6 +322,10 @@ class ContextEstimator:
     """The unknown probe at the end of the last phase, for the context that ended it."""
     refit_started_s: float = math.nan
     """Start [s] of the refit in flight (:meth:`start_refit`; its data end there), NaN: none."""
+    refit_finished_s: float = math.nan
+    """When the last refit was due to be published [s] (start + declared latency)."""
+    late_refits: int = 0
+    """Refits a worker published later than their declared latency (:meth:`adopt`)."""
 
     def __post_init__(self) -> None:
         self.switch = RiseGuard(self.config.rise_confirm_s)
@@ -461,7 +465,8 @@ class ContextEstimator:
                     slot = self._slot(ident)
                     slot.samples += sign * count
                     slot.changes += count
-                    slot.fit_info = None  # not an append: the next refit is a batch fit
+                    if slot.fit_info is not None:  # not an append: every window re-evaluated
+                        slot.fit_info = slot.fit_info.forget_windows()
         return {k: v for k, v in gained.items() if v}
 
     def handed_context(self) -> int:
@@ -563,7 +568,29 @@ class ContextEstimator:
         if not math.isfinite(start) or t_now < start + latency_s - 1e-9:
             return None
         self.refit_started_s = math.nan
+        self.refit_finished_s = float(t_now)
         return self.refit(t_now, fit, data_until_s=start)
+
+    def adopt(self, worker: ContextEstimator, done: list[int], t_now: float) -> None:
+        """Publish at ``t_now`` the refit that a worker ran on a copy of this estimator (taken
+        when the refit started): the refitted contexts take its estimates, stored window
+        information and wait statistics (their sample counts stay this estimator's, which
+        kept receiving samples), and the probes their state after it."""
+        for ident in done:
+            mine, theirs = self._slot(ident), worker._slots[ident]
+            mine.estimate = replace(theirs.estimate, samples=mine.samples)
+            mine.changes_at_fit = theirs.changes_at_fit
+            mine.fit_info = theirs.fit_info
+            mine.estimate_data_end_s = theirs.estimate_data_end_s
+            mine.delay_counts = theirs.delay_counts
+        for ident, theirs in worker._slots.items():
+            if ident in self._slots:
+                self._slots[ident].probe = theirs.probe
+        self.unknown_probe, self.carried = worker.unknown_probe, worker.carried
+        self._next_rr = worker._next_rr
+        self.refit_started_s = math.nan
+        if t_now > worker.refit_finished_s + self.config.sample_period_s:
+            self.late_refits += 1
 
     def refit(self, t_now: float, fit=fit_gauss_newton, data_until_s: float | None = None):
         """Refit up to ``max_contexts_per_update`` pending contexts; returns their ids.

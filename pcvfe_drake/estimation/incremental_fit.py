@@ -33,9 +33,11 @@ A refit (:func:`incremental_refit`):
    after a longer one it relinearises (step 2 at the new point) and iterates while the cost
    still falls, at most ``max_iterations`` times; a step that raised the cost is undone.
 
-A context whose samples were relabelled (a re-clustering moved samples in or out) has no
-stored information (``ContextEstimator`` drops it) and is refitted by the batch fit, as is a
-context's first fit; the batch fit's residuals and Jacobian at its solution seed the store.
+A context whose samples were relabelled (a re-clustering moved samples in or out, so a
+window's data may have changed) keeps its estimate but no window (``forget_windows``): its next
+refit rolls every window out at that estimate, in one batched rollout. A context's first fit
+is the batch fit (several starts, more iterations); its residuals and Jacobian at the solution
+seed the store.
 
 The standard deviations come from the same sums: the Gauss-Newton information ``sum jj /
 sigma^2`` and the windows' scores ``sum (ej + jj d) / sigma^2`` (the gradient at the estimate,
@@ -78,6 +80,11 @@ class WindowInformation:
     ej: np.ndarray
     jj: np.ndarray
     estimate: np.ndarray
+
+    def forget_windows(self) -> WindowInformation:
+        """No window, the estimate kept: the next refit re-evaluates every window there (after
+        a relabelling moved samples in or out, when a window's data may have changed)."""
+        return self.select(np.zeros(0, dtype=int))
 
     def select(self, rows: np.ndarray) -> WindowInformation:
         return WindowInformation(
