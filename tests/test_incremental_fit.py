@@ -12,6 +12,7 @@ from pcvfe_drake.estimation.context_estimator import ContextEstimator, LiveFitCo
 from pcvfe_drake.estimation.effect_fit import EffectFitter
 from pcvfe_drake.estimation.incremental_fit import (
     RELINEARISE_SCALE,
+    Problem,
     WindowInformation,
     minimise_quadratic,
     quadratic,
@@ -65,9 +66,7 @@ def test_window_sums_rebuild_the_batch_normal_equations():
         lsq.covariance_from_gram(gram, float(r @ r), r.size), lsq.covariance(J, float(r @ r))
     )
     # the minimiser of the quadratic is the linear least-squares solution (inside the bounds)
-    step = minimise_quadratic(
-        info,
-        np.zeros(2),
+    problem = Problem(
         np.array([True, True]),
         sigma,
         np.full(2, -10.0),
@@ -76,6 +75,7 @@ def test_window_sums_rebuild_the_batch_normal_equations():
         np.zeros(2),
         np.zeros(2),
     )
+    step = minimise_quadratic(info, np.zeros(2), problem)
     np.testing.assert_allclose(step, -np.linalg.lstsq(J, r, rcond=None)[0], atol=1e-8)
 
 

@@ -40,6 +40,7 @@ import numpy as np
 from pcvfe_drake.estimation.estimate_table import Z95
 from pcvfe_drake.estimation.fit_options import COVARIANCES, HAC_LAG_S, with_model_error
 from pcvfe_drake.estimation.incremental_fit import (
+    Problem,
     WindowInformation,
     incremental_refit,
     window_sums,
@@ -497,18 +498,13 @@ class EffectFitter:
         precision = np.zeros(model.n_params)
         precision[0] = 1.0 / self.mu_prior_sd**2
         lo, hi = model.bounds()
+        problem = Problem(free, sigma, lo, hi, model.scales(), prior_mean, precision)
         out = incremental_refit(
             evaluate,
             self._window_keys(data, starts),
             info,
             info.estimate,
-            free,
-            sigma,
-            lo,
-            hi,
-            model.scales(),
-            prior_mean,
-            precision,
+            problem,
             self.max_iterations,
         )
         if out is None:

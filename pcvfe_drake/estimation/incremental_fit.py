@@ -127,20 +127,32 @@ def quadratic(info: WindowInformation, theta_free: np.ndarray, sigma: np.ndarray
     return ssr, gram, scores
 
 
-def minimise_quadratic(
-    info: WindowInformation,
-    theta: np.ndarray,
-    free: np.ndarray,
-    sigma: np.ndarray,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    scale: np.ndarray,
-    prior_mean: np.ndarray,
-    prior_precision: np.ndarray,
-) -> np.ndarray:
+@dataclass(frozen=True)
+class Problem:
+    """What a refit minimises besides the windows: the fitted parameters, the noise scales and
+    the bounds, scales and prior of the full parameter vector (P,).
+
+    Attributes:
+        free: which parameters are fitted (P,) bool.
+        sigma: noise scale per fit state (S,), the whitening.
+        lower, upper, scale: bounds and typical magnitudes (P,).
+        prior_mean, prior_precision: a Gaussian prior per parameter (precision 0: none).
+    """
+
+    free: np.ndarray
+    sigma: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    scale: np.ndarray
+    prior_mean: np.ndarray
+    prior_precision: np.ndarray
+
+
+def minimise_quadratic(info: WindowInformation, theta: np.ndarray, problem: Problem) -> np.ndarray:
     """The full parameter vector minimising the stored windows' quadratic models plus the
     prior within the bounds, from ``theta`` (the least-squares core on the equivalent linear
     residual ``R d + R^-T b``, ``R^T R`` the Gauss-Newton matrix, ``b`` the gradient / 2)."""
+    free, sigma = problem.free, problem.sigma
     x0 = theta[free]
     _, gram, scores = quadratic(info, x0, sigma)
     grad = scores.sum(axis=0)
@@ -161,12 +173,12 @@ def minimise_quadratic(
     out = lsq.solve(
         fun,
         theta,
-        lower,
-        upper,
-        scale,
+        problem.lower,
+        problem.upper,
+        problem.scale,
         free=free,
-        prior_mean=prior_mean,
-        prior_precision=prior_precision,
+        prior_mean=problem.prior_mean,
+        prior_precision=problem.prior_precision,
         settings=lsq.LsqSettings(max_iterations=20, xtol=1e-9, ftol=1e-12),
     )
     return out.theta
@@ -192,18 +204,13 @@ def incremental_refit(
     keys: np.ndarray,
     info: WindowInformation,
     theta0: np.ndarray,
-    free: np.ndarray,
-    sigma: np.ndarray,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    scale: np.ndarray,
-    prior_mean: np.ndarray,
-    prior_precision: np.ndarray,
+    problem: Problem,
     max_iterations: int,
 ) -> IncrementalOutcome | None:
     """Refit on the windows ``keys`` (time order) from the stored ``info`` (see the module
     docstring). ``evaluate(theta, rows) -> (ee, ej, jj)`` or None (a rollout that diverged)
     rolls out the windows ``keys[rows]`` at ``theta``. None when a rollout diverged."""
+    free, sigma = problem.free, problem.sigma
     kept = np.isin(info.keys, keys)
     info = info.select(np.flatnonzero(kept))
     order = {int(k): i for i, k in enumerate(info.keys)}
@@ -227,10 +234,10 @@ def incremental_refit(
         stored.ej[have] = info.ej[where[have]]
         stored.jj[have] = info.jj[where[have]]
     missing = where < 0
-    free_scale = scale[free]
-    theta = np.clip(np.asarray(theta0, dtype=float).copy(), lower, upper)
-    precision = np.asarray(prior_precision, dtype=float)[free]
-    mean = np.asarray(prior_mean, dtype=float)[free]
+    free_scale = problem.scale[free]
+    theta = np.clip(np.asarray(theta0, dtype=float).copy(), problem.lower, problem.upper)
+    precision = np.asarray(problem.prior_precision, dtype=float)[free]
+    mean = np.asarray(problem.prior_mean, dtype=float)[free]
 
     def prior_cost(th):
         p = precision > 0
@@ -265,9 +272,7 @@ def incremental_refit(
             break
         history.append(cost)
         best = (theta.copy(), cost, stored)
-        step = minimise_quadratic(
-            stored, theta, free, sigma, lower, upper, scale, prior_mean, prior_precision
-        )
+        step = minimise_quadratic(stored, theta, problem)
         short = np.all(np.abs(step[free] - theta[free]) <= RELINEARISE_SCALE * free_scale)
         theta = step
         if short:
