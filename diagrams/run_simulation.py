@@ -277,6 +277,7 @@ def _estimate_table(diagram, context) -> list[dict]:
             "mu_interval_95": [float(v) for v in e.mu_interval_95],
             "mu_is_peak": bool(e.mu_is_peak),
             "model_params": {n: float(v) for n, v, _ in e.model_params},
+            "sample_to_estimate_s": [float(v) for v in e.sample_to_estimate_s],
         }
         for e in table.entries
         if int(e.context_id) >= 0
@@ -351,6 +352,7 @@ def run_simulation(
         log_path=folder.drive_log if writing else None,
         debug_layers=debug_layers,
         station=station,
+        refit_worker=realtime_rate is not None,  # paced to the wall clock: refits off the loop
     )
     diagram, course, run_log = parts.diagram, parts.course, parts.run_log
     simulator = Simulator(diagram)

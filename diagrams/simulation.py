@@ -71,7 +71,9 @@ def nmpc_config(scenario: Scenario) -> NmpcConfig:
     return config
 
 
-def _add_friction_source(builder, scenario: Scenario, params, station, features, actuation):
+def _add_friction_source(
+    builder, scenario: Scenario, params, station, features, actuation, refit_worker=False
+):
     """Add the scenario's friction source (``scenario.estimator``), reading the ``features``
     output port; returns its ``theta_hat`` output and the port logged as the run's ``context``
     column.
@@ -104,6 +106,8 @@ def _add_friction_source(builder, scenario: Scenario, params, station, features,
                 params,
                 period_s=rates.fitter_period_s,
                 sample_period_s=rates.fitter_sample_period_s,
+                latency_s=rates.fitter_latency_s,
+                refit_worker=refit_worker,
                 config=scenario.fit_config(),
                 planner_mu_share=scenario.nmpc.speed_margin**2,  # the NMPC's share of mu
             ),
@@ -179,6 +183,7 @@ def MakeSimulation(
     log_path: str | Path | None = None,
     debug_layers: bool = True,
     station: Diagram | None = None,
+    refit_worker: bool = False,
 ) -> SimulationParts:
     """The closed loop of ``scenario`` as a diagram named ``pcvfe_simulation``.
 
@@ -194,6 +199,8 @@ def MakeSimulation(
             are connected only where the station has them; a replay station's
             ``logged_actuation`` (the input recorded with the drive) feeds the fitter and the
             log instead of the NMPC's command, which then drives nothing.
+        refit_worker: the fitter's refits run in a worker thread (``ContextFitter``'s
+            ``refit_worker``): for a loop paced to the wall clock (the LCM station).
 
     Systems (names): ``station`` (exports actuation / state / image / true_mu / true_terrain),
     ``features``, ``clustering``, ``fitter``, ``nmpc``, ``run_logger``, and ``meshcat_view``
@@ -237,7 +244,9 @@ def MakeSimulation(
                 f"replay: the log holds {seen.size()} features per frame, the scenario's "
                 f"feature backend {feature_dim}"
             )
-    theta_hat, context_id = _add_friction_source(builder, scenario, params, station, seen, applied)
+    theta_hat, context_id = _add_friction_source(
+        builder, scenario, params, station, seen, applied, refit_worker
+    )
     builder.Connect(state, nmpc.GetInputPort("state"))
     builder.Connect(theta_hat, nmpc.GetInputPort("theta_hat"))
     builder.Connect(nmpc.GetOutputPort("actuation"), station.GetInputPort("actuation"))

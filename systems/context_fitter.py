@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
+from copy import deepcopy
 from dataclasses import replace
 
 import numpy as np
@@ -55,7 +57,9 @@ class ContextFitter(LeafSystem):
     appends (t, state, actuation) with the current context id to the sample store and sets
     ``theta_hat`` (and relabels and refits when ``frame_labels`` has a new version); a periodic
     unrestricted update every ``period_s`` (default 1 s = 1 Hz, first at t = ``period_s``)
-    refits contexts whose data changed, bounded per update (see
+    starts a refit of the contexts whose data changed, on the data up to then, published
+    ``latency_s`` later (the declared latency, in simulated time: the NMPC never waits for a
+    refit, and a seed still gives one result; 0: published at once), bounded per update (see
     :class:`pcvfe_drake.estimation.context_estimator.LiveFitConfig`: ``max_contexts_per_update``,
     ``max_windows``, ``max_iterations``). When both fire at once the sample is taken first. The
     :class:`ContextEstimator` (sample store, estimates) lives in the context's abstract state.
@@ -67,6 +71,8 @@ class ContextFitter(LeafSystem):
         *,
         period_s: float = 1.0,
         sample_period_s: float = 0.01,
+        latency_s: float = 0.0,
+        refit_worker: bool = False,
         config: LiveFitConfig | None = None,
         planner_mu_share: float = DEFAULT_PROBE_USE_FRACTION,
         **config_overrides,
@@ -76,6 +82,15 @@ class ContextFitter(LeafSystem):
             params: the vehicle (model, bounds, nominal theta / prior).
             period_s: refit period [s].
             sample_period_s: data sampling period [s].
+            latency_s: declared latency of a refit [s]: a refit started at t (on the data up
+                to t) is published at the first sample update at or after t + latency_s, in
+                simulated time (0: at once, in the event that starts it).
+            refit_worker: run each refit in a worker thread on a copy of the estimator taken
+                at its start, and publish it at the first sample update after both its
+                declared latency has passed and the worker is done (for a loop paced to the
+                wall clock, the LCM station: a refit then never holds up the controller's
+                updates; the publication time depends on the computer, so a simulation keeps
+                the default, in-event refits).
             config: fitting settings (default ``LiveFitConfig()``); ``sample_period_s`` replaces
                 its data rate.
             planner_mu_share: the share of the handed mu the planner uses (the NMPC's
@@ -89,6 +104,16 @@ class ContextFitter(LeafSystem):
                 raise ValueError(
                     f"ContextFitter: {name} must be a positive number of seconds, got {value!r}"
                 )
+        if not (isinstance(latency_s, int | float) and 0 <= latency_s < period_s):
+            raise ValueError(
+                f"ContextFitter: latency_s must be >= 0 and below period_s ({period_s!r} s), "
+                f"got {latency_s!r}"
+            )
+        self._latency_s = float(latency_s)
+        # The worker and its job in flight live outside the Context: a thread's future cannot be
+        # copied into Drake state. Only a loop paced to the wall clock uses them.
+        self._worker = ThreadPoolExecutor(max_workers=1) if refit_worker else None
+        self._job = None
         base = LiveFitConfig() if config is None else config
         fields = {k: v for k, v in config_overrides.items() if v is not None}
         unknown = sorted(set(fields) - set(LiveFitConfig.__dataclass_fields__))
@@ -141,6 +166,11 @@ class ContextFitter(LeafSystem):
         return self._period_s
 
     @property
+    def latency_s(self) -> float:
+        """Declared latency of a refit [s]."""
+        return self._latency_s
+
+    @property
     def sample_period_s(self) -> float:
         """Sampling period [s]."""
         return self._sample_period_s
@@ -163,10 +193,40 @@ class ContextFitter(LeafSystem):
             self._actuation_port.Eval(context),
             self._context_id_port.Eval(context),
         )
+        t = context.get_time()
         if self._relabel(context, estimator):
-            estimator.refit(context.get_time())  # a new terrain's first fit without waiting
+            self._start(estimator, t)  # a new terrain's first fit without waiting for the period
+        self._finish(estimator, t)
         self._set_theta(state, estimator)
         return EventStatus.Succeeded()
+
+    def _start(self, estimator: ContextEstimator, t: float) -> None:
+        """Start a refit at ``t`` (with a worker: on a copy, in the worker thread)."""
+        if not estimator.start_refit(t) or self._worker is None:
+            return
+        copy = deepcopy(estimator)
+        due = t + self._latency_s
+        self._job = (copy, self._worker.submit(copy.finish_refit, due, self._latency_s))
+
+    def _finish(self, estimator: ContextEstimator, t: float) -> None:
+        """Publish the refit in flight if it is due (and, with a worker, done)."""
+        if self._worker is None:
+            estimator.finish_refit(t, self._latency_s)
+            return
+        if self._job is None or t < estimator.refit_started_s + self._latency_s - 1e-9:
+            return
+        copy, future = self._job
+        if not future.done():
+            return  # still running: the loop goes on with the last published estimate
+        self._job = None
+        try:
+            done = future.result()
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError):
+            done = None
+        if done is None:  # failed: the contexts stay pending and the next refit retries
+            estimator.refit_started_s = math.nan
+            return
+        estimator.adopt(copy, done, t)
 
     def _relabel(self, context: Context, estimator: ContextEstimator) -> bool:
         """Relabel the stored samples if ``frame_labels`` has a new version; True if it had."""
@@ -181,7 +241,8 @@ class ContextFitter(LeafSystem):
     def _on_refit(self, context: Context, state: State) -> EventStatus:
         estimator = state.get_mutable_abstract_state(self._estimator_index).get_mutable_value()
         self._relabel(context, estimator)
-        estimator.refit(context.get_time())
+        self._start(estimator, context.get_time())
+        self._finish(estimator, context.get_time())
         self._set_theta(state, estimator)
         return EventStatus.Succeeded()
 

@@ -39,6 +39,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from pcvfe_drake.estimation.effect_fit import EffectFitter, identifiability
+from pcvfe_drake.estimation.estimate_latency import add_waits, wait_quantiles
 from pcvfe_drake.estimation.estimate_table import ContextEstimate, EstimateTable
 from pcvfe_drake.estimation.fit_dataset import (
     DEFAULT_HORIZON,
@@ -55,6 +56,7 @@ from pcvfe_drake.estimation.fit_options import (
     without_model_error,
 )
 from pcvfe_drake.estimation.fitting import fit_gauss_newton
+from pcvfe_drake.estimation.incremental_fit import WindowInformation
 from pcvfe_drake.estimation.probe import DEFAULT_PROBE_USE_FRACTION, wheel_peak_share
 from pcvfe_drake.estimation.sample_store import NOISE, SampleStore, labels_from_frames
 from pcvfe_drake.handing.config import HandingConfig
@@ -95,6 +97,10 @@ class LiveFitConfig:
         effect_horizon_s, effect_stride_s, effect_max_windows, effect_min_windows: the
             effect fit's windows (horizon, spacing, the newest this many per refit, fewer than
             this many: keep the prior).
+        effect_incremental: refit the effect model incrementally (``incremental_fit``: the
+            windows already fitted keep their information, only new windows are rolled out);
+            False: every refit is the batch fit, the reference the incremental one is tested
+            against.
         identifiable_std: mu's standard deviation above which a context is not identifiable.
         near_limit_fraction: the data came near the limit when the used friction reached this
             fraction of the fitted mu.
@@ -120,6 +126,7 @@ class LiveFitConfig:
     effect_stride_s: float = 0.5
     effect_max_windows: int = 100
     effect_min_windows: int = 10
+    effect_incremental: bool = True
     identifiable_std: float = 0.05
     near_limit_fraction: float = 0.6
     handing: HandingConfig = field(default_factory=HandingConfig)
@@ -194,6 +201,13 @@ class _ContextSlot:
     changes: int = 0
     """Changes to its data (samples received or relabelled in or out), ever increasing."""
     changes_at_fit: int = 0
+    estimate_data_end_s: float = math.nan
+    """The newest sample time its published fit used [s] (NaN: none)."""
+    delay_counts: np.ndarray | None = None
+    """Histogram of its samples' waits from sample to published fit (``estimate_latency``)."""
+    fit_info: WindowInformation | None = None
+    """The effect fit's stored window information (``incremental_fit``; None: none yet, the
+    next refit is a batch fit; after a relabelling it keeps the estimate and no window)."""
 
 
 def _discarded(old: ContextEstimate, samples: int, t_now: float, what: str) -> ContextEstimate:
@@ -225,6 +239,12 @@ class ContextEstimator:
     relabelled_samples: int = 0
     planner_mu_share: float = DEFAULT_PROBE_USE_FRACTION
     """The share of the handed mu the planner uses (``speed_margin^2``), for the handing."""
+    refit_started_s: float = math.nan
+    """Start [s] of the refit in flight (:meth:`start_refit`; its data end there), NaN: none."""
+    refit_finished_s: float = math.nan
+    """When the last refit was due to be published [s] (start + declared latency)."""
+    late_refits: int = 0
+    """Refits a worker published later than their declared latency (:meth:`adopt`)."""
 
     def __post_init__(self) -> None:
         prior = self.params.theta if self.config.prior_theta is None else self.config.prior_theta
@@ -369,6 +389,8 @@ class ContextEstimator:
                     slot = self._slot(ident)
                     slot.samples += sign * count
                     slot.changes += count
+                    if slot.fit_info is not None:  # not an append: every window re-evaluated
+                        slot.fit_info = slot.fit_info.forget_windows()
         return {k: v for k, v in gained.items() if v}
 
     @property
@@ -419,25 +441,69 @@ class ContextEstimator:
         later = [k for k in ids if k >= self._next_rr]
         return later + [k for k in ids if k < self._next_rr]
 
-    def refit(self, t_now: float, fit=fit_gauss_newton) -> list[int]:
+    def start_refit(self, t_now: float) -> bool:
+        """Start a refit at ``t_now``: it will use the data up to ``t_now`` (False: one is in
+        flight already, this start is dropped)."""
+        if math.isfinite(self.refit_started_s):
+            return False
+        self.refit_started_s = float(t_now)
+        return True
+
+    def finish_refit(self, t_now: float, latency_s: float, fit=fit_gauss_newton):
+        """Finish the refit in flight once its declared latency has passed (``t_now >=
+        start + latency_s``): it runs on the data up to its start and is published at
+        ``t_now``, so a simulation gives one result whatever the computer (the simulated
+        time of publication comes from the declared latency, not from the wall clock).
+        Returns the refitted ids, None when nothing was due."""
+        start = self.refit_started_s
+        if not math.isfinite(start) or t_now < start + latency_s - 1e-9:
+            return None
+        self.refit_started_s = math.nan
+        self.refit_finished_s = float(t_now)
+        return self.refit(t_now, fit, data_until_s=start)
+
+    def adopt(self, worker: ContextEstimator, done: list[int], t_now: float) -> None:
+        """Publish at ``t_now`` the refit that a worker ran on a copy of this estimator (taken
+        when the refit started): the refitted contexts take its estimates, stored window
+        information and wait statistics (their sample counts stay this estimator's, which
+        kept receiving samples), and the handing its exploration state after it."""
+        for ident in done:
+            mine, theirs = self._slot(ident), worker._slots[ident]
+            mine.estimate = replace(theirs.estimate, samples=mine.samples)
+            mine.changes_at_fit = theirs.changes_at_fit
+            mine.fit_info = theirs.fit_info
+            mine.estimate_data_end_s = theirs.estimate_data_end_s
+            mine.delay_counts = theirs.delay_counts
+        self.handing.adopt_exploration(worker.handing)
+        self._next_rr = worker._next_rr
+        self.refit_started_s = math.nan
+        if t_now > worker.refit_finished_s + self.config.sample_period_s:
+            self.late_refits += 1
+
+    def refit(self, t_now: float, fit=fit_gauss_newton, data_until_s: float | None = None):
         """Refit up to ``max_contexts_per_update`` pending contexts; returns their ids.
 
         ``fit`` is the solver (``fit_gauss_newton`` signature); replaceable for testing.
+        ``data_until_s``: use only the samples up to this time (a refit started then and
+        published at ``t_now``; default: all).
         """
         self.update_probe(t_now)
         done = []
         for ident in self.pending()[: self.config.max_contexts_per_update]:
-            self._refit_one(ident, t_now, fit)
+            self._refit_one(ident, t_now, fit, data_until_s)
             done.append(ident)
             self._next_rr = ident + 1
         return done
 
-    def _refit_one(self, ident: int, t_now: float, fit) -> None:
+    def _refit_one(self, ident: int, t_now: float, fit, data_until_s=None) -> None:
         cfg = self.config
         slot = self._slots[ident]
         slot.changes_at_fit = slot.changes
         old = slot.estimate
-        rows = np.flatnonzero(self._store.labels() == ident)[-self._capacity :]
+        mine = self._store.labels() == ident
+        if data_until_s is not None:
+            mine &= self._store.times() <= data_until_s + 1e-9
+        rows = np.flatnonzero(mine)[-self._capacity :]
         t, states, inputs = self._store.rows(rows)
         if self._effect_fitter is not None:
             self._refit_effects(slot, t, states, inputs, t_now)
@@ -503,6 +569,7 @@ class ContextEstimator:
             message="; ".join(result.warnings),
             **self._identifiability(old, t, states, result.theta[0], std[0], False),
         )
+        self._published(slot, t, float(t[-1]), t_now)
 
     def _refit_effects(self, slot: _ContextSlot, t, states, inputs, t_now: float) -> None:
         """``fitter.effects``: refit the context with the workbench's effect model."""
@@ -511,8 +578,14 @@ class ContextEstimator:
         samples = slot.samples
         previous = tuple(v for _, v, _ in old.model_params) if old.fitted else None
         try:
-            result = self._effect_fitter(t, states, inputs, previous, self._prior[0])
+            if cfg.effect_incremental:
+                result, slot.fit_info = self._effect_fitter.refit(
+                    t, states, inputs, slot.fit_info, self._prior[0], previous
+                )
+            else:
+                result = self._effect_fitter(t, states, inputs, previous, self._prior[0])
         except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
+            slot.fit_info = None
             slot.estimate = _discarded(old, samples, t_now, f"failed ({type(exc).__name__}: {exc})")
             return
         if result is None:
@@ -526,6 +599,7 @@ class ContextEstimator:
             )
             return
         if not (np.all(np.isfinite(result.theta)) and math.isfinite(result.loss)):
+            slot.fit_info = None
             slot.estimate = _discarded(old, samples, t_now, "diverged")
             return
         peak = result.mu_is_peak
@@ -557,6 +631,25 @@ class ContextEstimator:
                 )
             ),
             **self._identifiability(old, t, states, result.theta[0], result.std[0], peak, share),
+        )
+        self._published(slot, t, result.data_end_s, t_now)
+
+    def _published(self, slot: _ContextSlot, t: np.ndarray, data_end_s: float, t_now: float):
+        """A fit using the samples up to ``data_end_s`` is published at ``t_now``: the samples
+        newer than the previous fit's data waited ``t_now - t_sample``; the entry gets
+        ``data_end_s`` and the waits' p50 and p99."""
+        previous = slot.estimate_data_end_s
+        new = (
+            t[(t > previous) & (t <= data_end_s + 1e-9)]
+            if math.isfinite(previous)
+            else t[t <= data_end_s + 1e-9]
+        )
+        slot.delay_counts = add_waits(slot.delay_counts, t_now - new)
+        slot.estimate_data_end_s = float(data_end_s)
+        slot.estimate = replace(
+            slot.estimate,
+            data_end_s=float(data_end_s),
+            sample_to_estimate_s=wait_quantiles(slot.delay_counts),
         )
 
     def _identifiability(

@@ -38,6 +38,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pcvfe_drake.estimation.fit_options import COVARIANCES, HAC_LAG_S, with_model_error
+from pcvfe_drake.estimation.incremental_fit import (
+    Problem,
+    WindowInformation,
+    incremental_refit,
+    window_sums,
+)
 from pcvfe_drake.models.data import (
     NOISE_STRIDE_S,
     DriveData,
@@ -244,6 +250,12 @@ class EffectFitResult:
     n_windows: int
     mu_is_peak: bool
     warnings: list[str] = field(default_factory=list)
+    incremental: bool = False
+    """Whether the refit kept the stored windows' information (``incremental_fit``)."""
+    rollouts: int = 0
+    """Batched rollouts of an incremental refit (0: a batch fit)."""
+    data_end_s: float = math.nan
+    """The newest sample time inside a fitted window [s]."""
 
 
 @dataclass
@@ -286,6 +298,7 @@ class EffectFitter:
                 f"EffectFitter.covariance must be one of {COVARIANCES}, got {self.covariance!r}"
             )
         self.model, self.fixed, self.theta_init = build_model(self.vehicle, self.effects)
+        self._free_cols = np.flatnonzero(~self.fixed)
         self.mu_is_peak = friction_is_peak(self.model)
 
     def hac_lag(self) -> int | None:
@@ -317,8 +330,12 @@ class EffectFitter:
         starts = window_starts(data, horizon, stride, "all", 1)
         return starts[-self.max_windows :], horizon, burn_in
 
-    def __call__(self, t, states, inputs, previous=None, mu_start=None) -> EffectFitResult | None:
-        """Fit the buffer; None when it holds fewer than ``min_windows`` windows.
+    def __call__(
+        self, t, states, inputs, previous=None, mu_start=None, with_information: bool = False
+    ):
+        """Fit the buffer (the batch fit); None when it holds fewer than ``min_windows``
+        windows; with ``with_information`` a pair ``(result, WindowInformation)`` (the windows'
+        sums at the solution, to seed :meth:`refit`).
 
         A warm refit (``previous``: the context's last full vector) runs ``max_iterations``;
         the first fit of a context (cold) starts from the best of ``COLD_MU_FACTORS`` x
@@ -358,7 +375,120 @@ class EffectFitter:
             fixed=self.fixed,
             hac_lag=self.hac_lag(),
         )
-        return to_result(self.model, res, starts.size, self.model_error_rel)
+        result = to_result(self.model, res, starts.size, self.model_error_rel)
+        result.data_end_s = float(data.t[starts[-1] + horizon])
+        if not with_information or res.residuals is None or res.jacobian is None:
+            return result
+        if not np.all(np.isfinite(res.residuals)):
+            return result, None
+        ee, ej, jj = window_sums(
+            res.residuals, res.jacobian, starts.size, self._fit_sigma(data), self._free_cols
+        )
+        info = WindowInformation(
+            self._window_keys(data, starts),
+            np.tile(res.theta[~self.fixed], (starts.size, 1)),
+            ee,
+            ej,
+            jj,
+            res.theta.copy(),
+        )
+        return result, info
+
+    def _fit_sigma(self, data) -> np.ndarray:
+        from pcvfe_drake.models.estimate import FIT_STATES
+
+        return data.sigma[list(FIT_STATES)]
+
+    @staticmethod
+    def _window_keys(data, starts) -> np.ndarray:
+        return np.round(data.t[starts] / data.dt).astype(np.int64)
+
+    def refit(self, t, states, inputs, info=None, mu_start=None, previous=None):
+        """An incremental refit (``pcvfe_drake.estimation.incremental_fit``): ``(result,
+        information)``, the result None when the buffer holds fewer than ``min_windows``
+        windows (the information then unchanged). Without stored ``info`` (a context's first
+        fit, or its samples relabelled) the batch fit (:meth:`__call__`, warm from
+        ``previous``) runs and seeds it."""
+        from pcvfe_drake.models.estimate import (
+            FIT_STATES,
+            FitResult,
+            _residuals_and_jacobian,
+            parameter_std,
+        )
+
+        if info is None or info.estimate.size != self.model.n_params:
+            out = self(t, states, inputs, previous, mu_start, with_information=True)
+            return (None, info) if out is None else out
+        if len(t) < 10:
+            return None, info
+        data = drive_data_from_arrays(t, states, inputs, "context buffer")
+        starts, horizon, burn_in = self.windows(data)
+        if starts.size < self.min_windows:
+            return None, info
+        sigma = self._fit_sigma(data)
+        model, free = self.model, ~self.fixed
+
+        def evaluate(theta, rows):
+            r, jac = _residuals_and_jacobian(
+                model, theta, data, starts[rows], horizon, True, burn_in, self._free_cols
+            )
+            if not (np.all(np.isfinite(r)) and np.all(np.isfinite(jac))):
+                return None
+            return window_sums(r, jac, rows.size, sigma, self._free_cols)
+
+        prior_mean = self.start_vector(None, mu_start)
+        precision = np.zeros(model.n_params)
+        precision[0] = 1.0 / self.mu_prior_sd**2
+        lo, hi = model.bounds()
+        problem = Problem(free, sigma, lo, hi, model.scales(), prior_mean, precision)
+        out = incremental_refit(
+            evaluate,
+            self._window_keys(data, starts),
+            info,
+            info.estimate,
+            problem,
+            self.max_iterations,
+        )
+        if out is None:
+            return None, info
+        n_res = starts.size * (horizon - burn_in) * len(FIT_STATES)
+        overlap = self.horizon_s / self.stride_s
+        n_eff = max(starts.size / max(overlap, 1.0) * len(FIT_STATES), model.n_params + 1.0)
+        gram = np.zeros((model.n_params, model.n_params))
+        gram[np.ix_(free, free)] = out.gram
+        scores = np.zeros((starts.size, model.n_params))
+        scores[:, free] = out.scores
+        informed = (np.diag(gram) > 0.0) | self.fixed
+        std, cov = parameter_std(
+            model,
+            out.theta,
+            self.fixed,
+            informed,
+            precision,
+            gram,
+            scores,
+            out.ssr,
+            n_res,
+            n_eff,
+            self.hac_lag(),
+        )
+        res = FitResult(
+            model,
+            out.theta,
+            std,
+            out.ssr,
+            n_res,
+            n_eff,
+            out.iterations,
+            out.converged,
+            out.history,
+            informed,
+            cov,
+        )
+        result = to_result(model, res, starts.size, self.model_error_rel)
+        result.incremental, result.rollouts = True, out.rollouts
+        result.data_end_s = float(data.t[starts[-1] + horizon])
+        return result, out.info
 
 
 def to_result(model, res, n_windows: int, model_error_rel: float = 0.0) -> EffectFitResult:

@@ -56,6 +56,10 @@ class ContextEstimate:
             otherwise).
         handing: the context's handing state (``pcvfe_drake.handing.context_state``: unknown,
             exploring, identified, backed off; empty where not set by the estimator).
+        data_end_s: the newest sample time the published fit used [s] (NaN if none).
+        sample_to_estimate_s: ``(p50, p99, samples)``: how long [s] the context's samples
+            waited, from their time to the publication of the first fit that used them
+            (samples newer than the previous fit's data; ``ContextEstimator``).
 
     The reported 95 % interval of mu is :attr:`mu_interval_95`.
     """
@@ -67,6 +71,8 @@ class ContextEstimate:
     n_windows: int = 0
     last_update_s: float = float("nan")
     first_fit_s: float = float("nan")
+    data_end_s: float = float("nan")
+    sample_to_estimate_s: tuple[float, float, int] = (float("nan"), float("nan"), 0)
     status: str = "prior"
     fits: int = 0
     diverged: int = 0

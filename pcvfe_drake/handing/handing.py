@@ -186,6 +186,14 @@ class Handing:
 
     # --- exploration --------------------------------------------------------------------------
 
+    def adopt_exploration(self, other: Handing) -> None:
+        """Take the exploration state (the probes, the unknown phase's probe and what it
+        carries) of ``other``, a copy that ran a refit off the control path; the visit tracker
+        stays this one's, which kept seeing frames meanwhile."""
+        for ident, theirs in other.contexts.items():
+            self._context(ident).probe = theirs.probe
+        self.unknown_probe, self.carried = other.unknown_probe, other.carried
+
     def update(self, t_now: float, fits: Mapping, store) -> None:
         """One step of the probes at ``t_now`` (``!Probe``): a fitted, not identifiable current
         context raises, holds or backs off its level after checking its newest samples for

@@ -58,6 +58,10 @@ class FitResult:
     history: list[float] = field(default_factory=list)
     informed: np.ndarray | None = None
     cov: np.ndarray | None = None
+    residuals: np.ndarray | None = field(default=None, repr=False)
+    """The whitened residuals at ``theta`` (window by window), kept for an incremental refit."""
+    jacobian: np.ndarray | None = field(default=None, repr=False)
+    """Their Jacobian (fixed parameters' columns zero), kept for an incremental refit."""
 
     def at_bound(self) -> np.ndarray:
         """Per parameter: whether the fit ended on one of its bounds."""
@@ -236,20 +240,69 @@ def fit(
     n_res = r.size
     n_eff = max(starts.size / max(overlap, 1.0) * len(FIT_STATES), model.n_params + 1.0)
     informed = np.any(jac != 0.0, axis=0) | fixed
+    std, cov = parameter_std(
+        model,
+        theta,
+        fixed,
+        informed,
+        precision,
+        lsq._gram(jac),
+        lsq.window_scores(jac, r, starts.size) if hac_lag is not None else None,
+        cost,
+        n_res,
+        n_eff,
+        hac_lag,
+    )
+    return FitResult(
+        model,
+        theta,
+        std,
+        cost,
+        n_res,
+        n_eff,
+        it,
+        converged,
+        history,
+        informed,
+        cov,
+        residuals=r,
+        jacobian=jac,
+    )
+
+
+def parameter_std(
+    model: WorkbenchModel,
+    theta: np.ndarray,
+    fixed: np.ndarray,
+    informed: np.ndarray,
+    precision: np.ndarray,
+    gram: np.ndarray,
+    scores: np.ndarray | None,
+    ssr: float,
+    n_res: int,
+    n_eff: float,
+    hac_lag: int | None,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """``(std, cov)`` of a fit at ``theta`` from ``gram = J^T J`` and, with ``hac_lag``, the
+    windows' scores ``J_w^T r_w`` (see :func:`fit`'s Returns); a parameter on a bound gets std
+    0, an uninformed or fixed one NaN. Shared by the batch fit and the incremental one
+    (``pcvfe_drake.estimation.effect_fit``), which keeps these sums instead of a Jacobian."""
+    lo, hi = model.bounds()
     free = ~((theta <= lo) | (theta >= hi)) & informed & ~fixed
     std = np.full(model.n_params, np.nan)
     cov = None
     if free.any():
         try:
             if hac_lag is not None:
-                cov = lsq.hac_covariance(
-                    jac, r, starts.size, hac_lag, free=free, prior_precision=precision
+                cov = lsq.hac_covariance_from_scores(
+                    gram, scores, hac_lag, free=free, prior_precision=precision
                 )
             else:
                 inflate = n_res / n_eff
-                cov = lsq.covariance(
-                    jac,
-                    float(r @ r),
+                cov = lsq.covariance_from_gram(
+                    gram,
+                    ssr,
+                    n_res,
                     free=free,
                     prior_precision=precision * inflate,  # (J^T J / (s2 inflate) + prior)^-1
                     inflate=inflate,
@@ -260,4 +313,4 @@ def fit(
             pass
     std[~free] = 0.0
     std[~informed | fixed] = np.nan
-    return FitResult(model, theta, std, cost, n_res, n_eff, it, converged, history, informed, cov)
+    return std, cov

@@ -291,14 +291,41 @@ def covariance(
     correlated (e.g. ``m / n_eff``).
     Raises ``numpy.linalg.LinAlgError`` when the information matrix is singular.
     """
-    m, p_all = J.shape
+    return covariance_from_gram(
+        _gram(J),
+        ssr,
+        J.shape[0],
+        free=free,
+        prior_precision=prior_precision,
+        inflate=inflate,
+        dof=dof,
+    )
+
+
+def _free_indices(free, p_all: int) -> np.ndarray:
     free_idx = np.arange(p_all) if free is None else np.asarray(free)
     if free_idx.dtype == bool:
         free_idx = np.flatnonzero(free_idx)
+    return free_idx
+
+
+def covariance_from_gram(
+    gram: np.ndarray,
+    ssr: float,
+    m: int,
+    *,
+    free: np.ndarray | None = None,
+    prior_precision: np.ndarray | None = None,
+    inflate: float = 1.0,
+    dof: int | None = None,
+) -> np.ndarray:
+    """:func:`covariance` from ``gram = J^T J`` (P, P) and the number of residuals ``m``: the
+    form an incremental fit keeps (sums over windows), no Jacobian needed."""
+    p_all = gram.shape[0]
+    free_idx = _free_indices(free, p_all)
     prec = np.zeros(p_all) if prior_precision is None else np.asarray(prior_precision, float)
     s2 = ssr / max(m - free_idx.size if dof is None else dof, 1)
-    Jf = J[:, free_idx]
-    info = _gram(Jf) / max(s2, 1e-300) + np.diag(prec[free_idx])
+    info = gram[np.ix_(free_idx, free_idx)] / max(s2, 1e-300) + np.diag(prec[free_idx])
     cov_f = np.linalg.inv(info) * inflate
     cov = np.zeros((p_all, p_all))
     cov[np.ix_(free_idx, free_idx)] = cov_f
@@ -342,15 +369,29 @@ def hac_covariance(
     Raises ``numpy.linalg.LinAlgError`` when the information matrix is singular.
     """
     m, p_all = J.shape
-    free_idx = np.arange(p_all) if free is None else np.asarray(free)
-    if free_idx.dtype == bool:
-        free_idx = np.flatnonzero(free_idx)
     if n_windows < 1 or m % n_windows:
         raise ValueError(f"hac_covariance: {m} residual rows do not split into {n_windows} windows")
+    return hac_covariance_from_scores(
+        _gram(J), window_scores(J, r, n_windows), lag, free=free, prior_precision=prior_precision
+    )
+
+
+def hac_covariance_from_scores(
+    gram: np.ndarray,
+    scores: np.ndarray,
+    lag: int,
+    *,
+    free: np.ndarray | None = None,
+    prior_precision: np.ndarray | None = None,
+) -> np.ndarray:
+    """:func:`hac_covariance` from ``gram = J^T J`` (P, P) and the windows' scores ``J_w^T r_w``
+    (n_windows, P) in time order: the form an incremental fit keeps (sums per window)."""
+    p_all = gram.shape[0]
+    free_idx = _free_indices(free, p_all)
+    n_windows = scores.shape[0]
     prec = np.zeros(p_all) if prior_precision is None else np.asarray(prior_precision, float)
-    Jf = J[:, free_idx]
-    A = _gram(Jf)
-    s = window_scores(Jf, r, n_windows)
+    A = gram[np.ix_(free_idx, free_idx)]
+    s = scores[:, free_idx]
     s = s - s.mean(axis=0)
     B = s.T @ s
     if not np.trace(B) > 0.0:  # residuals exactly zero (noise-free data, a perfect model)

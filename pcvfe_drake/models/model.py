@@ -81,17 +81,37 @@ def applied_inputs(x: np.ndarray, u: np.ndarray, vp: VehicleParams):
     which also
     returns derivatives) in the lean form the rollouts need: (steer_rate, accel), each (N,)."""
     delta, v = x[:, DELTA], x[:, V]
-    steer = np.clip(u[:, 0], vp.delta_dot_min, vp.delta_dot_max)
+    steer = np.minimum(np.maximum(u[:, 0], vp.delta_dot_min), vp.delta_dot_max)
     stop = ((delta <= vp.delta_min) & (steer <= 0)) | ((delta >= vp.delta_max) & (steer >= 0))
     if stop.any():
         steer = np.where(stop, 0.0, steer)
     above = v > vp.v_switch
     upper = np.where(above, vp.a_max * vp.v_switch / np.where(above, v, 1.0), vp.a_max)
-    acc = np.clip(u[:, 1], -vp.a_max, upper)
+    acc = np.minimum(np.maximum(u[:, 1], -vp.a_max), upper)
     halt = ((v <= vp.v_min) & (acc <= 0)) | ((v >= vp.v_max) & (acc >= 0))
     if halt.any():
         acc = np.where(halt, 0.0, acc)
     return steer, acc
+
+
+RHS_HOOKS = (
+    "accel",
+    "wheel_angle",
+    "longitudinal",
+    "load_transfer",
+    "friction",
+    "cornering_stiffness",
+    "tire_offsets",
+    "wheel_slips",
+    "tire",
+    "body_forces",
+)
+"""The :class:`Effect` hooks the right-hand side calls (each is skipped for an effect that
+keeps the base class's, which changes nothing)."""
+
+
+def _overrides(effect: Effect, hook: str) -> bool:
+    return getattr(type(effect), hook) is not getattr(Effect, hook)
 
 
 class WorkbenchModel:
@@ -148,6 +168,12 @@ class WorkbenchModel:
             self._state_slices.append(slice(start, start + e.n_states))
             start += e.n_states
         self.nz = start
+        # Per hook, the effects that override it (in order): the right-hand side runs once per
+        # RK4 stage for every window, so it skips the hooks that would do nothing.
+        pairs = list(zip(self.effects, self._state_slices, strict=True))
+        self._hooked = {
+            hook: [(e, sl) for e, sl in pairs if _overrides(e, hook)] for hook in RHS_HOOKS
+        }
 
     # ------------------------------------------------------------------ composition
     def with_effects(self, *effects) -> WorkbenchModel:
@@ -210,25 +236,26 @@ class WorkbenchModel:
         """Time derivative of the augmented state ``z`` (N, nz) under inputs ``u`` (N, 2)."""
         vp = self.vehicle
         x = z[:, :NX]
+        hooked = self._hooked
         steer, acc = applied_inputs(x, u, vp)
         ctx = StepContext(x, z[:, NX:NX], steer, acc, vp, mu=base["mu"])
-        for e, sl in zip(self.effects, self._state_slices, strict=True):
+        for e, sl in hooked["accel"]:
             ctx.states = z[:, sl]
             acc = e.accel(acc, ctx, eff[e.name])
             ctx.accel = acc
         delta_w = x[:, DELTA]
-        for e, sl in zip(self.effects, self._state_slices, strict=True):
+        for e, sl in hooked["wheel_angle"]:
             ctx.states = z[:, sl]
             delta_w = e.wheel_angle(delta_w, ctx, eff[e.name])
         a_long = acc.copy()
-        for e, sl in zip(self.effects, self._state_slices, strict=True):
+        for e, sl in hooked["longitudinal"]:
             ctx.states = z[:, sl]
             extra = e.longitudinal(ctx, eff[e.name])
             if extra is not None:
                 a_long = a_long + extra
         ctx.a_long = a_long
         a_load = a_long
-        for e, sl in zip(self.effects, self._state_slices, strict=True):
+        for e, sl in hooked["load_transfer"]:
             ctx.states = z[:, sl]
             out = e.load_transfer(a_load, ctx, eff[e.name])
             if out is not None:
@@ -250,24 +277,24 @@ class WorkbenchModel:
         for axle, fz, alpha, c_s, fz_static in axles:
             ctx.axle, ctx.fz_static = axle, fz_static
             scale = 1.0
-            for e in self.effects:
+            for e, _ in hooked["friction"]:
                 factor = e.friction(fz, ctx, eff[e.name])
                 if factor is not None:
                     scale = scale * factor
             ctx.mu_scale = scale
-            for e in self.effects:
+            for e, _ in hooked["cornering_stiffness"]:
                 stiff = e.cornering_stiffness(c_s, ctx, eff[e.name])
                 if stiff is not None:
                     c_s = stiff
             c_alpha = base["mu"] * scale * c_s * fz
             side = 0.0
-            for e, sl in zip(self.effects, self._state_slices, strict=True):
+            for e, sl in hooked["tire_offsets"]:
                 ctx.states = z[:, sl]
                 out = e.tire_offsets(fz, ctx, eff[e.name])
                 if out is not None:
                     alpha, side = alpha + out[0], side + out[1]
             spread = None
-            for e, sl in zip(self.effects, self._state_slices, strict=True):
+            for e, sl in hooked["wheel_slips"]:
                 ctx.states = z[:, sl]
                 out = e.wheel_slips(ctx, eff[e.name])
                 if out is not None and spread is None:
@@ -283,7 +310,7 @@ class WorkbenchModel:
             forces.append(fy + side)
         fyf, fyr = forces
         ctx.delta_wheel = delta_w
-        for e in self.effects:
+        for e, _ in hooked["body_forces"]:
             out = e.body_forces(fyf, fyr, ctx, eff[e.name])
             if out is not None:
                 fyf, fyr, a_long = fyf + out[0], fyr + out[1], a_long + out[2]
@@ -307,7 +334,7 @@ class WorkbenchModel:
     def _tire_law(self, alpha, fz, c_alpha, ctx: StepContext, eff: dict):
         """Step 8's law at slip ``alpha``: linear, or the last ``tire`` hook's."""
         fy = c_alpha * alpha
-        for e in self.effects:
+        for e, _ in self._hooked["tire"]:
             if self._tire_takes_ctx[e.name]:
                 out = e.tire(alpha, fz, c_alpha, eff[e.name], ctx)
             else:

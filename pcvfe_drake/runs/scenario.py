@@ -81,6 +81,10 @@ class Rates:
     """Controller update period (20 Hz); its actuation is held between updates."""
     fitter_period_s: float = 1.0
     """Context fitter refit period (1 Hz)."""
+    fitter_latency_s: float = 0.0
+    """Declared latency of a refit [s]: a refit started at t on the data up to t is handed to
+    the controller at t + this, in simulated time (docs/realtime.md); below
+    ``fitter_period_s``. 0: at once, in the event that starts it."""
     fitter_sample_period_s: float = 0.01
     """Period at which the fitter samples state and actuation into its buffers (100 Hz)."""
     recluster_period_s: float = 10.0
@@ -395,12 +399,21 @@ def scenario_problems(scenario: Scenario) -> list[str]:
     )
     rates_ok = True
     for f in dataclasses.fields(Rates):
-        if f.name == "clustering_frame_offset_s":
+        if f.name in ("clustering_frame_offset_s", "fitter_latency_s"):
             continue
         value = getattr(s.rates, f.name)
         ok = _is_number(value) and value > 0
         rates_ok &= ok
         need(ok, f"rates.{f.name}", value, "must be a period > 0 s")
+    latency = s.rates.fitter_latency_s
+    need(
+        _is_number(latency)
+        and latency >= 0
+        and (not _is_number(s.rates.fitter_period_s) or latency < s.rates.fitter_period_s),
+        "rates.fitter_latency_s",
+        latency,
+        "must be >= 0 s and shorter than rates.fitter_period_s",
+    )
     offset = s.rates.clustering_frame_offset_s
     need(
         _is_number(offset)

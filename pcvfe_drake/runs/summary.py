@@ -60,6 +60,13 @@ SETTLE_TIME_S = 20.0
 REQUIRED = ("t", "sx", "sy", "v", "psi", "beta", "terrain", "mu_true", "context", "mu_hat")
 
 
+def _delays(value) -> dict | None:
+    """``{p50, p99, samples}`` [s] of a table entry's sample-to-estimate waits (None: none)."""
+    if not value or len(value) != 3 or not value[2]:
+        return None
+    return {"p50": float(value[0]), "p99": float(value[1]), "samples": int(value[2])}
+
+
 def sample_weights(t_s: np.ndarray) -> np.ndarray:
     """Time each sample stands for [s]: the step to the next sample (the last repeats the one
     before), i.e. a zero-order hold of the logged values."""
@@ -219,6 +226,7 @@ def mu_estimates(
                 "probe": entry.get("probe"),
                 "handing": entry.get("handing"),
                 "model_params": entry.get("model_params") or None,
+                "sample_to_estimate_s": _delays(entry.get("sample_to_estimate_s")),
             }
         else:
             est = handed

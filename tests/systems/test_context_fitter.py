@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
@@ -150,3 +152,62 @@ def test_frame_labels_relabel_the_noise_samples_of_a_new_terrain(params, relabel
     assert entry.samples == t.size - 1  # the first sample precedes every frame
     assert entry.fitted and abs(entry.mu - 0.8) < 0.01
     assert entry.first_fit_s == pytest.approx(t[-1] + 0.01)  # not at the next refit (3 s)
+
+
+def test_declared_latency_publishes_the_refit_later_in_simulated_time(params):
+    """A refit started at t = 2 s on the data up to 2 s is handed over at 2 s + latency."""
+    t, S, U = s_curve_drive(params, [0.45], duration_s=3.0)
+
+    def run(latency_s):
+        builder = DiagramBuilder()
+        fitter = builder.AddNamedSystem(
+            "fitter", ContextFitter(params, period_s=1.0, latency_s=latency_s)
+        )
+        for y, name in ((S[0], "state"), (U[0], "actuation"), (np.full((t.size, 1), 2.0), "id")):
+            source = builder.AddSystem(TrajectorySource(PiecewisePolynomial.ZeroOrderHold(t, y.T)))
+            builder.Connect(
+                source.get_output_port(),
+                fitter.GetInputPort("context_id" if name == "id" else name),
+            )
+        simulator = Simulator(builder.Build())
+        fc = fitter.GetMyContextFromRoot(simulator.get_mutable_context())
+        out = {}
+        for when in (2.0, 2.2, 2.4):
+            simulator.AdvanceTo(when + 1e-6)
+            out[when] = fitter.GetOutputPort("estimate_table").Eval(fc).get(2)
+        return out
+
+    at_once, late = run(0.0), run(0.3)
+    assert at_once[2.0].last_update_s == pytest.approx(2.0)
+    assert not late[2.2].last_update_s >= 2.0  # in flight: the last published one is handed
+    assert late[2.4].last_update_s == pytest.approx(2.3)
+    # the same data (up to the start), so the same estimate, only later
+    assert late[2.4].fitted and late[2.4].mu == pytest.approx(at_once[2.0].mu, abs=1e-12)
+    assert late[2.4].data_end_s == pytest.approx(at_once[2.0].data_end_s)
+    assert late[2.4].sample_to_estimate_s[0] >= 0.3
+    with pytest.raises(ValueError, match="latency_s"):
+        ContextFitter(params, period_s=1.0, latency_s=1.0)
+
+
+def test_refit_worker_publishes_the_same_fit_without_holding_up_the_updates(params):
+    """With a worker the refit runs beside the loop and is adopted once done and due."""
+    t, S, U = s_curve_drive(params, [0.45], duration_s=3.0)
+    results = {}
+    for worker in (False, True):
+        fitter = ContextFitter(params, period_s=1.0, latency_s=0.1, refit_worker=worker)
+        context = fitter.CreateDefaultContext()
+        simulator = Simulator(fitter, context)
+        entry, k = None, 0
+        while entry is None or not entry.fitted:
+            fitter.GetInputPort("state").FixValue(context, S[0][k])
+            fitter.GetInputPort("actuation").FixValue(context, U[0][k])
+            fitter.GetInputPort("context_id").FixValue(context, [2.0])
+            simulator.AdvanceTo(context.get_time() + 0.01)
+            if worker and context.get_time() > 1.1:
+                time.sleep(0.002)  # the worker thread runs between the loop's steps
+            entry = fitter.GetOutputPort("estimate_table").Eval(context).get(2)
+            k = min(k + 1, t.size - 1)
+            assert context.get_time() < 30.0
+        results[worker] = entry
+    assert results[True].mu == pytest.approx(results[False].mu, abs=1e-12)
+    assert results[True].data_end_s == pytest.approx(results[False].data_end_s)

@@ -10,7 +10,7 @@ import pytest
 
 from pcvfe_drake.evaluation.suite import discover, last_json, run_suite
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "validation"))
 from run_all import verdict  # noqa: E402
 

@@ -226,7 +226,7 @@ def test_report_options_from_the_command_line(tmp_path, capsys):
 
 def test_the_projects_results_page_is_generated_from_its_stored_tables(tmp_path, monkeypatch):
     """docs/results.md is exactly what its stored experiment folders give: never hand-edited."""
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     monkeypatch.chdir(root)
     folders = page_folders("docs/results.md")
     assert folders, "docs/results.md names no stored experiment"
