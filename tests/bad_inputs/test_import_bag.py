@@ -7,8 +7,8 @@ import os
 import shutil
 
 import pytest
+from bag_writer import write_bag
 from rosbags.rosbag2 import StoragePlugin
-from test_bag_import import write_bag
 
 from pcvfe_drake.cli import main
 from pcvfe_drake.runs.drivelog import read_drive_log
