@@ -3,7 +3,7 @@
 import cv2
 import numpy as np
 import pytest
-from bag_writer import BETA, T0, R, V, truth, write_bag  # noqa: F401
+from bag_writer import BETA, V, truth, write_bag
 from rosbags.rosbag2 import StoragePlugin
 
 from pcvfe_drake.cli import main
