@@ -18,7 +18,7 @@ out; CPU time, not wall time, because the machine is shared). It prints:
   with a competing CPU load (``--load-procs`` busy processes) running, and its p99
   state-to-actuation latency, state timeouts and NMPC fallbacks.
 
-Usage: python benchmarks/estimator_budget.py [--scenario paper_eval_effects] [--duration S]
+Usage: python benchmarks/estimator_budget.py [--scenario paper_eval] [--duration S]
            [--seed 0] [--lcm] [--lcm-duration S] [--load-procs 1] [--quick]
 Last stdout line: one JSON object with the ratios.
 """
@@ -137,7 +137,7 @@ def lcm_rehearsal(args, work: Path) -> dict:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenario", default="paper_eval_effects")
+    parser.add_argument("--scenario", default="paper_eval")
     parser.add_argument("--duration", type=float, default=None, help="default: the scenario's")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--quick", action="store_true", help="20 s of driving (run_all --quick)")

@@ -22,7 +22,7 @@ from pcvfe_drake.vehicle.params import ford_escort
 from pcvfe_drake.workbench import synth
 
 STATES = ["sx", "sy", "delta", "v", "psi", "psi_dot", "beta"]
-SHIPPED = [  # the effect model of paper_eval_effects: mu alone is fitted
+SHIPPED = [  # the effect model paper_eval held before the calibrated car models: mu alone is fitted
     "peak_tyre:k_s=0.0",
     "axle_stiffness:k_f=1.01,k_r=1.24",
     "roll_camber:f0=-0.037,f1=0,s0=0.0027",
