@@ -108,10 +108,10 @@ def lcm_rehearsal(args, work: Path) -> dict:
     import hardware_rehearsal  # noqa: PLC0415 (a sibling script)
 
     from pcvfe_drake.diagrams.scenario_io import load_scenario
-    from pcvfe_drake.runs.scenario import build_terrain_map
+    from pcvfe_drake.diagrams.world_io import scenario_world
 
     scenario = load_scenario(args.scenario)
-    terrain_mu = {t.name: t.mu for t in build_terrain_map(scenario).terrains}
+    terrain_mu = {t.name: t.mu for t in scenario_world(scenario).terrain_map.terrains}
     rehearsal_args = argparse.Namespace(
         scenario=args.scenario, duration=args.lcm_duration, laps=None, rate=1.0
     )

@@ -232,10 +232,10 @@ def main() -> int:
     if args.quick:
         args.duration, args.laps = 15.0, None
     from pcvfe_drake.diagrams.scenario_io import load_scenario
-    from pcvfe_drake.runs.scenario import build_terrain_map
+    from pcvfe_drake.diagrams.world_io import scenario_world
 
     scenario = load_scenario(args.scenario)
-    terrain_mu = {t.name: t.mu for t in build_terrain_map(scenario).terrains}
+    terrain_mu = {t.name: t.mu for t in scenario_world(scenario).terrain_map.terrains}
     work = Path(tempfile.mkdtemp(prefix="hw_rehearsal_"))
     load0 = os.getloadavg()[0]
     print(f"load average {load0:.1f}; work folder {work}", flush=True)

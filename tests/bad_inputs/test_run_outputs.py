@@ -10,10 +10,10 @@ import pandas as pd
 import pytest
 
 from pcvfe_drake.contexts import metrics
-from pcvfe_drake.control.course import load_course
+from pcvfe_drake.diagrams.world_io import scenario_world
 from pcvfe_drake.runs import run_folder
 from pcvfe_drake.runs.run_folder import RunFolder, RunRecord, write_run_outputs
-from pcvfe_drake.runs.scenario import Scenario, build_terrain_map
+from pcvfe_drake.runs.scenario import Scenario
 
 
 def _strip_log(n: int = 8) -> pd.DataFrame:
@@ -44,11 +44,12 @@ def _strip_log(n: int = 8) -> pd.DataFrame:
 
 def _record(log: pd.DataFrame) -> RunRecord:
     scenario = Scenario()
+    world = scenario_world(scenario)
     return RunRecord(
         scenario=scenario,
         log=log,
-        course=load_course(scenario.course),
-        terrain_map=build_terrain_map(scenario),
+        course=world.course,
+        terrain_map=world.terrain_map,
         estimate_table=[],
         wall_time_s=1.0,
         cpu_time_s=1.0,
