@@ -63,7 +63,7 @@ class ClusteringParams:
             seconds >= 0 (needs ``continuation_gate_scale``): such a frame is noise but leaves
             the visit open while its nearest member is of the visit's context and that context
             was reported within this many seconds; a later frame within the widened gate then
-            continues the visit (a blurred frame just beyond it ended brick's visit for good).
+            continues the visit (one blurred frame just beyond it would end a visit for good).
     """
 
     frame_rate_hz: float = 10.0

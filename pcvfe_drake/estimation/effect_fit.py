@@ -324,9 +324,8 @@ class EffectFitter:
         stride = max(1, int(round(self.stride_s / data.dt)))
         burn_in = min(int(round(self.burn_in_s / data.dt)), horizon - 1)
         # One block: every window of the buffer. The workbench's default (6 time blocks, no
-        # window across a block boundary) is its train/held-out split; here it dropped most
-        # windows of a short buffer (a context's first fit waited for ~10 s of data where
-        # min_windows windows of 1 s at 0.5 s spacing need 5.5 s).
+        # window across a block boundary) is its train/held-out split; here it would drop most
+        # windows of a short buffer and delay a context's first fit.
         starts = window_starts(data, horizon, stride, "all", 1)
         return starts[-self.max_windows :], horizon, burn_in
 

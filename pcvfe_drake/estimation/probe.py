@@ -80,15 +80,12 @@ TRIED_FRACTION = 0.8
 """A level counts as tried in a bend (:func:`level_bend`) when the 90th percentile of its axle
 forces reached this fraction of the planner's demand: over a window holding one bend whose
 demand rises as a sine, the 90th percentile is 0.99 of the apex's, and the apex demand is the
-planner's share of the handed mu (the car used 0.68-0.72 of it, 95th percentile, on
-`paper_eval_effects`)."""
+planner's share of the handed mu."""
 MIN_BEND_S = 1.5
 """Least time [s] of samples at force a bend ratio is computed from (half a bend of the paper's
 slalom, which spends ~2.4 s of its 3 s at >= 0.1 g: the level's window must hold most of a
-bend). Over shorter spans the INS noise made the ratio of a level near the start of sand, 1.0-1.1
-over 3 s, cross the back-off limit 1.25 and pin the probe at its start (0.3 s), and the 1 s tail
-of a bend after a hold read as linear and raised concrete from 0.62 to 0.76 (1.0 s, seed 0);
-less: no evidence (NaN)."""
+bend). Over shorter spans the INS noise dominates the ratio and the tail of a bend reads as
+linear; less: no evidence (NaN)."""
 
 
 @dataclass(frozen=True)
@@ -207,8 +204,7 @@ def wheel_peak_share(
 
     The car's lateral acceleration says how much friction the car used, on average over its
     wheels; in a slow tight bend the inner front wheel works at a much larger slip than the
-    axle's mean (the track: 0.026 against 0.004 rad for a single-track 0.0145 on the
-    multi-body Ford Escort, ``benchmarks/front_axle_gap.py``), so the tyres can be near their
+    axle's mean (the track; ``benchmarks/front_axle_gap.py``), so the tyres can be near their
     peak while the car's mean use is not. The share depends on the fitted ``mu`` and errs
     safe: a peak fitted too high reads a smaller share."""
 
@@ -309,9 +305,8 @@ def level_bend(
     bend ratios (:func:`bend_ratios`), NaN where there is none or where the level was not tried
     in a bend: the 90th percentile of the larger axle force per load (at >= 2 m/s) below
     ``TRIED_FRACTION`` of the planner's ``demand`` (its share of the handed mu). The tail of a
-    bend and the straight after it say nothing about how the tyres take the level's demand (on
-    concrete such a window read as linear and raised 0.61 to 0.77 on the straight at the
-    terrain's end, project's mapping, seed 5)."""
+    bend and the straight after it say nothing about how the tyres take the level's demand, yet
+    such a window reads as linear and would raise the level."""
     x = np.asarray(states, dtype=float)
     lf, lr, iz_per_m = vehicle.lf, vehicle.lr, vehicle.I_z / vehicle.m
     rows, f_f, f_r = axle_force_per_load(t, x, lf, lr, iz_per_m)
@@ -474,8 +469,8 @@ def probe_after_fit(
     the car's speed and slips still answer the fit's level, not the probe's, so the ceiling
     becomes one step below ``fit_mu`` and the level at most two steps below it, never below
     the start ``base`` (as :func:`probe_step`). Judged at the probe's own lower level, the slips
-    after a concrete fit handed at 0.60-0.78 for 0.60 set the ceiling at the start (0.33 for
-    18 s on `paper_eval_effects` with the visit continuation, seed 0; 0.36 on seed 9)."""
+    that follow a fit handed above it would read as saturation and set the ceiling at the
+    start."""
     mu = state.mu if state.started else base
     ceiling = max(fit_mu / (1.0 + step_rel), min(base, fit_mu), MIN_PROBE_MU)
     down = max(min(mu, fit_mu / (1.0 + step_rel) ** 2), min(base, mu), MIN_PROBE_MU)

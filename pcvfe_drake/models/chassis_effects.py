@@ -22,11 +22,8 @@ multi-body model (``pcvfe_drake.vehicle.mb_truth``) with the workbench (docs/wor
   pitch mode (a damped second-order mode), not instantly: in CommonRoad's multi-body model the
   tyre loads come from the deflection of the tyres under the unsprung masses, which the
   suspension springs and dampers load as the sprung mass pitches (no anti-dive or anti-squat
-  geometry: "squat/lift forces neglected"). Measured on the Ford Escort
-  (``benchmarks/mb_suspension.py``, a braking step of -3.8 m/s^2 at 12 m/s): the front-axle
-  load transfer reaches the single-track value ``m a h / L`` after 0.19 s, overshoots it by
-  47 % at 0.35 s and rings with a 0.83 s period before settling on it; a damped second-order
-  mode fitted to it has 1.4 Hz (tau 0.11 s) and damping ratio 0.22.
+  geometry: "squat/lift forces neglected"); ``benchmarks/mb_suspension.py`` measures the mode
+  on the Ford Escort.
 """
 
 from __future__ import annotations
@@ -159,16 +156,13 @@ class TrackSlip(Effect):
     away (``t`` is then an effective track, smaller than the real one). The lateral load
     transfer weights the two: the outer wheel carries ``(1 + k_lt a / g) / 2`` of the axle's
     load, the inner one the rest (``a = v r``; on a real car ``k_lt`` is about ``2 h_roll /
-    t``, positive; CommonRoad's multi-body Ford Escort loads the inner wheel, ``k_lt`` about
-    -0.8, ``benchmarks/front_axle_gap.py``). Where the tyre saturates, the mean of the
+    t``, positive; CommonRoad's multi-body Ford Escort loads the inner wheel, ``k_lt``
+    negative, ``benchmarks/front_axle_gap.py``). Where the tyre saturates, the mean of the
     concave law over the two slips is less than the law at the mean slip, so the axle makes
     less side force than the single-track model at its own slip (``wheel_slips`` hook).
 
-    Measured on the multi-body Ford Escort (``benchmarks/front_axle_gap.py``, the closed
-    loop's commands replayed): in the slalom's slow bends (4.7 m/s, delta 0.21 rad, r 0.40
-    rad/s) the two front wheels work at 0.026 and 0.004 rad for a single-track slip of 0.0145
-    rad, and on grass (mu 0.30) the front axle makes 0.04 of its load less than the law at
-    the single-track slip, 0.03 with the inner wheel's extra load.
+    ``benchmarks/front_axle_gap.py`` measures the two slips and the axle's shortfall on the
+    multi-body Ford Escort.
 
     With a linear tyre the effect is null (the load-weighted mean of a linear law over two
     slips whose shares balance is the law at the single-track slip, up to the load term
@@ -285,10 +279,10 @@ class SuspensionLag(Effect):
     faster than the sample rate allows). Below ``TAU_MIN_S`` the mode keeps that time
     constant and only the fraction ``tau / TAU_MIN_S`` of the load moves through it:
     ``tau = 0`` is exactly the baseline. At a window start the mode is run over the log's
-    acceleration (:func:`logged_acceleration`). CommonRoad's multi-body Ford Escort: ~1.4 Hz
-    (tau ~0.11 s), zeta ~0.22 (``benchmarks/mb_suspension.py``); a car body's pitch mode is
-    under-damped, so ``zeta`` is bounded by 1 (without that bound the mode, over-damped and
-    fast, absorbed the small misfit of a steering lag + brush tyre fit on planted data).
+    acceleration (:func:`logged_acceleration`). ``benchmarks/mb_suspension.py`` measures the
+    mode on CommonRoad's multi-body Ford Escort; a car body's pitch mode is under-damped, so
+    ``zeta`` is bounded by 1 (an over-damped, fast mode would absorb the misfit of other
+    effects).
 
     Null: ``tau = 0`` (``zeta`` then does nothing). Residual signature: the yaw-rate residual
     follows the change of the acceleration command times the lateral acceleration (cornering

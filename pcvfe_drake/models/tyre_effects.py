@@ -108,10 +108,9 @@ class PeakTyre(Effect):
     ``lateral_peak``: only the peak changes with the terrain).
 
     The shape factor is fixed, not fitted: fitted by multi-step prediction error it runs to
-    its bound C = 1 on planted magic-formula data (C = 1.35, peak 0.6-0.8), dragging the
-    peak 10-20 % high, because beyond the peak the true car is unstable and a flatter
-    law predicts noisy windows with less error; with C fixed the peak comes back within 5 %
-    (see tests/models/test_peak_tyre.py). A user with another tyre subclasses and sets
+    its lower bound and drags the peak high, because beyond the peak the true car is unstable
+    and a flatter law predicts noisy windows with less error (tests/models/test_peak_tyre.py).
+    A user with another tyre subclasses and sets
     ``shape``.
 
     The effect has no null point (friction is the peak whatever ``k_s``); the null value
@@ -152,10 +151,8 @@ class PeakTyre(Effect):
 ROLL_SIGN_WIDTH_MPS2 = 0.5
 """Width of ``roll_camber``'s smooth sign ``tanh(v psi_dot / width)`` [m/s^2]: below about
 this lateral acceleration the roll is small against the cambers the suspension sets per
-wheel, the two wheels of an axle have cambers of opposite sign and their step forces cancel.
-On CommonRoad's multi-body Ford Escort a regression of the axles' camber forces on
-``tanh(v psi_dot / w)`` and ``v psi_dot`` leaves the least unexplained with w 0.2-0.5 m/s^2
-(0.5 m/s^2 for both axles together; ``benchmarks/mb_camber.py``)."""
+wheel, the two wheels of an axle have cambers of opposite sign and their step forces cancel
+(the width is chosen by ``benchmarks/mb_camber.py``)."""
 
 
 class RollCamber(Effect):
@@ -220,9 +217,8 @@ class RollCamber(Effect):
 WHEEL_SIGN_WIDTH_MPS2 = 0.1
 """Width of ``wheel_camber``'s smooth sign of each wheel's camber, ``tanh(c / width)`` with
 ``c`` its camber in lateral-acceleration units [m/s^2]: narrower than roll_camber's (the per-wheel
-camber crosses 0 quickly); on CommonRoad's multi-body Ford Escort the axles' sign-of-camber
-forces are described best with 0.1 of the widths 0.1, 0.3 and 0.5 m/s^2
-(``benchmarks/mb_camber.py``, ``wheel_signs``)."""
+camber crosses 0 quickly; the width is chosen by ``benchmarks/mb_camber.py``,
+``wheel_signs``)."""
 ROLL_TAU_MIN_S = 0.02
 """Smallest roll lag of ``wheel_camber`` [s] (its state's rate is ``1 / tau``; the model's RK4
 takes substeps below ``RK4_STABLE_HLAMBDA tau``)."""
@@ -256,15 +252,9 @@ class WheelCamber(Effect):
     camber, which the roll makes negative in a left bend: ``f0 = -p_vy1``, ``s0 = +p_hy1``.
     A real tyre's conicity and ply steer do not switch: on a real car this effect is null.
 
-    Measured on the multi-body Ford Escort (``benchmarks/mb_camber.py``, ``wheel_signs``; no
-    noise, 35 s of the workbench's driving program per case, three friction cases): the
-    cambers follow ``a_roll +- k_x a_x`` with ``k_xf`` 0.38-0.39 (left; right wheel 0.38-0.40),
-    ``k_xr`` -0.09 (left; right -0.09 to -0.10) and a roll lag of 0.08 s (the roll angle
-    against the lagged lateral acceleration: correlation 0.999); each wheel's sign is right
-    97-99.9 % of the time against 83-98 % for ``-sign(v psi_dot)``, ``roll_camber``'s per-axle
-    direction; the mean sign of an axle's wheels (the offsets' force over ``p_vy1 Fz``, RMS
-    0.90-0.99) is left with an RMS of 0.14-0.22 (front) and 0.08-0.18 (rear) against
-    0.24-0.44 and 0.25-0.46 by ``roll_camber``'s ``tanh(v psi_dot / 0.5 m/s^2)``.
+    ``benchmarks/mb_camber.py`` (``wheel_signs``) measures ``k_xf``, ``k_xr`` and the roll lag
+    on the multi-body Ford Escort and compares each wheel's sign with ``roll_camber``'s per-axle
+    direction.
 
     With a linear tyre ``s0`` is a force ``mu C_S Fz s0 (s_left + s_right) / 2``, the same as
     ``f0``'s; they separate where the tyre saturates. Null: ``f0 = s0 = 0`` (``k_xf``, ``k_xr``
