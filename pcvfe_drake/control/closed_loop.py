@@ -1,6 +1,6 @@
 """A Drake-free closed loop of the NMPC: a truth model driven at the controller's period.
 
-Serves tests and ``benchmarks/nmpc_laps.py`` / ``nmpc_step.py`` (the Drake diagram is
+Serves tests and ``validation/nmpc_laps.py`` / ``nmpc_step.py`` (the Drake diagram is
 ``pcvfe_drake.diagrams.simulation``): :func:`simulate_closed_loop` drives a truth (default
 :class:`StTruth`, RK4 of the ST model) with an :class:`~pcvfe_drake.control.nmpc.NmpcController`
 under a zero-order hold and logs a :class:`ClosedLoopResult`.

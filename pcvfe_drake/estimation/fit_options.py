@@ -98,7 +98,7 @@ class FitOptions:
         model_error_rel: a model-error budget: mu's std is ``sqrt(std^2 + (model_error_rel *
             mu)^2)`` (0: none). For an error every window shares (a biased tyre law), which no
             covariance of the context's own data sees; calibrated against ground truth
-            (``benchmarks/interval_coverage.py --calibrate``, docs/fitting.md).
+            (``pcvfe evaluate --report DIR --interval-coverage --calibrate``, docs/fitting.md).
     """
 
     free: tuple[str, ...] = ("mu",)

@@ -204,7 +204,7 @@ def wheel_peak_share(
 
     The car's lateral acceleration says how much friction the car used, on average over its
     wheels; in a slow tight bend the inner front wheel works at a much larger slip than the
-    axle's mean (the track; ``benchmarks/front_axle_gap.py``), so the tyres can be near their
+    axle's mean (the track; ``studies/peak_bias/front_axle_gap.py``), so the tyres can be near their
     peak while the car's mean use is not. The share depends on the fitted ``mu`` and errs
     safe: a peak fitted too high reads a smaller share."""
 

@@ -22,8 +22,8 @@ multi-body model (``pcvfe_drake.vehicle.mb_truth``) with the workbench (docs/wor
   pitch mode (a damped second-order mode), not instantly: in CommonRoad's multi-body model the
   tyre loads come from the deflection of the tyres under the unsprung masses, which the
   suspension springs and dampers load as the sprung mass pitches (no anti-dive or anti-squat
-  geometry: "squat/lift forces neglected"); ``benchmarks/mb_suspension.py`` measures the mode
-  on the Ford Escort.
+  geometry: "squat/lift forces neglected"); ``studies/mb_suspension/mb_suspension.py``
+  measures the mode on the Ford Escort.
 """
 
 from __future__ import annotations
@@ -157,11 +157,11 @@ class TrackSlip(Effect):
     transfer weights the two: the outer wheel carries ``(1 + k_lt a / g) / 2`` of the axle's
     load, the inner one the rest (``a = v r``; on a real car ``k_lt`` is about ``2 h_roll /
     t``, positive; CommonRoad's multi-body Ford Escort loads the inner wheel, ``k_lt``
-    negative, ``benchmarks/front_axle_gap.py``). Where the tyre saturates, the mean of the
+    negative, ``studies/peak_bias/front_axle_gap.py``). Where the tyre saturates, the mean of the
     concave law over the two slips is less than the law at the mean slip, so the axle makes
     less side force than the single-track model at its own slip (``wheel_slips`` hook).
 
-    ``benchmarks/front_axle_gap.py`` measures the two slips and the axle's shortfall on the
+    ``studies/peak_bias/front_axle_gap.py`` measures the two slips and the axle's shortfall on the
     multi-body Ford Escort.
 
     With a linear tyre the effect is null (the load-weighted mean of a linear law over two
@@ -279,8 +279,8 @@ class SuspensionLag(Effect):
     faster than the sample rate allows). Below ``TAU_MIN_S`` the mode keeps that time
     constant and only the fraction ``tau / TAU_MIN_S`` of the load moves through it:
     ``tau = 0`` is exactly the baseline. At a window start the mode is run over the log's
-    acceleration (:func:`logged_acceleration`). ``benchmarks/mb_suspension.py`` measures the
-    mode on CommonRoad's multi-body Ford Escort; a car body's pitch mode is under-damped, so
+    acceleration (:func:`logged_acceleration`). ``studies/mb_suspension/mb_suspension.py`` measures
+    the mode on CommonRoad's multi-body Ford Escort; a car body's pitch mode is under-damped, so
     ``zeta`` is bounded by 1 (an over-damped, fast mode would absorb the misfit of other
     effects).
 

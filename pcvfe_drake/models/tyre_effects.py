@@ -152,7 +152,7 @@ ROLL_SIGN_WIDTH_MPS2 = 0.5
 """Width of ``roll_camber``'s smooth sign ``tanh(v psi_dot / width)`` [m/s^2]: below about
 this lateral acceleration the roll is small against the cambers the suspension sets per
 wheel, the two wheels of an axle have cambers of opposite sign and their step forces cancel
-(the width is chosen by ``benchmarks/mb_camber.py``)."""
+(the width is chosen by ``studies/peak_bias/mb_camber.py``)."""
 
 
 class RollCamber(Effect):
@@ -217,7 +217,7 @@ class RollCamber(Effect):
 WHEEL_SIGN_WIDTH_MPS2 = 0.1
 """Width of ``wheel_camber``'s smooth sign of each wheel's camber, ``tanh(c / width)`` with
 ``c`` its camber in lateral-acceleration units [m/s^2]: narrower than roll_camber's (the per-wheel
-camber crosses 0 quickly; the width is chosen by ``benchmarks/mb_camber.py``,
+camber crosses 0 quickly; the width is chosen by ``studies/peak_bias/mb_camber.py``,
 ``wheel_signs``)."""
 ROLL_TAU_MIN_S = 0.02
 """Smallest roll lag of ``wheel_camber`` [s] (its state's rate is ``1 / tau``; the model's RK4
@@ -252,8 +252,8 @@ class WheelCamber(Effect):
     camber, which the roll makes negative in a left bend: ``f0 = -p_vy1``, ``s0 = +p_hy1``.
     A real tyre's conicity and ply steer do not switch: on a real car this effect is null.
 
-    ``benchmarks/mb_camber.py`` (``wheel_signs``) measures ``k_xf``, ``k_xr`` and the roll lag
-    on the multi-body Ford Escort and compares each wheel's sign with ``roll_camber``'s per-axle
+    ``studies/peak_bias/mb_camber.py`` (``wheel_signs``) measures ``k_xf``, ``k_xr`` and the roll
+    lag on the multi-body Ford Escort and compares each wheel's sign with ``roll_camber``'s per-axle
     direction.
 
     With a linear tyre ``s0`` is a force ``mu C_S Fz s0 (s_left + s_right) / 2``, the same as

@@ -145,8 +145,8 @@ cornering stiffnesses 0.93 / 1.12 x nominal, a 60 kg rotating mass and front whe
 the drive and 76 % of the brake force, turned with the steering (CommonRoad's Ford Escort;
 the values the workbench reads on its multi-body model), and a pitch mode of 1.27 Hz with
 damping ratio 0.2 (tau 0.125 s; near the multi-body Ford Escort's 1.4 Hz and 0.22, fitted to a
-braking step by ``benchmarks/mb_suspension.py``), and roll camber: a camber thrust of -8 % of
-the load per g of lateral acceleration (wheels leaning out with the body's roll, ~0.1 rad per
+braking step by ``studies/mb_suspension/mb_suspension.py``), and roll camber: a camber thrust of -8
+% of the load per g of lateral acceleration (wheels leaning out with the body's roll, ~0.1 rad per
 g, on a tyre with a camber stiffness of ~0.8 Fz per rad; checked: ``f1``) and a step side
 force of -3.7 % of the load switching with the cornering direction (CommonRoad's multi-body
 tyre: ``p_vy1`` by the camber's sign); its slip shift is not planted: on the linear tyre it is
