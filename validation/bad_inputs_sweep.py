@@ -492,6 +492,11 @@ def run_case(
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--only", default=None, help="run one category (by its name)")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="the first two cases of each category (a look at every category in a minute)",
+    )
     parser.add_argument("--timeout", type=float, default=120.0, help="seconds per case")
     parser.add_argument("--keep", type=Path, default=None, help="scratch folder to keep")
     parser.add_argument(
@@ -502,6 +507,9 @@ def main() -> int:
     )
     args = parser.parse_args()
     selected = [c for c in cases() if args.only in (None, c.category)]
+    if args.quick:
+        seen = collections.Counter()
+        selected = [c for c in selected if (seen.update([c.category]) or seen[c.category] <= 2)]
     work = Path(tempfile.mkdtemp(prefix="pcvfe_sweep_")) if args.keep is None else args.keep
     work.mkdir(parents=True, exist_ok=True)
     needed = {c.damage[0] for c in selected if c.damage is not None}
@@ -539,8 +547,20 @@ def main() -> int:
             )
     if args.keep is None:
         shutil.rmtree(work, ignore_errors=True)
-    print(json.dumps({"cases": len(rows), **{o: totals[o] for o in outcomes}, "rows": rows}))
-    return 0 if totals["named"] == len(rows) else 1
+    passed = totals["named"] == len(rows)
+    target = "every case a named error or the documented degraded behaviour"
+    print(
+        json.dumps(
+            {
+                "target": target,
+                "passed": passed,
+                "cases": len(rows),
+                **{o: totals[o] for o in outcomes},
+                "rows": rows,
+            }
+        )
+    )
+    return 0 if passed else 1
 
 
 if __name__ == "__main__":

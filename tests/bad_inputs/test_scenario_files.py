@@ -82,7 +82,10 @@ def test_paths_resolve_against_the_scenario_file_and_the_saved_copy_runs_anywher
     here.mkdir(parents=True)
     (here / "my_course.yaml").write_text(SHIPPED_COURSE.read_text())
     (here / "car.yaml").write_text("name: car\n" + _roboracer_fields())
-    (here / "s.yaml").write_text("course: my_course.yaml\nvehicle: car.yaml\n")
+    # the paper's fitter: a vehicle file without a calibrated model beside it
+    (here / "s.yaml").write_text(
+        "course: my_course.yaml\nvehicle: car.yaml\nestimator: pcvfe_paper\n"
+    )
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     monkeypatch.chdir(elsewhere)
@@ -115,4 +118,4 @@ def _roboracer_fields() -> str:
 
     data = roboracer().to_dict()
     data.pop("name")
-    return "".join(f"{k}: {v}\n" for k, v in data.items())
+    return "".join(f"{k}: {v}\n" for k, v in data.items() if v is not None)

@@ -18,6 +18,7 @@ from pcvfe_drake.estimation.incremental_fit import (
     window_sums,
 )
 from pcvfe_drake.models import least_squares as lsq
+from pcvfe_drake.models.effect_model import EffectModel
 from pcvfe_drake.vehicle.params import ford_escort
 from pcvfe_drake.workbench import synth
 
@@ -131,7 +132,10 @@ def test_a_far_estimate_is_relinearised(drive):
 def test_estimator_resets_on_relabel_and_publishes_after_the_declared_latency(drive):
     t, S, U = drive
     est = ContextEstimator(
-        ford_escort(), LiveFitConfig(effects=SHIPPED, sample_period_s=0.02, effect_min_windows=5)
+        ford_escort(),
+        LiveFitConfig(
+            model=EffectModel(effects=SHIPPED), sample_period_s=0.02, effect_min_windows=5
+        ),
     )
     n = np.searchsorted(t, 10.0)
     for k in range(n):

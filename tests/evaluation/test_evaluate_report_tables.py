@@ -148,6 +148,7 @@ def _store(root, worlds: bool = False) -> None:
                         "scenario": "paper_eval",
                         "source": source,
                         "seed": seed,
+                        "spec_hash": f"h{seed}",
                         "status": "done",
                         "error": "",
                         "versions": "numpy 2.0.0",

@@ -80,7 +80,7 @@ def _world_rows(runs: pd.DataFrame, column: str):
 
 
 def _fmt(x):
-    from pcvfe_drake.evaluation.report import _fmt as fmt
+    from pcvfe_drake.evaluation.report import fmt_number as fmt
 
     return fmt(x)
 
