@@ -97,3 +97,18 @@ def test_a_scoring_bug_still_writes_the_summary_and_says_so(tmp_path, monkeypatc
     report = run_folder.internal_error_report(result, folder)
     assert "internal error while writing the summary (a bug, not your input)" in report
     assert "drive_log.csv" in report and "summary.json without scores" in report
+
+
+def test_a_short_run_that_starts_on_the_strip_writes_its_summary(tmp_path, capsys):
+    """The issue's reproduction: 0.3 s from a start on the slalom's gravel strip (128 m along
+    the course in the paper layout)."""
+    from pcvfe_drake.cli import main
+
+    layer = tmp_path / "strip.yaml"
+    layer.write_text("start_s_m: 128.0\n")
+    out = tmp_path / "run"
+    argv = ["simulate", "--with", str(layer), "--duration", "0.3", "--no-meshcat", "--no-progress"]
+    assert main([*argv, "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["true_terrains_visited"] == [] and summary["log_rows"] == 6
+    assert "internal_errors" not in summary and (out / "figures").is_dir()
