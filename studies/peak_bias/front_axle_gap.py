@@ -349,9 +349,10 @@ def drive(truth, vp, mu: float, seconds: float, law: FitterLaw, dt: float = 0.05
     grip = synth.MB_GRIP_FRACTION * mu * vp.g / (float(np.max(synth.LATERAL_PATTERN_MPS2)) + 0.5)
     x = truth.initial_state(np.array([0.0, 0.0, 0.0, 10.0, 0.0, 0.0, 0.0]))
     rows, sts, ts = [], [], []
-    for k in progress_bar(
+    drive = progress_bar(
         range(ex.v_ref.size), desc=f"drive mu {mu}", leave=False, stream=sys.stderr
-    ):
+    )
+    for k in drive:
         st = st_state(x)
         steer, acc = synth.driver_commands(vp, ex, k, st[None, :], grip)
         u = [float(steer[0]), float(acc[0])]
