@@ -185,11 +185,10 @@ class LiveFitConfig:
             raise ValueError(f"LiveFitConfig.{exc}") from None
 
     def model_error(self) -> ModelError:
-        """The effect model's error budget and where it was calibrated: the friction of the
-        calibration surface (``model.calibrated_mu``, from the car's model file; None: not
-        known, the budget alone)."""
-        cal = self.model.calibrated_mu
-        return ModelError(self.model_error_rel, None if cal is None else (cal, cal))
+        """The effect model's error budget and the frictions it was measured over: the
+        calibration surface's and the checked surface's (``model.measured_mu_range``, from the
+        car's model file; None: not known, the budget alone)."""
+        return ModelError(self.model_error_rel, self.model.measured_mu_range)
 
 
 @dataclass
