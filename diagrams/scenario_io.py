@@ -24,6 +24,7 @@ from pathlib import Path
 
 import yaml
 from pydrake.common.yaml import yaml_load_data, yaml_load_typed
+from pydrake.systems.analysis import GetIntegrationSchemes
 
 from pcvfe_drake.estimation.context_estimator import LiveFitConfig
 from pcvfe_drake.handing.config import FLAT_FIELDS
@@ -35,6 +36,9 @@ from pcvfe_drake.runs.scenario import (
 )
 from pcvfe_drake.runs.scenario_files import resolve_file_field
 from pcvfe_drake.vehicle.params import PRESETS, load_vehicle
+from pcvfe_drake.worlds.build import apply_overrides
+from pcvfe_drake.worlds.world_file import WorldSpec, resolve_world_path, world_problems
+from pcvfe_drake.yaml_unique import check_unique_keys, load_unique
 
 _YAML12_FLOAT = re.compile(r"^[-+]?(\.[0-9]+|[0-9]+(\.[0-9]*)?)([eE][-+]?[0-9]+)?$")
 """A number in YAML 1.2's core schema (PyYAML's YAML 1.1 needs a dot before an exponent)."""
@@ -161,9 +165,10 @@ def load_typed_yaml(schema, text: str, source: str, kind: str, defaults=None):
     text gives ``defaults`` (or the dataclass defaults). ``kind`` names the file in messages."""
     try:
         if "!" in text:  # tagged variants (``!Probe {}``): kept as Drake's "_tag" keys
+            check_unique_keys(text)
             raw = yaml_load_data(text, private=True)
         else:  # libyaml's safe loader where available (large world files load fast)
-            raw = yaml.load(text, Loader=_LOADER)
+            raw = load_unique(text)
     except yaml.YAMLError as exc:
         raise ValueError(f"{source}: not valid YAML: {exc}") from exc
     if raw is None:
@@ -212,15 +217,71 @@ def load_scenario(path_or_name: str | Path | None = None, *overrides: str | Path
     scenario file that names it (``resolve_file_field``) and stored as an absolute path.
     """
     scenario = None
+    origin: dict[str, Path] = {}
     for layer in (path_or_name, *overrides):
         path = resolve_scenario_path(layer)
         before = scenario
         text = read_yaml_file(path)
         scenario = scenario_from_yaml_text(text, source=str(path), defaults=scenario)
         scenario = _resolve_files(scenario, before, path)
-    if scenario.vehicle not in PRESETS:
-        load_vehicle(scenario.vehicle)  # its fields checked now, before any run starts
+        for f in dataclasses.fields(Scenario):
+            if before is None or getattr(before, f.name) != getattr(scenario, f.name):
+                origin[f.name] = path
+    check_scenario_resources(scenario, {k: str(v) for k, v in origin.items()})
     return scenario
+
+
+def world_from_yaml_text(text: str, source: str = "<string>") -> WorldSpec:
+    """Parse and check world YAML ``text``; errors are one line naming ``source`` and the field."""
+    world = load_typed_yaml(WorldSpec, text, source, "world")
+    problems = world_problems(world)
+    if problems:
+        raise ValueError(f"{source}: invalid world: " + "; ".join(problems))
+    return world
+
+
+def check_scenario_resources(scenario: Scenario, origin: dict[str, str] | None = None) -> None:
+    """Check what a scenario names beyond its own values, before any run starts: its vehicle
+    file, its world (a file or a shipped name) and the terrains it changes there, its
+    integration scheme, its CLIP folder, and an initial speed and a speed cap within the
+    vehicle's top speed.
+    A problem is a ``ValueError`` naming the file that set the field (``origin``: field name to
+    file; default ``"scenario"``) and the field, so that a user learns it from one line, not from
+    a run that stops at its first step."""
+    origin = origin or {}
+
+    def where(field: str) -> str:
+        return origin.get(field, f"scenario {scenario.name!r}")
+
+    vehicle = load_vehicle(scenario.vehicle)  # a file's fields are checked here
+    if scenario.initial_speed_mps > vehicle.v_max:
+        raise ValueError(
+            f"{where('initial_speed_mps')}: initial_speed_mps={scenario.initial_speed_mps!r} is "
+            f"above the top speed of the vehicle {vehicle.name!r} (v_max={vehicle.v_max:g} m/s)"
+        )
+    cap = scenario.nmpc.max_speed_mps
+    if cap is not None and cap > vehicle.v_max:
+        raise ValueError(
+            f"{where('nmpc')}: nmpc.max_speed_mps={cap!r} is above the top speed of the vehicle "
+            f"{vehicle.name!r} (v_max={vehicle.v_max:g} m/s)"
+        )
+    try:
+        world_path = resolve_world_path(scenario.world)
+    except FileNotFoundError as exc:
+        raise ValueError(f"{where('world')}: world: {exc}") from exc
+    world = world_from_yaml_text(read_yaml_file(world_path, "world"), str(world_path))
+    apply_overrides(world, scenario.terrains, source=where("terrains"))
+    schemes = GetIntegrationSchemes()
+    if scenario.simulator.integration_scheme not in schemes:
+        raise ValueError(
+            f"{where('simulator')}: simulator.integration_scheme="
+            f"{scenario.simulator.integration_scheme!r} is not one of {schemes}"
+        )
+    if scenario.uses_clip and not Path(scenario.features.backend).is_dir():
+        raise ValueError(
+            f"{where('features')}: features.backend={scenario.features.backend!r}: no such CLIP "
+            "model folder (or 'descriptor'; docs/perception.md)"
+        )
 
 
 def _is_shipped_name(field: str, value: str) -> bool:
