@@ -222,8 +222,12 @@ def load_scenario(path_or_name: str | Path | None = None, *overrides: str | Path
         path = resolve_scenario_path(layer)
         before = scenario
         text = read_yaml_file(path)
-        scenario = scenario_from_yaml_text(text, source=str(path), defaults=scenario)
-        scenario = _resolve_files(scenario, before, path)
+        defaults = scenario if scenario is not None else Scenario()
+        scenario = load_typed_yaml(Scenario, text, str(path), "scenario", defaults)
+        scenario = _resolve_files(scenario, before, path)  # before the values are checked
+        if before is None or scenario.vehicle != before.vehicle:
+            load_vehicle(scenario.vehicle)  # its own values first, then what the fitter needs
+        scenario.validate(str(path))
         for f in dataclasses.fields(Scenario):
             if before is None or getattr(before, f.name) != getattr(scenario, f.name):
                 origin[f.name] = path
@@ -297,7 +301,8 @@ def _is_shipped_name(field: str, value: str) -> bool:
 
 
 PATH_FIELDS = ("vehicle", "course", "world")
-"""Scenario fields that name a file when they do not name something shipped."""
+"""Scenario fields that name a file when they do not name something shipped (and
+``fitter.model.file``, always a file)."""
 
 
 def _resolve_files(scenario: Scenario, before: Scenario | None, path: Path) -> Scenario:
@@ -311,6 +316,12 @@ def _resolve_files(scenario: Scenario, before: Scenario | None, path: Path) -> S
             continue  # set by an earlier layer (already resolved there)
         if not _is_shipped_name(field, value):
             changes[field] = resolve_file_field(value, path, field)
+    model = scenario.fitter.model
+    earlier = None if before is None else before.fitter.model.file
+    if isinstance(model.file, str) and model.file.strip() and model.file != earlier:
+        file = resolve_file_field(model.file, path, "fitter.model.file")
+        model = dataclasses.replace(model, file=file)
+        changes["fitter"] = dataclasses.replace(scenario.fitter, model=model)
     return dataclasses.replace(scenario, **changes) if changes else scenario
 
 

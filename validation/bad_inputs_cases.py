@@ -642,6 +642,21 @@ def more_cases() -> list[Case]:
     scenario("initial speed 1000 m/s", "initial_speed_mps: 1000\n", says=("initial_speed_mps",))
     scenario("NaN start", "start_s_m: .nan\n", says=("start_s_m",))
     scenario("a start 1e12 m on (wrapped)", "start_s_m: 1.0e12\n", **ok)
+    scenario(
+        "0.3 s from a start on a transition strip (summary written)",
+        "start_s_m: 128.0\nduration_s: 0.3\n",
+        "ok",
+    )
+    out.append(
+        Case(
+            "scenario files",
+            "a run folder's scenario.yaml from another directory",
+            [sim[0], "{copy}/scenario.yaml", *sim[1:], *short],
+            "ok",
+            damage=("run", lambda f: None),
+            check=ok_run,
+        )
+    )
     # rates
     scenario("zero camera period", "rates: {camera_period_s: 0}\n", says=("camera_period_s",))
     scenario("negative fitter period", "rates: {fitter_period_s: -1}\n", says=("fitter_period_s",))
@@ -989,6 +1004,27 @@ def more_cases() -> list[Case]:
     out.append(
         Case(
             "vehicle YAML",
+            "an effect model beside the scenario, run from elsewhere",
+            [
+                "simulate",
+                "{tmp}/sub/s.yaml",
+                "--no-meshcat",
+                "--no-progress",
+                "--out",
+                "{tmp}/run",
+                *short,
+            ],
+            "ok",
+            files={
+                "sub/s.yaml": "fitter: {model: {file: m.yaml}}\n",
+                "sub/m.yaml": "effects: []\n",
+            },
+            check=ok_run,
+        )
+    )
+    out.append(
+        Case(
+            "vehicle YAML",
             "a scenario's vehicle file in JSON (accepted)",
             [*in_scenario, *short],
             "ok",
@@ -1013,6 +1049,11 @@ def more_cases() -> list[Case]:
             "std",
         ),
         ("an effect model with no effects key", model("vehicle: ford_escort\n"), "effects"),
+        (
+            "a key given twice in a vehicle file",
+            {"s.yaml": "vehicle: c.yaml\n", "c.yaml": _vehicle() + "m: 3.0\n"},
+            "'m'",
+        ),
     ]:
         out.append(Case("vehicle YAML", name, in_scenario, files=files, says=(words,)))
 
@@ -1282,7 +1323,7 @@ def more_cases() -> list[Case]:
 
         return damage
 
-    straight = {"s.csv": _straight_log()}
+    straight = {"s.csv": _straight_log(rows=4000)}
     log_case("fit an empty log", ["fit", "{tmp}/e.csv"], files={"e.csv": ""}, says=("e.csv",))
     log_case(
         "fit a header-only log",
