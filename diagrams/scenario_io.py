@@ -283,8 +283,8 @@ def check_scenario_resources(scenario: Scenario, origin: dict[str, str] | None =
         )
     if scenario.uses_clip and not Path(scenario.features.backend).is_dir():
         raise ValueError(
-            f"{where('features')}: features.backend={scenario.features.backend!r}: no such CLIP "
-            "model folder (or 'descriptor'; docs/perception.md)"
+            f"{where('features')}: features.backend={scenario.features.backend!r}: not a CLIP "
+            "model folder (a folder holding clip.json; or 'descriptor'; docs/perception.md)"
         )
 
 

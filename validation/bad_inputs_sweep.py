@@ -2,8 +2,9 @@
 one end in a named error (or the documented degraded behaviour), never a traceback, a hang, a
 silently wrong result or lost data?
 
-The cases (``validation/bad_inputs_cases.py``) follow the categories of the project's first
-bad-input sweep and at least its attempts per category. Each runs ``pcvfe ...`` through
+The cases (``validation/_bad_inputs_cases.py``; the ``_`` keeps ``run_all.py`` from running it
+as a check) follow the categories of the project's first bad-input sweep, with at least its
+attempts per category. Each runs ``pcvfe ...`` through
 ``pcvfe_drake.cli.main`` in this process (``--subprocess``: in a fresh interpreter, as a user's
 shell would) with a timeout and a cap on memory, in a scratch folder with its own fixtures: a
 short run folder of ``paper_sim`` (2.5 s), a small results folder of ``pcvfe evaluate`` (written
@@ -44,7 +45,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from bad_inputs_cases import (  # beside this script
+from _bad_inputs_cases import (  # beside this script (the suite skips _-prefixed files)
     PCVFE,
     Case,
     cases,

@@ -20,7 +20,7 @@ from pcvfe_drake.vehicle.params import load_vehicle
         ("world: moon\n", "world: world 'moon' is neither a file nor a shipped world"),
         ("terrains: {lava: {mu: 0.5}}\n", "terrains.lava: the world 'paper' has no terrain"),
         ("simulator: {integration_scheme: euler_magic}\n", "integration_scheme='euler_magic'"),
-        ("features: {backend: no_clip_here}\n", "features.backend='no_clip_here': no such CLIP"),
+        ("features: {backend: no_clip_here}\n", "features.backend='no_clip_here': not a CLIP"),
         ("initial_speed_mps: 1000\n", "initial_speed_mps=1000.0 is above the top speed"),
         ("rates: {nmpc_period_s: 10.0}\n", "rates.nmpc_period_s=10.0: at most 0.5 s"),
         ("clustering: {max_stored: 1000000000}\n", f"must be <= {MAX_STORED} frames"),
