@@ -225,7 +225,8 @@ def load_scenario(path_or_name: str | Path | None = None, *overrides: str | Path
         defaults = scenario if scenario is not None else Scenario()
         scenario = load_typed_yaml(Scenario, text, str(path), "scenario", defaults)
         scenario = _resolve_files(scenario, before, path)  # before the values are checked
-        if before is None or scenario.vehicle != before.vehicle:
+        changed = before is None or scenario.vehicle != before.vehicle
+        if changed and scenario.vehicle.strip():  # an empty one: named by validate
             load_vehicle(scenario.vehicle)  # its own values first, then what the fitter needs
         scenario.validate(str(path))
         for f in dataclasses.fields(Scenario):

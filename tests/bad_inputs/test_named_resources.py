@@ -18,6 +18,7 @@ from pcvfe_drake.vehicle.params import load_vehicle
     ("text", "words"),
     [
         ("world: moon\n", "world: world 'moon' is neither a file nor a shipped world"),
+        ("vehicle: ''\n", "vehicle='': must name a preset or a YAML file"),
         ("terrains: {lava: {mu: 0.5}}\n", "terrains.lava: the world 'paper' has no terrain"),
         ("simulator: {integration_scheme: euler_magic}\n", "integration_scheme='euler_magic'"),
         ("features: {backend: no_clip_here}\n", "features.backend='no_clip_here': not a CLIP"),
