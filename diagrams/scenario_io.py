@@ -23,7 +23,7 @@ import typing
 from pathlib import Path
 
 import yaml
-from pydrake.common.yaml import yaml_load_data, yaml_load_typed
+from pydrake.common.yaml import yaml_load_typed
 from pydrake.systems.analysis import GetIntegrationSchemes
 
 from pcvfe_drake.estimation.context_estimator import LiveFitConfig
@@ -38,13 +38,34 @@ from pcvfe_drake.runs.scenario_files import resolve_file_field
 from pcvfe_drake.vehicle.params import PRESETS, load_vehicle
 from pcvfe_drake.worlds.build import apply_overrides
 from pcvfe_drake.worlds.world_file import WorldSpec, resolve_world_path, world_problems
-from pcvfe_drake.yaml_unique import check_unique_keys, load_unique
+from pcvfe_drake.yaml_unique import UniqueKeyLoader
 
 _YAML12_FLOAT = re.compile(r"^[-+]?(\.[0-9]+|[0-9]+(\.[0-9]*)?)([eE][-+]?[0-9]+)?$")
 """A number in YAML 1.2's core schema (PyYAML's YAML 1.1 needs a dot before an exponent)."""
 
 
-_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+class _TaggedLoader(UniqueKeyLoader):
+    """YAML's safe loader (libyaml's where available: large world files load fast; a key given
+    twice in one mapping refused, ``pcvfe_drake.yaml_unique``) that reads a
+    tagged mapping (``!Probe {hold_s: 3}``, Drake's variant syntax) as the mapping plus a
+    ``"_tag": "!Probe"`` key, the form ``yaml_load_data(private=True)`` gives and the schema
+    check reads, so one reader serves every file."""
+
+
+def _tagged(loader: yaml.SafeLoader, suffix: str, node: yaml.Node) -> dict:
+    if isinstance(node, yaml.MappingNode):
+        body = loader.construct_mapping(node, deep=True)
+    elif isinstance(node, yaml.ScalarNode) and node.value == "":
+        body = {}
+    else:
+        raise yaml.constructor.ConstructorError(
+            None, None, f"the tag !{suffix} must tag a mapping (!{suffix} {{...}})", node.start_mark
+        )
+    return {"_tag": f"!{suffix}", **body}
+
+
+_TaggedLoader.add_multi_constructor("!", _tagged)
+_LOADER = _TaggedLoader
 _DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
 """libyaml's safe loader and dumper where PyYAML has them (the same documents, parsed several
 times faster: a world file holds long lists of vertices)."""
@@ -164,11 +185,7 @@ def load_typed_yaml(schema, text: str, source: str, kind: str, defaults=None):
     when given); every error is a ``ValueError`` naming ``source`` and the dotted field. An empty
     text gives ``defaults`` (or the dataclass defaults). ``kind`` names the file in messages."""
     try:
-        if "!" in text:  # tagged variants (``!Probe {}``): kept as Drake's "_tag" keys
-            check_unique_keys(text)
-            raw = yaml_load_data(text, private=True)
-        else:  # libyaml's safe loader where available (large world files load fast)
-            raw = load_unique(text)
+        raw = yaml.load(text, Loader=_LOADER)
     except yaml.YAMLError as exc:
         raise ValueError(f"{source}: not valid YAML: {exc}") from exc
     if raw is None:

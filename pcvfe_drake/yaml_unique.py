@@ -44,16 +44,3 @@ def load_unique(text: str):
     """``text`` parsed as YAML by the safe loader; a key given twice in one mapping is a
     ``yaml.YAMLError`` (``ConstructorError``) naming the key and both lines."""
     return yaml.load(text, Loader=UniqueKeyLoader)
-
-
-def check_unique_keys(text: str) -> None:
-    """Raise ``yaml.YAMLError`` when a mapping of ``text`` names a key twice, without building
-    the document (for text that another parser reads, e.g. with application tags)."""
-    stack = [yaml.compose(text, Loader=_BASE)]
-    while stack:
-        node = stack.pop()
-        if isinstance(node, yaml.MappingNode):
-            _refuse_repeated_keys(node)
-            stack.extend(value for _, value in node.value)
-        elif isinstance(node, yaml.SequenceNode):
-            stack.extend(node.value)

@@ -25,6 +25,8 @@ NOTES = [ROOT / "CHANGELOG.md", *sorted((ROOT / "studies").rglob("*.md"))]
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
 HASH = re.compile(r"\b(?=[0-9a-f]*[a-f])(?=[0-9a-f]*[0-9])[0-9a-f]{7,40}\b")
 README_MAX_LINES = 220
+DOC_MAX_LINES = 530
+"""A docs page is reference text; one much over 500 lines holds a study (move it to studies/)."""
 
 
 def relative_links(text: str) -> list[str]:
@@ -53,6 +55,12 @@ def test_no_commit_hash(page):
 def test_readme_is_short():
     n = len((ROOT / "README.md").read_text().splitlines())
     assert n <= README_MAX_LINES, f"README.md has {n} lines (at most {README_MAX_LINES})"
+
+
+@pytest.mark.parametrize("page", sorted((ROOT / "docs").glob("*.md")), ids=lambda p: p.name)
+def test_docs_pages_are_reference_sized(page):
+    n = len(page.read_text(encoding="utf-8").splitlines())
+    assert n <= DOC_MAX_LINES, f"{page.name} has {n} lines: move its investigations to studies/"
 
 
 def test_the_checks_of_this_file():

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -11,6 +12,11 @@ from pathlib import Path
 from pcvfe_drake.runs.output_paths import write_failed
 
 MAPPINGS = ("lateral_peak", "peak_and_stiffness", "peak")
+
+CHECK_FRACTION = 0.3
+"""--simulate's default check surface, as a fraction of the calibration surface's friction: a
+loose or wet surface (about a third of dry asphalt's grip), the low end of what an off-road car
+meets, so that the held constants are checked across the range the fitter will use them on."""
 
 
 def register(subparsers) -> None:
@@ -26,7 +32,8 @@ def register(subparsers) -> None:
             "Only what a car measures is read: the drive log's measured state and commanded "
             "inputs. With --simulate the drive is first driven on the multi-body truth: "
             "steady-state circles at rising speed, steering steps, a sine sweep and braking, "
-            "on one surface of known friction."
+            "on one surface of known friction, then again on a low-friction check surface where "
+            "the held model fits only the friction (its offset joins the model-error budget)."
         ),
     )
     p.add_argument("log", nargs="?", help="calibration drive log (.csv/.parquet) or run folder")
@@ -60,6 +67,15 @@ def register(subparsers) -> None:
         "peak; with a log: known friction adds the fit's offset from it to the model-error "
         "budget)",
     )
+    p.add_argument(
+        "--check-mu",
+        type=float,
+        default=None,
+        help="--simulate: friction of a second surface the programme is driven on, where the "
+        "calibrated model fits only mu; its offset from the known value joins the model-error "
+        f"budget and the model counts as measured between the two frictions (default "
+        f"{CHECK_FRACTION:g} x the calibration surface's; 0: no check)",
+    )
     p.add_argument("--seed", type=int, default=0, help="--simulate: seed of the sensor noise")
     p.add_argument("--context-column", default=None, help="column with surface labels")
     p.add_argument("--out", default=None, help="model file to write (default: print only)")
@@ -84,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
 
     from pcvfe_drake.models.data import find_log, prepare
     from pcvfe_drake.models.effect_model import STIFFNESS_LAW, write_model_file
-    from pcvfe_drake.runs.drivelog import REQUIRED_COLUMNS, read_drive_log
+    from pcvfe_drake.runs.drivelog import REQUIRED_COLUMNS, read_drive_log, write_drive_log
     from pcvfe_drake.vehicle.params import load_vehicle
     from pcvfe_drake.workbench.calibration import calibrate
 
@@ -96,6 +112,13 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--simulate names the vehicle; leave out --vehicle or give the same")
     if args.out and Path(args.out).is_dir():
         raise ValueError(f"--out {args.out}: is a folder; give the model file's name")
+    if args.check_mu is not None:
+        if args.simulate is None:
+            raise ValueError("--check-mu drives a second surface: it needs --simulate")
+        if not (math.isfinite(args.check_mu) and 0 <= args.check_mu <= 2):
+            raise ValueError(
+                f"--check-mu must be a friction in (0, 2] or 0 (none), got {args.check_mu}"
+            )
     report = _progress(not args.no_progress and not args.json)
     vehicle = args.simulate or args.vehicle
     params = load_vehicle(vehicle)
@@ -123,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
         )
         if args.save_log:
             try:
-                df.to_csv(args.save_log, index=False)
+                write_drive_log(df, args.save_log, validate=False)
             except OSError as exc:
                 raise write_failed(exc, "--save-log", args.save_log) from exc
         source = f"calibration programme ({vehicle}, {args.mapping})"
@@ -140,12 +163,23 @@ def run(args: argparse.Namespace) -> int:
     report(f"the workbench's loop on {data.n} samples ({data.t[-1] - data.t[0]:.0f} s)")
     result = calibrate(data, vehicle, params, k_s, progress=report)
     summary = result.summary()
+    check = None
+    if args.simulate is not None and (args.check_mu is None or args.check_mu > 0):
+        check_mu = CHECK_FRACTION * known_mu if args.check_mu is None else args.check_mu
+        report(f"driving the programme on the check surface: mu {check_mu:.3g}")
+        check_df = calibration_drive(vehicle, args.mapping, check_mu, seed=args.seed)
+        check = check_surface(check_df, keep, source, params, result.model, check_mu)
+        result.model.checked_mu = round(float(check_mu), 4)
     if known_mu is not None:
         offsets = [abs(mu - known_mu) / known_mu for mu in result.surface_mu.values()]
+        if check is not None:
+            offsets.append(check["offset_rel"])
         bias = max(offsets)
         budget = round((result.model.model_error_rel**2 + bias**2) ** 0.5, 4)
         result.model.model_error_rel = budget
         summary["surface_mu_known"] = float(known_mu)
+    if check is not None:
+        summary["check_surface"] = check
     summary["cpu_s"] = round(time.process_time() - cpu0, 1)
     summary["source"] = source
     out = {"vehicle": vehicle, **result.model.to_dict(), "calibration": summary}
@@ -166,6 +200,26 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def check_surface(df, keep: list[str], source: str, params, model, check_mu: float) -> dict:
+    """The calibrated ``model`` on a drive over a second surface of known friction ``check_mu``:
+    only mu fitted (the held values kept), as the context fitter would; the relative offset
+    from the known friction is the model's error there."""
+    import pandas as pd
+
+    from pcvfe_drake.commands.fit_effects import fit_log
+    from pcvfe_drake.models.data import prepare
+
+    data = prepare(pd.DataFrame(df[[c for c in keep if c in df.columns]]), source + " check")
+    fitted = next(iter(fit_log(data, params, model.effects)["contexts"].values()))
+    mu, std = float(fitted["theta"]["mu"]), fitted["mu_std"]
+    return {
+        "mu_known": round(float(check_mu), 4),
+        "mu_fitted": round(mu, 4),
+        "mu_std": None if std is None else round(float(std), 4),
+        "offset_rel": round(abs(mu - check_mu) / check_mu, 4),
+    }
+
+
 def _print(vehicle: str, result, summary: dict) -> None:
     print(
         f"{vehicle}: held-out error {result.baseline_heldout_error:.3g} (single-track) -> "
@@ -183,4 +237,10 @@ def _print(vehicle: str, result, summary: dict) -> None:
     )
     known = summary.get("surface_mu_known")
     print(f"  surface mu (fitted) {surface}" + (f" (known {known:.4f})" if known else ""))
+    check = summary.get("check_surface")
+    if check:
+        print(
+            f"  check surface mu {check['mu_fitted']:.4f} (known {check['mu_known']:.4f}, "
+            f"offset {100 * check['offset_rel']:.1f} %)"
+        )
     print(f"  model_error_rel {result.model.model_error_rel:.4f}; cpu {summary['cpu_s']} s")

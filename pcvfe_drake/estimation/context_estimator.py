@@ -41,6 +41,7 @@ import numpy as np
 from pcvfe_drake.estimation.effect_fit import EffectFitter, identifiability
 from pcvfe_drake.estimation.estimate_latency import add_waits, wait_quantiles
 from pcvfe_drake.estimation.estimate_table import ContextEstimate, EstimateTable
+from pcvfe_drake.estimation.fit_answer import distrust
 from pcvfe_drake.estimation.fit_dataset import (
     DEFAULT_HORIZON,
     DEFAULT_STRIDE,
@@ -184,11 +185,10 @@ class LiveFitConfig:
             raise ValueError(f"LiveFitConfig.{exc}") from None
 
     def model_error(self) -> ModelError:
-        """The effect model's error budget and where it was calibrated: the friction of the
-        calibration surface (``model.calibrated_mu``, from the car's model file; None: not
-        known, the budget alone)."""
-        cal = self.model.calibrated_mu
-        return ModelError(self.model_error_rel, None if cal is None else (cal, cal))
+        """The effect model's error budget and the frictions it was measured over: the
+        calibration surface's and the checked surface's (``model.measured_mu_range``, from the
+        car's model file; None: not known, the budget alone)."""
+        return ModelError(self.model_error_rel, self.model.measured_mu_range)
 
 
 @dataclass
@@ -554,6 +554,10 @@ class ContextEstimator:
             slot.estimate = _discarded(old, samples, t_now, f"diverged ({reason})")
             return
         std = np.where(np.isfinite(result.std), result.std, np.nan)
+        judged = self._identifiability(old, t, states, result.theta[0], std[0], False)
+        untrusted = distrust(result.quality) or ""
+        if untrusted:
+            judged["identifiable"] = False
         slot.estimate = ContextEstimate(
             context_id=ident,
             theta=tuple(float(v) for v in result.theta),
@@ -567,7 +571,8 @@ class ContextEstimator:
             diverged=old.diverged,
             loss=float(result.loss),
             message="; ".join(result.warnings),
-            **self._identifiability(old, t, states, result.theta[0], std[0], False),
+            untrusted=untrusted,
+            **judged,
         )
         self._published(slot, t, float(t[-1]), t_now)
 

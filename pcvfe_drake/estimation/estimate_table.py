@@ -44,8 +44,12 @@ class ContextEstimate:
             before the first refit).
         near_limit: the data came near the friction limit (``mu_lower_bound >=
             near_limit_fraction * mu``); False: a friction peak is barely observable here.
-        identifiable: near_limit and mu's standard deviation at most ``identifiable_std``, and
-            not ``below_used``.
+        identifiable: near_limit and mu's standard deviation at most ``identifiable_std``, not
+            ``below_used`` and not ``untrusted``.
+        untrusted: why the fit-quality checks say the fitted mu is not the friction
+            (``fit_answer.distrust``: mu on its bound, a loss far above what the noise explains,
+            a poor fit of the states friction acts on), empty where they do not: a model that
+            does not explain the data does not determine its mu, however small its std.
         below_used: the fitted friction peak is below the friction the data used (impossible:
             the model's tyre law does not fit this context's data; the controller gets at
             least the used friction).
@@ -82,6 +86,7 @@ class ContextEstimate:
     near_limit: bool = False
     identifiable: bool = False
     below_used: bool = False
+    untrusted: str = ""
     mu_is_peak: bool = False
     model_params: tuple = ()
     probe: ProbeState | None = None
@@ -134,6 +139,7 @@ class ContextEstimate:
             "near_limit": self.near_limit,
             "identifiable": self.identifiable,
             "below_used": self.below_used,
+            "untrusted": self.untrusted or None,
             # None: no bound / unknown
             "mu_interval_95": [finite_or_none(v) for v in self.mu_interval_95],
             "mu_is_peak": self.mu_is_peak,

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import math
 
+from pcvfe_drake.estimation.fit_quality import LOSS_NOISE_RATIO_WARN, POOR_FIT_PERCENT
+
 
 def mu_headline(
     mu: float, std: float, judged: dict, fitted: bool = True, limit: float = math.nan
@@ -87,8 +89,6 @@ def distrust(quality: dict) -> str | None:
     friction, or None: mu on its bound, a loss far above what the noise explains, or a poor fit
     of the states friction acts on (each is a model that does not explain the data, so its mu
     is not determined by them)."""
-    from pcvfe_drake.estimation.fit_quality import LOSS_NOISE_RATIO_WARN, POOR_FIT_PERCENT
-
     if "mu" in quality.get("at_bound", []):
         return "mu on its bound"
     ratio = quality.get("loss_noise_ratio", math.nan)

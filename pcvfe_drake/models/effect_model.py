@@ -55,7 +55,14 @@ STIFFNESS_LAW = {"lateral_peak": 0.0, "peak": 0.0, "peak_and_stiffness": 1.0}
 peak, 0 where only the peak changes. A calibration on one surface cannot see how the stiffness
 follows the friction, so the simulated car's mapping states it."""
 
-MODEL_KEYS = ("vehicle", "effects", "model_error_rel", "calibrated_mu", "calibration")
+MODEL_KEYS = (
+    "vehicle",
+    "effects",
+    "model_error_rel",
+    "calibrated_mu",
+    "checked_mu",
+    "calibration",
+)
 
 
 @dataclass
@@ -149,12 +156,17 @@ class EffectModel:
             makes on the car that no covariance of one context's data sees.
         calibrated_mu: the friction of the surface the model was calibrated on (None: not
             calibrated); fits far from it rely on the model beyond its calibration.
+        checked_mu: the friction of a second surface where the held model was checked (only mu
+            fitted, its offset from the known friction inside ``model_error_rel``; None: no
+            check): between the two frictions the budget was measured, beyond them it is
+            extrapolated (``ModelError``).
     """
 
     file: str = ""
     effects: list[FitterEffect] = field(default_factory=list)
     model_error_rel: float = 0.0
     calibrated_mu: float | None = None
+    checked_mu: float | None = None
 
     def __post_init__(self) -> None:
         self.effects = parse_effects(self.effects)
@@ -168,10 +180,21 @@ class EffectModel:
             raise ValueError(
                 f"EffectModel.model_error_rel must be >= 0, got {self.model_error_rel!r}"
             )
-        if self.calibrated_mu is not None and not (
-            math.isfinite(self.calibrated_mu) and self.calibrated_mu > 0
-        ):
-            raise ValueError(f"EffectModel.calibrated_mu must be > 0, got {self.calibrated_mu!r}")
+        for name in ("calibrated_mu", "checked_mu"):
+            value = getattr(self, name)
+            if value is not None and not (
+                isinstance(value, int | float) and math.isfinite(value) and value > 0
+            ):
+                raise ValueError(f"EffectModel.{name} must be > 0, got {value!r}")
+
+    @property
+    def measured_mu_range(self) -> tuple[float, float] | None:
+        """The frictions (low, high) over which the model's error was measured: the
+        calibration surface's and the checked surface's (None: not calibrated)."""
+        if self.calibrated_mu is None:
+            return None
+        values = [self.calibrated_mu] + ([self.checked_mu] if self.checked_mu else [])
+        return (float(min(values)), float(max(values)))
 
     @property
     def single_track(self) -> bool:
@@ -186,8 +209,9 @@ class EffectModel:
             ],
             "model_error_rel": float(self.model_error_rel),
         }
-        if self.calibrated_mu is not None:
-            out["calibrated_mu"] = float(self.calibrated_mu)
+        for name in ("calibrated_mu", "checked_mu"):
+            if getattr(self, name) is not None:
+                out[name] = float(getattr(self, name))
         return out
 
 
@@ -220,6 +244,7 @@ def load_model_file(path: str | Path) -> EffectModel:
             calibrated_mu=(
                 None if data.get("calibrated_mu") is None else float(data["calibrated_mu"])
             ),
+            checked_mu=None if data.get("checked_mu") is None else float(data["checked_mu"]),
         )
     except (TypeError, ValueError) as exc:
         raise ValueError(f"model file {path}: {exc}") from exc

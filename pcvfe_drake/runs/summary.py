@@ -185,7 +185,8 @@ def mu_estimates(
     1.96 std`` where the data came near the limit, ``[mu_lower_bound, inf)`` where they never
     did; ``ContextEstimate.mu_interval_95``), else ``mu_hat +- 1.96 std``.
     Identifiability (from the table, ``ContextEstimate``): ``mu_lower_bound`` (the friction the
-    data used), ``near_limit``, ``identifiable``, and ``model_params`` of an effect model.
+    data used), ``near_limit``, ``identifiable``, ``untrusted`` (why the fit-quality checks
+    distrust the fit), and ``model_params`` of an effect model.
     """
     t = log["t"].to_numpy(float)
     w = sample_weights(t)
@@ -223,6 +224,7 @@ def mu_estimates(
                 "near_limit": entry.get("near_limit"),
                 "identifiable": entry.get("identifiable"),
                 "below_used": entry.get("below_used"),
+                "untrusted": entry.get("untrusted"),
                 "probe": entry.get("probe"),
                 "handing": entry.get("handing"),
                 "model_params": entry.get("model_params") or None,
@@ -466,6 +468,8 @@ def _limit_flag(entry: Mapping[str, Any]) -> str:
         return "no fit (" + str(entry.get("fit_status") or "prior") + ")"
     if entry.get("near_limit") is None:
         return "-"
+    if entry.get("untrusted"):
+        return f"fit not trustworthy: {entry['untrusted']} (not identifiable)"
     if entry.get("below_used"):
         return "peak fitted below the used friction (not identifiable)"
     if not entry["near_limit"]:

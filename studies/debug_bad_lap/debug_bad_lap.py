@@ -21,7 +21,8 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from chromium import find_chromium, screenshot
+
+from pcvfe_drake.views.browser import find_chromium, screenshot
 
 CAR_OFFSET = np.array([-7.0, 0.0, 9.0])  # FrictionCircleView's default offset from the car
 

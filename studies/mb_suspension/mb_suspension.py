@@ -35,9 +35,9 @@ import time
 
 import numpy as np
 from scipy.optimize import least_squares
-from tqdm import tqdm
 
 from pcvfe_drake.models.chassis_effects import mode_transition
+from pcvfe_drake.progress import progress_bar
 from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
 from pcvfe_drake.vehicle.params import load_vehicle
 from pcvfe_drake.workbench import synth
@@ -154,7 +154,7 @@ def drive(truth, vp, seconds: float, mu: float, mode: tuple[float, float]) -> di
     grip = synth.MB_GRIP_FRACTION * mu * vp.g / (float(np.max(synth.LATERAL_PATTERN_MPS2)) + 0.5)
     x = truth.initial_state(np.array([0.0, 0.0, 0.0, 10.0, 0.0, 0.0, 0.0]))
     rows = []
-    for k in tqdm(range(ex.v_ref.size), desc="multi-body drive", leave=False):
+    for k in progress_bar(range(ex.v_ref.size), desc="multi-body drive", leave=False):
         st = st_state(x)
         steer, acc = synth.driver_commands(vp, ex, k, st[None, :], grip)
         u = [float(steer[0]), float(acc[0])]

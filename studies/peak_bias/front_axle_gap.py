@@ -74,11 +74,11 @@ from pathlib import Path
 import numpy as np
 from mb_camber import wheel_terms
 from scipy.optimize import brentq, minimize_scalar
-from tqdm import tqdm
 from vehiclemodels.utils import tire_model
 
 from pcvfe_drake.models.chassis_effects import wheel_slip_offsets
 from pcvfe_drake.models.tyre_effects import MF_SHAPE
+from pcvfe_drake.progress import progress_bar
 from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
 from pcvfe_drake.vehicle.params import load_vehicle
 from pcvfe_drake.workbench import synth
@@ -349,7 +349,10 @@ def drive(truth, vp, mu: float, seconds: float, law: FitterLaw, dt: float = 0.05
     grip = synth.MB_GRIP_FRACTION * mu * vp.g / (float(np.max(synth.LATERAL_PATTERN_MPS2)) + 0.5)
     x = truth.initial_state(np.array([0.0, 0.0, 0.0, 10.0, 0.0, 0.0, 0.0]))
     rows, sts, ts = [], [], []
-    for k in tqdm(range(ex.v_ref.size), desc=f"drive mu {mu}", leave=False, file=sys.stderr):
+    drive = progress_bar(
+        range(ex.v_ref.size), desc=f"drive mu {mu}", leave=False, stream=sys.stderr
+    )
+    for k in drive:
         st = st_state(x)
         steer, acc = synth.driver_commands(vp, ex, k, st[None, :], grip)
         u = [float(steer[0]), float(acc[0])]

@@ -113,3 +113,39 @@ def test_calibrate_reads_only_what_a_car_measures(tmp_path, capsys, monkeypatch)
     assert main(argv) == 2
     assert "stop here" in capsys.readouterr().err
     assert seen["columns"] == list(REQUIRED_COLUMNS)
+
+
+def test_check_mu_needs_the_simulated_programme(capsys):
+    from pcvfe_drake.cli import main
+
+    argv = ["calibrate", "log.csv", "--vehicle", "ford_escort", "--check-mu", "0.3"]
+    assert main(argv) == 2
+    assert "--check-mu drives a second surface: it needs --simulate" in capsys.readouterr().err
+
+
+def test_the_check_surface_measures_the_held_model_at_another_friction(calibration, tmp_path):
+    """The model calibrated at mu 0.8 fits only mu on a drive at 0.7: the offset is measured,
+    and between the two frictions the handing adds no extrapolated error."""
+    from dataclasses import replace
+
+    from pcvfe_drake.commands.calibrate import check_surface
+    from pcvfe_drake.estimation.context_estimator import LiveFitConfig
+    from pcvfe_drake.models.effect_model import write_model_file
+    from pcvfe_drake.runs.drivelog import REQUIRED_COLUMNS
+
+    low = replace(PLANTED, mf_peak=0.7)
+    df = simulate_truths([low], VP, duration_s=30.0, seed=4)[0]
+    check = check_surface(df, list(REQUIRED_COLUMNS), "planted", VP, calibration.model, 0.7)
+    assert check["mu_known"] == 0.7 and abs(check["mu_fitted"] - 0.7) < 0.05
+    assert check["offset_rel"] == round(abs(check["mu_fitted"] - 0.7) / 0.7, 4)
+
+    model = replace(calibration.model, model_error_rel=0.1, calibrated_mu=0.8, checked_mu=0.4)
+    assert model.measured_mu_range == (0.4, 0.8)
+    again = load_model_file(write_model_file(tmp_path / "m.yaml", model, "ford_escort", "x", {}))
+    assert again.checked_mu == 0.4 and again.to_dict() == model.to_dict()
+    error = LiveFitConfig(model=model).model_error()
+    assert error.calibrated_mu == (0.4, 0.8)
+    assert error.handed_mu(0.5) == 0.5  # measured there: the budget alone
+    assert error.handed_mu(0.2) < 0.2  # below the checked surface: extrapolated
+    with pytest.raises(ValueError, match="checked_mu must be > 0"):
+        replace(model, checked_mu=-1.0)

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import html as html_text
 import json
-import shutil
-import subprocess
 
 import matplotlib.image as mpimg
 import numpy as np
 import pytest
 
 from pcvfe_drake.models.data import prepare
+from pcvfe_drake.views.browser import NO_CHROMIUM, dump_dom, find_chromium, screenshot
 from pcvfe_drake.workbench import figures, synth
 from pcvfe_drake.workbench.figures import CAPTIONS
 from pcvfe_drake.workbench.report import diagnose, write_report
@@ -64,17 +63,7 @@ def test_report_has_every_picture_and_the_loop(report_dir):
     assert width > 2 * height
 
 
-def _chromium() -> str | None:
-    for name in ("chromium", "chromium-browser", "google-chrome"):
-        path = shutil.which(name)
-        if path:
-            return path
-    return None
-
-
-@pytest.mark.skipif(
-    _chromium() is None, reason="no headless Chromium (apt-get install -y chromium)"
-)
+@pytest.mark.skipif(find_chromium() is None, reason=NO_CHROMIUM)
 def test_report_renders_in_headless_chromium(report_dir, tmp_path):
     out, report, _ = report_dir
     # a copy with a probe script: the page title reports how many images decoded
@@ -90,21 +79,12 @@ def test_report_renders_in_headless_chromium(report_dir, tmp_path):
     )
     page = tmp_path / "probe.html"
     page.write_text(probe)
-    args = [_chromium(), "--headless", "--no-sandbox", "--disable-gpu"]
-    dom = subprocess.run(
-        [*args, "--virtual-time-budget=5000", "--dump-dom", page.as_uri()],
-        capture_output=True,
-        text=True,
-        timeout=90,
-    ).stdout
+    chromium = find_chromium()
+    dom = dump_dom(chromium, page)
     assert f"decoded {len(PNGS)}/{len(PNGS)}" in dom, dom[:300]
     assert report["verdict"]["kind"] in dom
     shot = tmp_path / "shot.png"
-    subprocess.run(
-        [*args, "--window-size=1200,2400", f"--screenshot={shot}", (out / "report.html").as_uri()],
-        capture_output=True,
-        timeout=90,
-    )
+    assert screenshot(chromium, out / "report.html", shot, size=(1200, 2400), wait_ms=5000)
     img = mpimg.imread(shot)
     assert img.shape[0] >= 2000 and img.std() > 0.05  # a rendered page, not a blank one
 
