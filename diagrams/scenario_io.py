@@ -24,6 +24,7 @@ from pathlib import Path
 
 import yaml
 from pydrake.common.yaml import yaml_load_typed
+from pydrake.systems.analysis import GetIntegrationSchemes
 
 from pcvfe_drake.estimation.context_estimator import LiveFitConfig
 from pcvfe_drake.handing.config import FLAT_FIELDS
@@ -35,13 +36,17 @@ from pcvfe_drake.runs.scenario import (
 )
 from pcvfe_drake.runs.scenario_files import resolve_file_field
 from pcvfe_drake.vehicle.params import PRESETS, load_vehicle
+from pcvfe_drake.worlds.build import apply_overrides
+from pcvfe_drake.worlds.world_file import WorldSpec, resolve_world_path, world_problems
+from pcvfe_drake.yaml_unique import UniqueKeyLoader
 
 _YAML12_FLOAT = re.compile(r"^[-+]?(\.[0-9]+|[0-9]+(\.[0-9]*)?)([eE][-+]?[0-9]+)?$")
 """A number in YAML 1.2's core schema (PyYAML's YAML 1.1 needs a dot before an exponent)."""
 
 
-class _TaggedLoader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):
-    """YAML's safe loader (libyaml's where available: large world files load fast) that reads a
+class _TaggedLoader(UniqueKeyLoader):
+    """YAML's safe loader (libyaml's where available: large world files load fast; a key given
+    twice in one mapping refused, ``pcvfe_drake.yaml_unique``) that reads a
     tagged mapping (``!Probe {hold_s: 3}``, Drake's variant syntax) as the mapping plus a
     ``"_tag": "!Probe"`` key, the form ``yaml_load_data(private=True)`` gives and the schema
     check reads, so one reader serves every file."""
@@ -229,15 +234,76 @@ def load_scenario(path_or_name: str | Path | None = None, *overrides: str | Path
     scenario file that names it (``resolve_file_field``) and stored as an absolute path.
     """
     scenario = None
+    origin: dict[str, Path] = {}
     for layer in (path_or_name, *overrides):
         path = resolve_scenario_path(layer)
         before = scenario
         text = read_yaml_file(path)
-        scenario = scenario_from_yaml_text(text, source=str(path), defaults=scenario)
-        scenario = _resolve_files(scenario, before, path)
-    if scenario.vehicle not in PRESETS:
-        load_vehicle(scenario.vehicle)  # its fields checked now, before any run starts
+        defaults = scenario if scenario is not None else Scenario()
+        scenario = load_typed_yaml(Scenario, text, str(path), "scenario", defaults)
+        scenario = _resolve_files(scenario, before, path)  # before the values are checked
+        changed = before is None or scenario.vehicle != before.vehicle
+        if changed and scenario.vehicle.strip():  # an empty one: named by validate
+            load_vehicle(scenario.vehicle)  # its own values first, then what the fitter needs
+        scenario.validate(str(path))
+        for f in dataclasses.fields(Scenario):
+            if before is None or getattr(before, f.name) != getattr(scenario, f.name):
+                origin[f.name] = path
+    check_scenario_resources(scenario, {k: str(v) for k, v in origin.items()})
     return scenario
+
+
+def world_from_yaml_text(text: str, source: str = "<string>") -> WorldSpec:
+    """Parse and check world YAML ``text``; errors are one line naming ``source`` and the field."""
+    world = load_typed_yaml(WorldSpec, text, source, "world")
+    problems = world_problems(world)
+    if problems:
+        raise ValueError(f"{source}: invalid world: " + "; ".join(problems))
+    return world
+
+
+def check_scenario_resources(scenario: Scenario, origin: dict[str, str] | None = None) -> None:
+    """Check what a scenario names beyond its own values, before any run starts: its vehicle
+    file, its world (a file or a shipped name) and the terrains it changes there, its
+    integration scheme, its CLIP folder, and an initial speed and a speed cap within the
+    vehicle's top speed.
+    A problem is a ``ValueError`` naming the file that set the field (``origin``: field name to
+    file; default ``"scenario"``) and the field, so that a user learns it from one line, not from
+    a run that stops at its first step."""
+    origin = origin or {}
+
+    def where(field: str) -> str:
+        return origin.get(field, f"scenario {scenario.name!r}")
+
+    vehicle = load_vehicle(scenario.vehicle)  # a file's fields are checked here
+    if scenario.initial_speed_mps > vehicle.v_max:
+        raise ValueError(
+            f"{where('initial_speed_mps')}: initial_speed_mps={scenario.initial_speed_mps!r} is "
+            f"above the top speed of the vehicle {vehicle.name!r} (v_max={vehicle.v_max:g} m/s)"
+        )
+    cap = scenario.nmpc.max_speed_mps
+    if cap is not None and cap > vehicle.v_max:
+        raise ValueError(
+            f"{where('nmpc')}: nmpc.max_speed_mps={cap!r} is above the top speed of the vehicle "
+            f"{vehicle.name!r} (v_max={vehicle.v_max:g} m/s)"
+        )
+    try:
+        world_path = resolve_world_path(scenario.world)
+    except FileNotFoundError as exc:
+        raise ValueError(f"{where('world')}: world: {exc}") from exc
+    world = world_from_yaml_text(read_yaml_file(world_path, "world"), str(world_path))
+    apply_overrides(world, scenario.terrains, source=where("terrains"))
+    schemes = GetIntegrationSchemes()
+    if scenario.simulator.integration_scheme not in schemes:
+        raise ValueError(
+            f"{where('simulator')}: simulator.integration_scheme="
+            f"{scenario.simulator.integration_scheme!r} is not one of {schemes}"
+        )
+    if scenario.uses_clip and not Path(scenario.features.backend).is_dir():
+        raise ValueError(
+            f"{where('features')}: features.backend={scenario.features.backend!r}: not a CLIP "
+            "model folder (a folder holding clip.json; or 'descriptor'; docs/perception.md)"
+        )
 
 
 def _is_shipped_name(field: str, value: str) -> bool:
@@ -253,7 +319,8 @@ def _is_shipped_name(field: str, value: str) -> bool:
 
 
 PATH_FIELDS = ("vehicle", "course", "world")
-"""Scenario fields that name a file when they do not name something shipped."""
+"""Scenario fields that name a file when they do not name something shipped (and
+``fitter.model.file``, always a file)."""
 
 
 def _resolve_files(scenario: Scenario, before: Scenario | None, path: Path) -> Scenario:
@@ -267,6 +334,12 @@ def _resolve_files(scenario: Scenario, before: Scenario | None, path: Path) -> S
             continue  # set by an earlier layer (already resolved there)
         if not _is_shipped_name(field, value):
             changes[field] = resolve_file_field(value, path, field)
+    model = scenario.fitter.model
+    earlier = None if before is None else before.fitter.model.file
+    if isinstance(model.file, str) and model.file.strip() and model.file != earlier:
+        file = resolve_file_field(model.file, path, "fitter.model.file")
+        model = dataclasses.replace(model, file=file)
+        changes["fitter"] = dataclasses.replace(scenario.fitter, model=model)
     return dataclasses.replace(scenario, **changes) if changes else scenario
 
 

@@ -13,19 +13,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pcvfe_drake.control.course import Course, check_course_for_vehicle, load_course
-from pcvfe_drake.diagrams.scenario_io import load_typed_yaml, read_yaml_file
+from pcvfe_drake.diagrams.scenario_io import read_yaml_file, world_from_yaml_text
 from pcvfe_drake.perception.terrain import TerrainMap
 from pcvfe_drake.worlds.build import apply_overrides, build_terrain_map, check_course_on_world
-from pcvfe_drake.worlds.world_file import WorldSpec, resolve_world_path, world_problems
-
-
-def world_from_yaml_text(text: str, source: str = "<string>") -> WorldSpec:
-    """Parse and check world YAML ``text``; errors are one line naming ``source`` and the field."""
-    world = load_typed_yaml(WorldSpec, text, source, "world")
-    problems = world_problems(world)
-    if problems:
-        raise ValueError(f"{source}: invalid world: " + "; ".join(problems))
-    return world
+from pcvfe_drake.worlds.world_file import WorldSpec, resolve_world_path
 
 
 def load_world(path_or_name: str | Path, relative_to: Path | None = None) -> tuple[WorldSpec, Path]:
@@ -74,9 +65,11 @@ def build_world(
         raise ValueError(f"{where}: the world {spec.name!r} ({path}) has no course; name one")
     built = load_course(course_name)
     if check_course:
-        check_course_on_world(built, terrain_map, f"{where} (world {spec.name})")
+        check_course_on_world(
+            built, terrain_map, f"{where} (world {spec.name}, course {course_name})"
+        )
         if vehicle is not None:
-            check_course_for_vehicle(built, vehicle, f"{where} (course {built.name})")
+            check_course_for_vehicle(built, vehicle, f"{where} (course {course_name})")
     return World(spec, path, terrain_map, built)
 
 

@@ -1,23 +1,34 @@
 """Bad and unusual inputs through the ``pcvfe`` CLI, as a new user would give them: does every
-one end in a named error (or the documented degraded behaviour), never a traceback or a hang?
+one end in a named error (or the documented degraded behaviour), never a traceback, a hang, a
+silently wrong result or lost data?
 
-Each case runs ``pcvfe ...`` through ``pcvfe_drake.cli.main`` in this process (``--subprocess``:
-in a fresh interpreter, as a user's shell would) with a timeout, in a scratch folder with its own
-fixtures: a short run folder of ``paper_sim`` (2.5 s), a small results folder of ``pcvfe
-evaluate`` (written through ``ResultStore``, no runs), a small ROS 2 bag (written with
-``rosbags`` as ``tests/hardware/test_bag_import.py`` does) and a drive log. A case expects ``error``
-(refused: exit 2 with a ``pcvfe CMD: error:`` line), ``stopped`` (began, then stopped early:
-exit 1 with that line) or ``ok`` (accepted, maybe degraded: exit 0). Outcomes:
+The cases (``validation/_bad_inputs_cases.py``; the ``_`` keeps ``run_all.py`` from running it
+as a check) follow the categories of the project's first bad-input sweep, with at least its
+attempts per category. Each runs ``pcvfe ...`` through
+``pcvfe_drake.cli.main`` in this process (``--subprocess``: in a fresh interpreter, as a user's
+shell would) with a timeout and a cap on memory, in a scratch folder with its own fixtures: a
+short run folder of ``paper_sim`` (2.5 s), a small results folder of ``pcvfe evaluate`` (written
+through ``ResultStore``, no runs), a small ROS 2 bag (``tests/bag_writer.py``) and a drive log.
+A case expects ``error`` (refused: exit 2 with a ``pcvfe CMD: error:`` line naming the file and
+field it lists), ``stopped`` (began, then stopped early: exit 1 with that line) or ``ok``
+(accepted, maybe degraded: exit 0), and may check what was written or printed. Outcomes:
 
-- ``named``: as expected (a refusal with its one error line, or an accepted degraded input);
+- ``named``: refused as expected, the error line naming what the case lists;
+- ``degraded``: accepted (or stopped early) as documented, its outputs there;
 - ``traceback``: stderr holds a Python traceback;
 - ``internal``: exit 70, the CLI's internal error (a bug, said as such);
-- ``hang``: the timeout ran out (``--timeout``, default 120 s);
-- ``wrong``: a refusal that was accepted, or an accepted input that was refused.
+- ``hang``: the timeout ran out (``--timeout``), or unbounded work: a MemoryError under the
+  sweep's memory cap (``--memory-gb``), more than ``MAX_WRITTEN_MB`` written, or the process grown
+  by more than ``MAX_GROWTH_MB``;
+- ``wrong``: silently wrong: a refusal that was accepted, an accepted input that was refused, or
+  a result that says what it should not;
+- ``lost``: data lost: an output the run should have written is missing or unreadable;
+- ``vague``: refused, but the error line does not name the file or the field.
 
-Usage: python validation/bad_inputs_sweep.py [--only CATEGORY] [--timeout S] [--keep DIR]
-       [--subprocess]
-Prints one table per category (with each case that is not ``named``), then one JSON object.
+Usage: python validation/bad_inputs_sweep.py [--only CATEGORY] [--match TEXT] [--quick]
+       [--timeout S] [--memory-gb GB] [--keep DIR] [--subprocess] [--verbose]
+Prints one table per category (with each case that is neither ``named`` nor ``degraded``), then
+one JSON object (target, passed, counts, rows).
 """
 
 from __future__ import annotations
@@ -34,387 +45,56 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-import pandas as pd
-import yaml
-
-ROOT = Path(__file__).resolve().parents[1]
-PCVFE = [sys.executable, "-m", "pcvfe_drake.cli"]
-
-
-# ----------------------------------------------------------------------------- fixtures
-def make_run(work: Path) -> Path:
-    run = work / "fixture_run"
-    cmd = [*PCVFE, "simulate", "--duration", "2.5", "--no-meshcat", "--no-progress", "--out"]
-    subprocess.run([*cmd, str(run)], check=True, capture_output=True, cwd=work)
-    return run
-
-
-def make_results(work: Path) -> Path:
-    from pcvfe_drake.evaluation.store import ResultStore
-
-    store = ResultStore(work / "fixture_results")
-    store.start({"name": "tiny", "sources": [{"name": "pcvfe"}, {"name": "fixed"}]}, {"x": 1})
-    for source in ("pcvfe", "fixed"):
-        for seed in (0, 1):
-            t = np.arange(50) * 0.1
-            buffer = io.BytesIO()
-            pd.DataFrame({"t": t, "mu_hat": 0.5 + 0 * t}).to_parquet(buffer)
-            spec = {
-                "run_id": f"paper_sim__{source}__s00{seed}",
-                "experiment": "tiny",
-                "scenario_name": "paper_sim",
-                "source": source,
-                "seed": seed,
-                "spec_hash": "h",
-                "scenario": {"name": "paper_sim", "course": "slalom"},
-            }
-            summary = {"sim_time_s": 5.0, "wall_time_s": 1.0, "mean_speed_mps": 5.0 + seed}
-            result = {"status": "done", "summary": summary, "drive_log_parquet": buffer.getvalue()}
-            store.record(spec, result)
-    return store.root
-
-
-def make_bag(work: Path) -> Path:
-    sys.path.insert(0, str(ROOT / "tests"))
-    from rosbags.rosbag2 import StoragePlugin
-    from test_bag_import import write_bag
-
-    bag = work / "fixture_bag"
-    write_bag(bag, StoragePlugin.MCAP)
-    return bag
-
-
-def make_log(work: Path) -> Path:
-    from pcvfe_drake.models.synthetic_drive import drive_frame, s_curve_drive
-    from pcvfe_drake.vehicle.params import ford_escort
-
-    path = work / "fixture_log.csv"
-    t, states, inputs = s_curve_drive(ford_escort(), [0.8], duration_s=10.0)
-    drive_frame(t, states[0], inputs[0]).to_csv(path, index=False)
-    return path
-
-
-# ----------------------------------------------------------------------------- cases
-class Case:
-    """One CLI call: ``args`` (strings, ``{name}`` filled from the fixtures), files to write
-    first (``{relative path: text}``), a damage to a copy of a fixture, the expected outcome."""
-
-    def __init__(self, category, name, args, expect="error", files=None, damage=None):
-        self.category, self.name, self.args = category, name, args
-        self.expect, self.files, self.damage = expect, files or {}, damage
-
-
-def _zero(path: Path, frac: float, size: int) -> None:
-    data = bytearray(path.read_bytes())
-    start = int(len(data) * frac)
-    data[start : start + size] = bytes(size)
-    path.write_bytes(bytes(data))
-
-
-def _vehicle(**changes) -> str:
-    from pcvfe_drake.vehicle.params import roboracer
-
-    data = roboracer().to_dict()
-    data.pop("name")
-    data.update(changes)
-    return yaml.safe_dump(data)
-
-
-def cases() -> list[Case]:
-    out: list[Case] = []
-    sim = ["simulate", "--no-meshcat", "--no-progress", "--out", "{tmp}/run"]
-
-    def scenario(name, text, expect="error"):
-        out.append(
-            Case(
-                "scenario files", name, [sim[0], "{tmp}/s.yaml", *sim[1:]], expect, {"s.yaml": text}
-            )
-        )
-
-    scenario("not YAML", "rates: [: :\n")
-    scenario("a list", "- 1\n")
-    scenario("unknown field", "ratez: {}\n")
-    scenario("wrong type", "seed: many\n")
-    scenario("NaN duration", "duration_s: .nan\n")
-    scenario("negative laps", "laps: -1\n")
-    scenario("derived field", "nmpc: {dt_s: 0.1}\n")
-    scenario("log period 1e-6", "rates: {log_period_s: 1.0e-6}\n")
-    scenario("fitter sampling 1e-5", "rates: {fitter_sample_period_s: 1.0e-5}\n")
-    scenario("camera 1e-4", "rates: {camera_period_s: 1.0e-4}\n")
-    scenario("max_duration 1e9", "max_duration_s: 1.0e9\n")
-    scenario("integrator step 1e-7", "simulator: {max_step_size: 1.0e-7}\n")
-    scenario("horizon 100000", "nmpc: {horizon: 100000}\n")
-    scenario("negative max speed", "nmpc: {max_speed_mps: -3.0}\n")
-    scenario("unknown layout", "terrain_layout: moon\n")
-    scenario("unknown truth model", "truth_model: magic\n")
-    scenario("vehicle file missing", "vehicle: none.yaml\n")
-    scenario("course file missing", "course: none.yaml\n")
-    scenario("binary file", "\x00\x01\x02")
-    out.append(
-        Case(
-            "scenario files",
-            "duration 1e9 on the command line",
-            ["simulate", "--duration", "1e9", *sim[1:]],
-        )
-    )
-    out.append(Case("scenario files", "negative seed", ["simulate", "--seed", "-1", *sim[1:]]))
-    out.append(Case("scenario files", "a folder as scenario", ["simulate", "{tmp}", *sim[1:]]))
-
-    def layer(name, text, expect="error"):
-        out.append(
-            Case(
-                "--with layering",
-                name,
-                [sim[0], "--with", "{tmp}/l.yaml", *sim[1:]],
-                expect,
-                {"l.yaml": text},
-            )
-        )
-
-    layer("unknown nested field", "nmpc: {horizont: 30}\n")
-    layer("not YAML", "rates: [: :\n")
-    layer("a list", "- 1\n")
-    layer("derived field", "clustering: {frame_rate_hz: 5.0}\n")
-    layer("course beside the layer missing", "course: c.yaml\n")
-    out.append(
-        Case("--with layering", "layer missing", [sim[0], "--with", "{tmp}/none.yaml", *sim[1:]])
-    )
-
-    def course(name, text, expect="error"):
-        out.append(
-            Case(
-                "course YAML",
-                name,
-                [sim[0], "{tmp}/s.yaml", *sim[1:]],
-                expect,
-                {"s.yaml": "course: c.yaml\nduration_s: 0.2\nlaps: null\n", "c.yaml": text},
-            )
-        )
-
-    course("not YAML", "radius_m: [: :\n")
-    course("a list", "- 1\n")
-    course("unknown field", "no_such_field: 3\n")
-    out.append(
-        Case(
-            "course YAML",
-            "unknown shipped name",
-            [sim[0], "{tmp}/s.yaml", *sim[1:]],
-            files={"s.yaml": "course: nowhere\n"},
-        )
-    )
-
-    fit_vehicle = ["fit", "{tmp}/never_read.csv", "--vehicle", "{tmp}/car.yaml"]
-    for name, changes in [
-        ("g = 0", {"g": 0.0}),
-        ("g < 0", {"g": -9.81}),
-        ("boolean mass", {"m": True}),
-        ("text mass", {"m": "heavy"}),
-        ("10 rad steering", {"delta_max": 10.0}),
-        ("100 m centre of gravity", {"h": 100.0}),
-        ("50 m front axle", {"lf": 50.0}),
-        ("mu 0", {"mu": 0.0}),
-        ("steering rate 100 rad/s", {"delta_dot_max": 100.0}),
-        ("wheelbase longer than the car", {"length": 0.3}),
-        ("unknown field", {"bogus": 3}),
-    ]:
-        out.append(Case("vehicle YAML", name, fit_vehicle, files={"car.yaml": _vehicle(**changes)}))
-    out.append(Case("vehicle YAML", "not YAML", fit_vehicle, files={"car.yaml": "m: [: :\n"}))
-    out.append(Case("vehicle YAML", "unknown preset", ["fit", "{tmp}/x.csv", "--vehicle", "kart"]))
-
-    replay = ["replay", "{copy}", "--out", "{tmp}/replayed", "--no-progress"]
-
-    def damaged_run(name, damage, expect="error"):
-        out.append(
-            Case("replay of damaged run folders", name, replay, expect, damage=("run", damage))
-        )
-
-    frames = lambda f: sorted((f / "frames").glob("*.png"))  # noqa: E731
-    damaged_run("no drive log", lambda f: (f / "drive_log.csv").unlink())
-    damaged_run("no scenario.yaml", lambda f: (f / "scenario.yaml").unlink())
-    damaged_run("garbled scenario.yaml", lambda f: (f / "scenario.yaml").write_text("[: :"))
-    damaged_run("empty drive log", lambda f: (f / "drive_log.csv").write_text(""))
-    cut = (
-        lambda f, n: (f / "drive_log.csv").write_text(  # noqa: E731 (a killed writer)
-            "\n".join((f / "drive_log.csv").read_text().splitlines()[:6])[:-n] + "\n"
-        )
-    )
-    damaged_run("drive log cut in a row's state", lambda f: cut(f, 1590))
-    damaged_run("drive log cut in a row's features (that row skipped)", lambda f: cut(f, 300), "ok")
-    damaged_run("garbled samples", lambda f: (f / "fitter_samples.npz").write_bytes(b"x"))
-    damaged_run("a frame missing", lambda f: frames(f)[0].unlink())
-    damaged_run(
-        "a frame unreadable (stops early)", lambda f: frames(f)[-1].write_bytes(b"x"), "stopped"
-    )
-    damaged_run("no samples (not exact, said)", lambda f: (f / "fitter_samples.npz").unlink(), "ok")
-    out.append(
-        Case(
-            "replay of damaged run folders",
-            "not a folder or a log",
-            ["replay", "{tmp}/none", "--out", "{tmp}/r"],
-        )
-    )
-    out.append(
-        Case(
-            "replay of damaged run folders",
-            "--out is the source",
-            ["replay", "{copy}", "--out", "{copy}"],
-            damage=("run", lambda f: None),
-        )
-    )
-
-    report = ["evaluate", "--report", "{copy}"]
-
-    def damaged_results(name, damage, expect="error"):
-        out.append(
-            Case(
-                "evaluate --report on damaged folders",
-                name,
-                report,
-                expect,
-                damage=("results", damage),
-            )
-        )
-
-    run0 = "runs/paper_sim__pcvfe__s000"
-    damaged_results("runs.parquet garbled", lambda f: (f / "runs.parquet").write_text("x"))
-    damaged_results("runs.parquet empty", lambda f: (f / "runs.parquet").write_bytes(b""))
-    damaged_results(
-        "runs.parquet another table",
-        lambda f: pd.DataFrame({"a": [1]}).to_parquet(f / "runs.parquet"),
-    )
-    damaged_results("runs.parquet missing", lambda f: (f / "runs.parquet").unlink())
-    damaged_results("laps.parquet garbled", lambda f: (f / "laps.parquet").write_text("x"))
-    damaged_results("experiment.yaml garbled", lambda f: (f / "experiment.yaml").write_text("[:"))
-    damaged_results("experiment.yaml a list", lambda f: (f / "experiment.yaml").write_text("- 1"))
-    damaged_results("environment.json garbled", lambda f: (f / "environment.json").write_text("{"))
-    damaged_results(
-        "a drive log garbled (drawn around)",
-        lambda f: (f / run0 / "drive_log.parquet").write_text("x"),
-        "ok",
-    )
-    damaged_results(
-        "a drive log missing (drawn around)",
-        lambda f: (f / run0 / "drive_log.parquet").unlink(),
-        "ok",
-    )
-    damaged_results(
-        "a summary.json garbled (tables used)",
-        lambda f: (f / run0 / "summary.json").write_text("{"),
-        "ok",
-    )
-    damaged_results(
-        "a scenario.yaml garbled (no map)",
-        lambda f: (f / run0 / "scenario.yaml").write_text("[:"),
-        "ok",
-    )
-    damaged_results("runs/ missing (drawn around)", lambda f: shutil.rmtree(f / "runs"), "ok")
-    out.append(
-        Case(
-            "evaluate --report on damaged folders",
-            "an empty folder",
-            ["evaluate", "--report", "{tmp}"],
-        )
-    )
-
-    bag = ["import-bag", "{copy}", "--out", "{tmp}/log/drive.csv"]
-    data = lambda f: next(f.glob("*.mcap"))  # noqa: E731 (named after the bag's folder)
-
-    def damaged_bag(name, damage, extra=(), expect="error"):
-        out.append(Case("import-bag", name, [*bag, *extra], expect, damage=("bag", damage)))
-
-    damaged_bag("metadata.yaml not YAML", lambda f: (f / "metadata.yaml").write_text("a: [: :"))
-    damaged_bag("metadata.yaml missing", lambda f: (f / "metadata.yaml").unlink())
-    damaged_bag("metadata.yaml empty", lambda f: (f / "metadata.yaml").write_text(""))
-    damaged_bag("metadata.yaml a list", lambda f: (f / "metadata.yaml").write_text("- a\n"))
-    damaged_bag(
-        "metadata.yaml without files",
-        lambda f: (f / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n"),
-    )
-    damaged_bag("storage file missing", lambda f: data(f).unlink())
-    damaged_bag("storage file empty", lambda f: data(f).write_bytes(b""))
-    damaged_bag("storage file noise", lambda f: data(f).write_bytes(os.urandom(4000)))
-    damaged_bag(
-        "storage file truncated",
-        lambda f: data(f).write_bytes(data(f).read_bytes()[: data(f).stat().st_size // 2]),
-    )
-    for frac in (0.2, 0.5, 0.65, 0.8):
-        damaged_bag(f"zeroed chunk at {frac:.0%}", lambda f, x=frac: _zero(data(f), x, 4096))
-    damaged_bag(
-        "zeroed chunk at 65 %, --lenient", lambda f: _zero(data(f), 0.65, 4096), ["--lenient"], "ok"
-    )
-    damaged_bag(
-        "metadata counts more messages",
-        lambda f: (f / "metadata.yaml").write_text(
-            (f / "metadata.yaml").read_text().replace("message_count: 300", "message_count: 400")
-        ),
-    )
-    out.append(
-        Case(
-            "import-bag",
-            "a mapped topic not in the bag",
-            [*bag, "--mapping", "{tmp}/m.yaml"],
-            files={"m.yaml": "imu: {topic: /imu}\n"},
-            damage=("bag", lambda f: None),
-        )
-    )
-    out.append(
-        Case("import-bag", "no such bag", ["import-bag", "{tmp}/none", "--out", "{tmp}/x.csv"])
-    )
-
-    features = lambda *a: ["features", *a]  # noqa: E731
-    for name, args, files in [
-        ("missing image", features("{tmp}/none.png"), {}),
-        ("not an image", features("{tmp}/t.png"), {"t.png": "text"}),
-        ("a folder", features("{tmp}"), {}),
-        ("--top 0", features("{tmp}/t.png", "--top", "0"), {"t.png": "text"}),
-        ("missing CLIP folder", features("{tmp}/t.png", "--clip", "{tmp}/none"), {"t.png": "t"}),
-        ("negative lambda", features("{tmp}/t.png", "--lambda-c", "-1"), {"t.png": "t"}),
-        ("NaN lambda", features("{tmp}/t.png", "--lambda-c", "nan"), {"t.png": "t"}),
-    ]:
-        out.append(Case("features", name, args, files=files))
-
-    for command in ("fit", "diagnose"):
-        for rate in ("1e6", "1001", "0", "-5", "nan"):
-            out.append(
-                Case(
-                    "diagnose / fit",
-                    f"{command} --resample {rate}",
-                    [command, "{log}", "--resample", rate],
-                )
-            )
-        out.append(Case("diagnose / fit", f"{command} on a missing log", [command, "{tmp}/n.csv"]))
-        out.append(
-            Case(
-                "diagnose / fit",
-                f"{command} on a binary log",
-                [command, "{tmp}/b.csv"],
-                files={"b.csv": "\x00\x01\x02\x03"},
-            )
-        )
-    return out
-
+from _bad_inputs_cases import (  # beside this script (the suite skips _-prefixed files)
+    PCVFE,
+    Case,
+    cases,
+    make_bag,
+    make_log,
+    make_results,
+    make_run,
+    more_cases,
+)
 
 # ----------------------------------------------------------------------------- running
-def classify(case: Case, code: int | None, err: str) -> str:
+OUTCOMES = ("named", "degraded", "traceback", "internal", "hang", "wrong", "lost", "vague")
+"""``named``: refused with one error line; ``degraded``: accepted (or stopped early) as
+documented; ``hang``: past the timeout, or unbounded (more than ``MAX_WRITTEN_MB`` written, or
+the process grew by more than ``MAX_GROWTH_MB``); ``wrong``: silently wrong (nonsense accepted, a
+good input refused, a wrong result); ``lost``: data lost (an output that should be there is not);
+``vague``: refused, but the error line does not name the file or field."""
+
+MAX_WRITTEN_MB = 100.0
+"""More than this written under a case's scratch folder is unbounded work [MB]."""
+
+MAX_GROWTH_MB = 3000.0
+"""More than this growth of the sweep's peak memory during one case is unbounded work [MB]."""
+
+
+def classify(case: Case, code: int | None, err: str, says: tuple[str, ...] = ()) -> str:
     if code is None:
         return "hang"
+    if "MemoryError" in err or "Cannot allocate memory" in err:
+        return "hang"  # unbounded: it asked for more memory than the sweep allows
     if "Traceback (most recent call last)" in err:
         return "traceback"
     if code == 70:
         return "internal"
     if case.expect == "error":
-        return "named" if code == 2 and ": error: " in err else "wrong"
+        if not (code == 2 and ": error: " in err):
+            return "wrong"
+        line = next((x for x in err.splitlines() if ": error: " in x), "")
+        return "named" if all(w in line for w in says) else "vague"
     if case.expect == "stopped":  # began, then stopped early: exit 1 with the reason
-        return "named" if code == 1 and ": error: " in err else "wrong"
-    return "named" if code == 0 else "wrong"
+        return "degraded" if code == 1 and ": error: " in err else "wrong"
+    return "degraded" if code == 0 else "wrong"
 
 
 class _Timeout(BaseException):
     """Raised by the alarm: past every ``except Exception`` of the CLI, as a hang."""
 
 
-def _in_process(args: list[str], cwd: Path, timeout_s: float) -> tuple[int | None, str]:
+def _in_process(args: list[str], cwd: Path, timeout_s: float) -> tuple[int | None, str, str]:
     """``pcvfe_drake.cli.main(args)`` in this process (no interpreter start per case), in
     ``cwd``, its stdout and stderr captured; an exception that escapes the CLI is printed as a
     traceback; a SIGALRM after ``timeout_s`` ends it as a hang (exit None)."""
@@ -447,7 +127,32 @@ def _in_process(args: list[str], cwd: Path, timeout_s: float) -> tuple[int | Non
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, previous)
         os.chdir(here)
-    return code, err.getvalue()
+    return code, out.getvalue(), err.getvalue()
+
+
+def _peak_mb() -> float:
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _written_mb(folder: Path) -> float:
+    total = 0
+    for root, _, names in os.walk(folder):
+        for n in names:
+            try:
+                total += os.lstat(os.path.join(root, n)).st_size
+            except OSError:
+                pass
+    return total / 1e6
+
+
+def _writable_again(folder: Path) -> None:
+    """Undo the read-only folders of a case (``chattr +i``), so that it can be removed."""
+    subprocess.run(["chattr", "-R", "-i", str(folder)], capture_output=True)
+    for root, dirs, _ in os.walk(folder):
+        for d in dirs:
+            os.chmod(os.path.join(root, d), 0o755)
 
 
 def run_case(
@@ -455,27 +160,49 @@ def run_case(
 ) -> dict:
     tmp = Path(tempfile.mkdtemp(dir=work))
     for rel, text in case.files.items():
-        (tmp / rel).write_text(text)
+        (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
+        if isinstance(text, bytes):
+            (tmp / rel).write_bytes(text)
+        else:
+            (tmp / rel).write_text(text)
+    if case.prepare is not None:
+        case.prepare(tmp)
     names = {"tmp": str(tmp), "log": str(fixtures.get("log", ""))}
     if case.damage is not None:
         source, damage = case.damage
         copy = tmp / f"copy_{source}"
-        shutil.copytree(fixtures[source], copy)
+        if Path(fixtures[source]).is_dir():
+            shutil.copytree(fixtures[source], copy)
+        else:
+            copy = copy.with_suffix(Path(fixtures[source]).suffix)
+            shutil.copy2(fixtures[source], copy)
         damage(copy)
         names["copy"] = str(copy)
     args = [a.format(**names) for a in case.args]
+    says = tuple(w.format(**names) for w in case.says)
     t0 = time.perf_counter()
+    peak0 = _peak_mb()
     if in_process:
-        code, err = _in_process(args, tmp, timeout_s)
+        code, out, err = _in_process(args, tmp, timeout_s)
     else:
         try:
             done = subprocess.run(
                 [*PCVFE, *args], capture_output=True, text=True, timeout=timeout_s, cwd=tmp
             )
-            code, err = done.returncode, done.stderr
+            code, out, err = done.returncode, done.stdout, done.stderr
         except subprocess.TimeoutExpired as exc:
-            code, err = None, (exc.stderr or b"").decode(errors="replace")
-    outcome = classify(case, code, err)
+            code, out = None, ""
+            err = (exc.stderr or b"").decode(errors="replace")
+    seconds = time.perf_counter() - t0
+    outcome, why = classify(case, code, err, says), ""
+    written, growth = _written_mb(tmp), _peak_mb() - peak0
+    if outcome in ("named", "degraded") and (written > MAX_WRITTEN_MB or growth > MAX_GROWTH_MB):
+        outcome, why = "hang", f"unbounded: {written:.0f} MB written, memory +{growth:.0f} MB"
+    if outcome in ("named", "degraded") and case.check is not None:
+        found = case.check(tmp, out, err)
+        if found is not None:
+            outcome, why = found
+    _writable_again(tmp)
     shutil.rmtree(tmp, ignore_errors=True)
     last = err.strip().splitlines()[-1] if err.strip() else ""
     return {
@@ -484,8 +211,9 @@ def run_case(
         "expect": case.expect,
         "exit": code,
         "outcome": outcome,
-        "seconds": round(time.perf_counter() - t0, 1),
-        "stderr_last_line": last[:200],
+        "why": why,
+        "seconds": round(seconds, 1),
+        "stderr_last_line": last[:300],
     }
 
 
@@ -500,16 +228,34 @@ def main() -> int:
     parser.add_argument("--timeout", type=float, default=120.0, help="seconds per case")
     parser.add_argument("--keep", type=Path, default=None, help="scratch folder to keep")
     parser.add_argument(
+        "--memory-gb",
+        type=float,
+        default=6.0,
+        help="cap on the sweep's data memory (RLIMIT_DATA) [GiB]: a case asking for more ends "
+        "in a MemoryError, counted as unbounded (0: no cap)",
+    )
+    parser.add_argument("--verbose", action="store_true", help="one line per case as it ends")
+    parser.add_argument(
+        "--match", default=None, help="run only the cases whose name holds this text"
+    )
+    parser.add_argument(
         "--subprocess",
         action="store_true",
         help="one interpreter per case, as a shell runs it (slower: pydrake imports each time); "
         "default: every case in this process through pcvfe_drake.cli.main",
     )
     args = parser.parse_args()
-    selected = [c for c in cases() if args.only in (None, c.category)]
+    selected = [c for c in cases() + more_cases() if args.only in (None, c.category)]
+    if args.match is not None:
+        selected = [c for c in selected if args.match in c.name]
     if args.quick:
         seen = collections.Counter()
         selected = [c for c in selected if (seen.update([c.category]) or seen[c.category] <= 2)]
+    if args.memory_gb > 0:  # a case that asks for unbounded memory fails, not the machine
+        import resource
+
+        limit = int(args.memory_gb * 2**30)
+        resource.setrlimit(resource.RLIMIT_DATA, (limit, limit))
     work = Path(tempfile.mkdtemp(prefix="pcvfe_sweep_")) if args.keep is None else args.keep
     work.mkdir(parents=True, exist_ok=True)
     needed = {c.damage[0] for c in selected if c.damage is not None}
@@ -520,13 +266,18 @@ def main() -> int:
         for path in work.glob(f"fixture_{old}*"):
             shutil.rmtree(path) if path.is_dir() else path.unlink()
     fixtures = {name: makers[name](work) for name in sorted(needed)}
-    rows = [run_case(c, work, fixtures, args.timeout, not args.subprocess) for c in selected]
+    t_start = time.perf_counter()
+    rows = []
+    for c in selected:
+        rows.append(run_case(c, work, fixtures, args.timeout, not args.subprocess))
+        if args.verbose:
+            r = rows[-1]
+            print(f"{r['outcome']:>9} {r['seconds']:6.1f} s  {r['category']} / {r['case']}")
     by_category = collections.defaultdict(list)
     for r in rows:
         by_category[r["category"]].append(r)
     totals = collections.Counter()
-    outcomes = ("named", "traceback", "internal", "hang", "wrong")
-    header = f"{'category':<40} {'cases':>5} " + " ".join(f"{o:>9}" for o in outcomes) + "  exits"
+    header = f"{'category':<40} {'cases':>5} " + " ".join(f"{o:>9}" for o in OUTCOMES) + "  exits"
     print(header)
     for category, items in by_category.items():
         counts = collections.Counter(r["outcome"] for r in items)
@@ -534,28 +285,33 @@ def main() -> int:
         exits = collections.Counter(str(r["exit"]) for r in items)
         print(
             f"{category:<40} {len(items):>5} "
-            + " ".join(f"{counts[o]:>9}" for o in outcomes)
+            + " ".join(f"{counts[o]:>9}" for o in OUTCOMES)
             + "  "
             + ", ".join(f"{k}:{v}" for k, v in sorted(exits.items()))
         )
-    print(f"{'all':<40} {len(rows):>5} " + " ".join(f"{totals[o]:>9}" for o in outcomes))
+    print(f"{'all':<40} {len(rows):>5} " + " ".join(f"{totals[o]:>9}" for o in OUTCOMES))
     for r in rows:
-        if r["outcome"] != "named":
+        if r["outcome"] not in ("named", "degraded"):
             print(
                 f"  {r['outcome']}: {r['category']} / {r['case']} (exit {r['exit']}): "
-                f"{r['stderr_last_line']}"
+                f"{r['why'] or r['stderr_last_line']}"
             )
     if args.keep is None:
+        _writable_again(work)
         shutil.rmtree(work, ignore_errors=True)
-    passed = totals["named"] == len(rows)
-    target = "every case a named error or the documented degraded behaviour"
+    passed = totals["named"] + totals["degraded"] == len(rows)
+    target = (
+        "every case a named error or the documented degraded behaviour: 0 tracebacks, "
+        "0 hangs or unbounded runs, 0 silently wrong, 0 data lost"
+    )
+    print(f"wall time {time.perf_counter() - t_start:.0f} s for the cases")
     print(
         json.dumps(
             {
                 "target": target,
                 "passed": passed,
                 "cases": len(rows),
-                **{o: totals[o] for o in outcomes},
+                **{o: totals[o] for o in OUTCOMES},
                 "rows": rows,
             }
         )

@@ -53,7 +53,14 @@ def run(args: argparse.Namespace) -> int:
     backend = "clip" if args.clip is not None else args.backend
     extractor = make_extractor(backend, clip_dir=args.clip, lambda_c=args.lambda_c)
     images = [load_rgb(path) for path in args.images]
-    z = extractor.extract(images)
+    try:
+        z = extractor.extract(images)
+    except ValueError as exc:  # "images[k]: ..." from the extractor: name the file
+        text = str(exc)
+        for k, path in enumerate(args.images):
+            if text.startswith(f"images[{k}]:"):
+                raise ValueError(f"image {path}:{text[len(f'images[{k}]:') :]}") from exc
+        raise
     is_clip = isinstance(extractor, ClipFeatureExtractor)
     if args.json:
         out = {

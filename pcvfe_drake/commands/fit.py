@@ -416,6 +416,8 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.prior_rel < 0 or not math.isfinite(args.prior_rel):
         raise ValueError(f"--prior-rel must be >= 0, got {args.prior_rel}")
+    if not (math.isfinite(args.min_speed) and args.min_speed >= 0):
+        raise ValueError(f"--min-speed must be >= 0 m/s, got {args.min_speed}")
     if args.max_windows < 0 or args.max_windows == 1:
         raise ValueError(f"--max-windows must be 0 (all) or >= 2, got {args.max_windows}")
     from pcvfe_drake.models.data import find_log

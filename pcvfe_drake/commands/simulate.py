@@ -49,7 +49,7 @@ def register(subparsers) -> None:
         "what it changes)",
     )
     parser.add_argument(
-        "--out", type=Path, default=None, help="run folder (default: runs/<scenario>-<time>)"
+        "--out", type=_folder_arg, default=None, help="run folder (default: runs/<scenario>-<time>)"
     )
     parser.add_argument(
         "--overwrite",
@@ -99,6 +99,14 @@ def _check_args(args: argparse.Namespace) -> None:
         raise ValueError(f"--duration must be a positive number of seconds, got {args.duration}")
     if args.seed is not None and args.seed < 0:
         raise ValueError(f"--seed must be >= 0, got {args.seed}")
+
+
+def _folder_arg(text: str) -> Path:
+    """``--out``'s folder; an empty one (an unset shell variable) would be the working
+    directory, so it is refused."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("empty: give a run folder, or leave --out out for runs/")
+    return Path(text)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -13,6 +13,11 @@ descriptor's are O(1); far beyond, squared distances overflow to inf (from ~1e15
 exhausts memory. Larger vectors are treated like non-finite ones: a corrupt frame."""
 
 
+MAX_STORED = 10_000
+"""Most stored feature vectors: each re-clustering runs HDBSCAN over every stored one (time and
+memory grow with their count squared: 10 000 frames, ~0.8 GB of pairwise distances)."""
+
+
 @dataclass
 class ClusteringParams:
     """Settings of :class:`ContextClusterer`.
@@ -162,6 +167,13 @@ class ClusteringParams:
             raise ValueError(
                 "ClusteringParams: min_cluster_duration_s * frame_rate_hz must give at least 2 "
                 f"frames, got {self.min_cluster_duration_s!r} s * {self.frame_rate_hz!r} Hz"
+            )
+        if self.max_stored > MAX_STORED:
+            n = self.max_stored
+            raise ValueError(
+                f"ClusteringParams.max_stored={n!r} must be <= {MAX_STORED} frames (every "
+                f"re-clustering runs HDBSCAN over all of them: its pairwise distances alone would "
+                f"take ~{n * n * 8 / 1e9:.3g} GB)"
             )
         if self.max_stored < self.noise_capacity + self.min_reservoir:
             raise ValueError(

@@ -50,6 +50,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from pcvfe_drake.vehicle.params import G_MPS2, VehicleParams
+from pcvfe_drake.yaml_unique import load_unique
 
 SEGMENT_KINDS = ("straight", "arc", "scurve")
 
@@ -164,7 +165,10 @@ class CourseSpec:
         values = dict(data)
         segments = []
         seg_known = {f.name for f in dataclasses.fields(Segment)}
-        for i, seg in enumerate(values.pop("segments", []) or []):
+        listed = values.pop("segments", []) or []
+        if not isinstance(listed, list):
+            raise ValueError(f"segments must be a list of segments, got {listed!r}")
+        for i, seg in enumerate(listed):
             if not isinstance(seg, dict) or set(seg) - seg_known:
                 raise ValueError(
                     f"course segment {i}: {seg!r} must be a mapping with keys in "
@@ -424,6 +428,19 @@ def build_course(spec: CourseSpec) -> Course:
         )
 
     total = float(lengths.sum())
+    if total / spec.spacing_m > MAX_COURSE_SAMPLES:
+        raise ValueError(
+            f"course '{spec.name}': spacing_m={spec.spacing_m:g} gives "
+            f"{total / spec.spacing_m:.3g} samples of the {total:.1f} m lap (~"
+            f"{total / spec.spacing_m * COURSE_BYTES_PER_SAMPLE / 1e9:.3g} GB), more than "
+            f"{MAX_COURSE_SAMPLES}"
+        )
+    _require(
+        spec.spacing_m <= MAX_SPACING_M,
+        "spacing_m",
+        spec.spacing_m,
+        f"<= {MAX_SPACING_M:g} m (coarser samples cut the bends the controller follows)",
+    )
     if spec.smoothing_m > MAX_SMOOTHING_FRACTION * total:
         raise ValueError(
             f"course '{spec.name}': smoothing_m={spec.smoothing_m:g} is longer than "
@@ -479,6 +496,15 @@ def build_course(spec: CourseSpec) -> Course:
 
 MAX_CLOSURE_TOL_M = 0.5
 """Largest gap allowed between the end and the start of a course's segment chain [m]."""
+
+MAX_COURSE_SAMPLES = 1_000_000
+"""Most samples of a course (its lap over ``spacing_m``): 100 km at 0.1 m."""
+
+COURSE_BYTES_PER_SAMPLE = 200
+"""Memory of one course sample while it is built and used [bytes] (~25 float64 arrays)."""
+
+MAX_SPACING_M = 2.0
+"""Coarsest sample spacing [m]: a 2 m chord departs from a 2 m radius bend by 0.25 m."""
 
 MAX_SMOOTHING_FRACTION = 0.1
 """Largest curvature-smoothing window of a course as a fraction of its lap."""
@@ -549,7 +575,7 @@ def load_course_spec(spec: str | Path | None = None) -> CourseSpec:
             )
         text, source = path.read_text(), str(path)
     try:
-        data = yaml.safe_load(text)
+        data = load_unique(text)
     except yaml.YAMLError as exc:
         raise ValueError(f"course file {source}: not valid YAML: {exc}") from exc
     try:

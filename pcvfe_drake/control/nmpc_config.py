@@ -160,4 +160,8 @@ class NmpcConfig:
         need(0 <= self.steer_rate_fraction <= 1, "steer_rate_fraction", "in [0, 1] (0: off)")
         need(self.slack_linear >= 0 and self.slack_quadratic > 0, "slack_quadratic", "> 0")
         need(int(self.max_iter) >= 1, "max_iter", ">= 1")
+        for name in ("eps_abs", "eps_rel"):  # OSQP's tolerances: it refuses a negative one
+            value = getattr(self, name)
+            need(math.isfinite(value) and value >= 0, name, ">= 0 (an OSQP tolerance)")
+        need(self.eps_abs > 0 or self.eps_rel > 0, "eps_abs", "> 0 where eps_rel is 0")
         need(int(self.fallback_shift_steps) >= 0, "fallback_shift_steps", ">= 0")

@@ -320,6 +320,11 @@ def build_report(root: str | Path) -> tuple[Path, Path]:
             f"{store.root}` first"
         )
     runs = store.table("runs")
+    if runs.empty:  # an evaluation stopped before its first run: a report of nothing misleads
+        raise ValueError(
+            f"{store.root / 'runs.parquet'}: no runs recorded yet, nothing to report; run "
+            f"`pcvfe evaluate EXPERIMENT --out {store.root}` to record some"
+        )
     exp = store.experiment_dict()
     sources = _sources(store, runs)
     ref = _reference(store, sources)

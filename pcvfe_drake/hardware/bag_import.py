@@ -37,6 +37,8 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from pcvfe_drake.yaml_unique import load_unique
+
 MAPPING_DIR = Path(__file__).resolve().parents[1] / "data" / "bag_mappings"
 """Shipped mappings (``pcvfe_ros2``)."""
 
@@ -118,7 +120,12 @@ def load_mapping(name_or_path: str | Path) -> BagMapping:
                 f"mapping {str(name_or_path)!r} is neither a file nor a shipped mapping ({names})"
             )
         path = shipped
-    raw = yaml.safe_load(path.read_text()) or {}
+    try:
+        raw = load_unique(path.read_text()) or {}
+    except yaml.YAMLError as exc:
+        raise ValueError(f"mapping {path}: not valid YAML: {exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"mapping {path}: not a YAML file (not UTF-8 text)") from exc
     if not isinstance(raw, dict):
         raise ValueError(f"mapping {path}: must be a mapping of roles to settings")
     kwargs = {}

@@ -41,6 +41,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from pcvfe_drake.models.effects import get_effect
+from pcvfe_drake.yaml_unique import load_unique
 
 MODEL_DIR = Path(__file__).resolve().parents[1] / "data" / "vehicles"
 """Folder of the shipped vehicles' model files."""
@@ -222,7 +223,7 @@ def load_model_file(path: str | Path) -> EffectModel:
     if not path.is_file():
         raise FileNotFoundError(f"model file {path}: no such file")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = load_unique(path.read_text())
     except yaml.YAMLError as exc:
         raise ValueError(f"model file {path}: not valid YAML: {exc}") from exc
     if not isinstance(data, dict):
@@ -230,7 +231,11 @@ def load_model_file(path: str | Path) -> EffectModel:
     unknown = sorted(set(data) - set(MODEL_KEYS))
     if unknown:
         raise ValueError(f"model file {path}: unknown key(s) {unknown}; known: {list(MODEL_KEYS)}")
-    if not isinstance(data.get("effects", []), list):
+    if "effects" not in data:  # e.g. a vehicle file given as a model file
+        raise ValueError(
+            f"model file {path}: no 'effects' list (write 'effects: []' for the single-track model)"
+        )
+    if not isinstance(data["effects"], list):
         raise ValueError(f"model file {path}: 'effects' must be a list")
     try:
         return EffectModel(

@@ -101,7 +101,13 @@ def load_rgb(path: Path | str) -> np.ndarray:
         )
     if not path.is_file():
         raise FileNotFoundError(f"image {path} does not exist")
-    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    try:
+        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    except cv2.error as exc:  # OpenCV refuses a header that claims too many pixels
+        raise ValueError(
+            f"image {path} could not be decoded: its size is beyond OpenCV's limit "
+            f"({exc.err or 'too many pixels'})"
+        ) from exc
     if bgr is None:
         raise ValueError(f"image {path} could not be decoded")
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)

@@ -476,6 +476,13 @@ def scenario_problems(scenario: Scenario) -> list[str]:
         problems += _config_problems("fitter", s.fit_config)
         problems += _config_problems("nmpc", lambda: s.nmpc_config().validate())
         problems += _config_problems("ukf", s.ukf_config)
+    floor = s.fitter.handing.floor_mu
+    need(
+        _is_number(floor) and not mu_problem(floor),
+        "fitter.handing.floor_mu",
+        floor,
+        mu_problem(floor) if _is_number(floor) else "must be a number",
+    )
     need(bool(s.features.backend.strip()), "features.backend", s.features.backend, "empty")
     need(
         s.friction_mapping in FRICTION_SCALINGS,

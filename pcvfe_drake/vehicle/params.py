@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pcvfe_drake.yaml_unique import load_unique
+
 G_MPS2 = 9.81
 """Gravitational acceleration used by the CommonRoad models [m/s^2]."""
 
@@ -47,7 +49,7 @@ PHYSICAL_RANGES: dict[str, tuple[float, float]] = {
     "delta_dot_min": (-7.0, 0.0),
     "delta_dot_max": (0.0, 7.0),
     "v_min": (-100.0, 0.0),
-    "v_max": (0.0, 100.0),
+    "v_max": (0.1, 100.0),
     "v_switch": (0.01, 100.0),
     "a_max": (0.01, 50.0),
     "length": (0.05, 30.0),
@@ -59,13 +61,16 @@ PHYSICAL_RANGES: dict[str, tuple[float, float]] = {
 truck. Beyond them a value is a wrong unit or a typo (a steering limit in degrees, a centre of
 gravity in cm, g = 0): the drive-log format's unit checks use the same magnitudes (steering
 within 1.6 rad, steering rates within 7 rad/s, speeds within 100 m/s, accelerations within
-5 g, mu within 3), and g spans the Moon (1.6) to Jupiter (25)."""
+5 g, mu within 3), g spans the Moon (1.6) to Jupiter (25), and a top speed below 0.1 m/s is
+a car that cannot drive a course."""
 
 
 def vehicle_problems(p: VehicleParams) -> list[str]:
     """Every field of ``p`` outside its type or :data:`PHYSICAL_RANGES`, and the pairs out of
     order, as ``"field=value: reason"`` strings."""
     out = []
+    if not isinstance(p.name, str) or not p.name.strip():
+        out.append(f"name={p.name!r} must be a non-empty string")
     for f in dataclasses.fields(p):
         if f.name == "name" or (f.name == "track" and p.track is None):
             continue
@@ -311,7 +316,7 @@ def load_vehicle(spec: str | Path | None = None) -> VehicleParams:
     import yaml
 
     try:
-        data = yaml.safe_load(path.read_text())
+        data = load_unique(path.read_text())
     except yaml.YAMLError as exc:
         raise ValueError(f"vehicle file {path}: not valid YAML/JSON: {exc}") from exc
     if not isinstance(data, dict):

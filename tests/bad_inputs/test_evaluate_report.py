@@ -97,6 +97,10 @@ REFUSED = {
         "environment.json: not valid JSON",
     ),
     "no runs.parquet": (lambda f: (f / "runs.parquet").unlink(), "no runs.parquet here"),
+    "runs.parquet with no rows": (
+        lambda f: pd.read_parquet(f / "runs.parquet").iloc[:0].to_parquet(f / "runs.parquet"),
+        "runs.parquet: no runs recorded yet, nothing to report",
+    ),
     "report.md is a folder": (
         lambda f: ((f / "report.md").unlink(), (f / "report.md").mkdir()),
         "report.md: it is a folder",

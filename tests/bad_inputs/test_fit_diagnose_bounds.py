@@ -38,3 +38,10 @@ def test_the_resampled_rows_are_bounded_with_an_estimate():
     log = pd.DataFrame({"t": t, "sx": t})
     with pytest.raises(ValueError, match="long.csv: 3000 s at --resample 1000 Hz"):
         resample_log(log, 1000.0, source="long.csv")
+
+
+@pytest.mark.parametrize("speed", ["-1", "nan"])
+def test_a_negative_speed_filter_is_refused(tmp_path, capsys, speed):
+    assert main(["fit", str(tmp_path / "never_read.csv"), "--min-speed", speed]) == 2
+    err = capsys.readouterr().err
+    assert f"--min-speed must be >= 0 m/s, got {float(speed)}" in err and "Traceback" not in err

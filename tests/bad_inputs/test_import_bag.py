@@ -108,3 +108,17 @@ def test_a_zeroed_chunk_is_refused_then_imported_with_lenient(bags, tmp_path, ca
     assert lost > 0
     assert f"partial import of {bag}: {lost} rows lost" in text
     assert f"{log['t'].iloc[-1]:.2f}-2.99 s" in text  # the lost tail, on the log's clock
+
+
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [("imu: [: :\n", "not valid YAML"), ("imu: {topic: /a}\nimu: {topic: /b}\n", "given twice")],
+)
+def test_a_mapping_that_is_not_yaml_is_named(bags, tmp_path, capsys, text, words):
+    mapping = tmp_path / "m.yaml"
+    mapping.write_text(text)
+    bag = bags / "MCAP" / "bag"
+    argv = ["import-bag", str(bag), "--mapping", str(mapping), "--out", str(tmp_path / "x.csv")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"mapping {mapping}: not valid YAML" in err and words in err and "Traceback" not in err

@@ -34,6 +34,9 @@ CASES = [
     ({"length": 0.3}, "(the wheelbase) must fit within length=0.3 m"),
     ({"delta_dot_min": 1.0}, "delta_dot_min=1.0 is outside the physical range"),
     ({"bogus": 3}, "unknown vehicle parameter"),
+    ({"v_max": 0.0}, "v_max=0.0 is outside the physical range [0.1, 100]"),
+    ({"name": 5}, "name=5 must be a non-empty string"),
+    ({"m": float("nan")}, "m=nan is not finite"),
 ]
 
 
@@ -72,3 +75,22 @@ def test_every_preset_is_within_the_ranges():
 
     for make in PRESETS.values():
         assert vehicle_problems(make()) == []
+
+
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        ("vehicle: ford_escort\n", "no 'effects' list (write 'effects: []'"),
+        ("effects: [{name: drag, fixed: {CdA: 0.1}, std: {CdA: -1.0}}]\n", "must be >= 0"),
+        ("effects: []\neffects: [drag]\n", "key 'effects' given twice"),
+    ],
+)
+def test_a_bad_effect_model_file_is_named_when_the_scenario_loads(tmp_path, capsys, text, words):
+    (tmp_path / "m.yaml").write_text(text)
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text("fitter: {model: {file: m.yaml}}\n")
+    out = tmp_path / "run"
+    assert main(["simulate", str(scenario), "--no-meshcat", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "m.yaml" in err and words in err and "Traceback" not in err
+    assert not out.exists()
