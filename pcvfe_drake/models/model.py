@@ -115,6 +115,11 @@ RHS_HOOKS = (
 keeps the base class's, which changes nothing)."""
 
 
+def _plus(a, b):
+    """``a + b``, without the numpy call when ``b`` is the scalar 0 (a hook's "no change")."""
+    return a if isinstance(b, float | int) and b == 0 else a + b
+
+
 def _overrides(effect: Effect, hook: str) -> bool:
     return getattr(type(effect), hook) is not getattr(Effect, hook)
 
@@ -320,8 +325,9 @@ class WorkbenchModel:
         for e, _ in hooked["body_forces"]:
             out = e.body_forces(fyf, fyr, ctx, eff[e.name])
             if out is not None:
-                fyf, fyr, a_long = fyf + out[0], fyr + out[1], a_long + out[2]
-        ctx.a_lat = (fyf + fyr) / vp.m
+                fyf, fyr, a_long = (_plus(fyf, out[0]), _plus(fyr, out[1]), _plus(a_long, out[2]))
+        lateral = fyf + fyr
+        ctx.a_lat = lateral / vp.m
         zdot = np.empty_like(z)
         course = x[:, PSI] + beta
         zdot[:, 0] = v * np.cos(course)
@@ -330,7 +336,7 @@ class WorkbenchModel:
         zdot[:, V] = a_long
         zdot[:, PSI] = r
         zdot[:, PSI_DOT] = (vp.lf * fyf - vp.lr * fyr) / vp.I_z
-        zdot[:, BETA] = (fyf + fyr) / (vp.m * vd) - r
+        zdot[:, BETA] = lateral / (vp.m * vd) - r
         for e, sl in self._with_states:
             if not e.exact_states:
                 ctx.states = z[:, sl]
