@@ -202,14 +202,14 @@ class TrackSlip(Effect):
         vp = ctx.vehicle
         lever = vp.lf if ctx.axle == "front" else -vp.lr
         both = ctx.cache.get(self.name)  # what the axles share, formed once (ctx.cache)
-        if both is None:
+        if both is None or both[0] is not ctx.x or both[1] is not p:
             shift = p["k_lt"] * ctx.x[:, 3] * ctx.x[:, 5] / vp.g
             shift = np.minimum(np.maximum(shift, -MAX_LOAD_SHIFT), MAX_LOAD_SHIFT)
             # a left bend (a > 0): the left wheel is inner
-            both = (_wheel_velocities(ctx.x, p["t"]), 0.5 * (1.0 - shift))
+            both = (ctx.x, p, _wheel_velocities(ctx.x, p["t"]), 0.5 * (1.0 - shift))
             ctx.cache[self.name] = both
-        left, right = _axle_slip_offsets(both[0], lever)
-        return left, right, both[1]
+        left, right = _axle_slip_offsets(both[2], lever)
+        return left, right, both[3]
 
     def signature_regressors(self, data):
         x = data.x

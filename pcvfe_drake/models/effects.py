@@ -106,7 +106,9 @@ class StepContext:
         cache: values an effect computes once per evaluation and reuses in its later hook
             calls (both axles, both wheels), keyed by the effect's name: a rollout evaluates
             the right-hand side on a handful of rows, where each numpy call's overhead, not
-            its arithmetic, is the cost. Valid for this evaluation only (a new context each).
+            its arithmetic, is the cost. Valid for this evaluation only (a new context each);
+            an entry keeps the objects it was formed from and is formed afresh when a later
+            call passes others (a load, a stiffness, the parameters).
     """
 
     x: np.ndarray

@@ -63,6 +63,13 @@ def test_shared_values_are_reused_only_within_one_evaluation_and_for_the_same_in
     fresh = _ctx(x, mu)
     fresh.axle = "front"
     assert np.array_equal(other, tyre.tire(alphas[0], loads[1], c_alpha, p, fresh))
+    _, q = _params("peak_tyre", n, k_s=1.0)  # other parameters: formed afresh too
+    fresh = _ctx(x, mu)
+    fresh.axle = "front"
+    assert np.array_equal(
+        tyre.tire(alphas[0], loads[1], c_alpha, q, shared),
+        tyre.tire(alphas[0], loads[1], c_alpha, q, fresh),
+    )
 
     track, p = _params("track_slip", n, t=1.39, k_lt=-0.85)
     shared = _ctx(x, mu)
