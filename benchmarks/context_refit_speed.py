@@ -111,9 +111,8 @@ def main() -> int:
         )
         res["cpu_ratio_vs_st"] = res["cpu_median_s"] / st["cpu_median_s"]
         print(f"{spec} (incremental): {res}", flush=True)
-        batch = drive(
-            ContextEstimator(vp, LiveFitConfig(effects=effects, effect_incremental=False)), t, S, U
-        )
+        batch_config = LiveFitConfig(model=EffectModel(effects=effects), effect_incremental=False)
+        batch = drive(ContextEstimator(vp, batch_config), t, S, U)
         res["batch"] = batch
         res["speedup_vs_batch"] = batch["cpu_median_s"] / res["cpu_median_s"]
         res["mu_minus_batch_in_std"] = (res["mu"] - batch["mu"]) / batch["mu_std"]

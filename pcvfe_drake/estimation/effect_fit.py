@@ -49,14 +49,14 @@ from pcvfe_drake.models.data import (
     DriveData,
     denoised_delta_sigma,
     initial_state_estimates,
-    robust_noise_sigma,
+    robust_noise_sigmas,
     window_starts,
 )
 from pcvfe_drake.models.effect_model import parse_effects
 from pcvfe_drake.models.estimate import fit
 from pcvfe_drake.models.model import WorkbenchModel
 from pcvfe_drake.vehicle.params import VehicleParams
-from pcvfe_drake.vehicle.single_track import BETA, NX, PSI_DOT, V
+from pcvfe_drake.vehicle.single_track import BETA, PSI_DOT, V
 
 G_MPS2 = 9.81
 FRICTION_USED_QUANTILE = 0.95
@@ -67,6 +67,11 @@ COLD_MU_FACTORS = (1.0, 0.8, 0.6, 0.4)
 """Starts of a context's first fit: these factors on the starting mu (the prior's)."""
 COLD_ITERATION_FACTOR = 3
 """A context's first fit may take this many times ``max_iterations``."""
+JACOBIAN_AT_TRIALS_MAX_FREE = 2
+"""With at most this many fitted parameters the batch fit rolls each trial point out with its
+finite-difference rows (``estimate.fit``'s ``jacobian_at_trials``): on a context's buffer (at
+most ``max_windows`` windows) a rollout of up to 5 rows per window costs about what one row
+does (numpy's per-call overhead), so an accepted step costs one rollout instead of two."""
 STIFFNESS_PROBE_SLIP_RAD = 1e-4
 STIFFNESS_PROBE_SPEED_MPS = 10.0
 
@@ -206,7 +211,7 @@ def drive_data_from_arrays(t: np.ndarray, states: np.ndarray, inputs: np.ndarray
         x0[seg] = initial_state_estimates(x[seg], u[seg], dt)
     longest = max(np.split(np.arange(t.size), breaks), key=len)
     strides = max(1, int(round(NOISE_STRIDE_S / dt)))
-    sigma = np.array([robust_noise_sigma(x[longest, i], strides) for i in range(NX)])
+    sigma = robust_noise_sigmas(x[longest], strides)
     sigma = np.maximum(sigma, 1e-4 * np.maximum(np.ptp(x, axis=0), 1e-6))
     return DriveData(
         t,
@@ -373,6 +378,7 @@ class EffectFitter:
             burn_in=burn_in,
             fixed=self.fixed,
             hac_lag=self.hac_lag(),
+            jacobian_at_trials=self._free_cols.size <= JACOBIAN_AT_TRIALS_MAX_FREE,
         )
         result = to_result(self.model, res, starts.size, self.model_error_rel)
         result.data_end_s = float(data.t[starts[-1] + horizon])

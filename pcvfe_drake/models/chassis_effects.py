@@ -128,14 +128,24 @@ def wheel_slip_offsets(x, lever, track):
     ``atan(V / U) - atan(V / (U +- track r / 2))`` with ``U = v cos(beta)`` and ``V = v
     sin(beta) + lever r`` the axle's velocities (``lever``: lf front, -lr rear) and ``r`` the
     yaw rate, for states ``x`` (N, 7) and a track width ``track`` [m] (N,)."""
+    return _axle_slip_offsets(_wheel_velocities(x, track), lever)
+
+
+def _wheel_velocities(x, track):
+    """The parts of :func:`wheel_slip_offsets` both axles share: ``(U, v sin(beta), r, U of
+    the left wheel, U of the right wheel)``."""
     v, r, beta = x[:, 3], x[:, 5], x[:, 6]
     u = np.maximum(v * np.cos(beta), 0.5)
-    w = v * np.sin(beta) + lever * r
     half = 0.5 * track * r
+    floor = 0.1 * u
+    return u, v * np.sin(beta), r, np.maximum(u + half, floor), np.maximum(u - half, floor)
+
+
+def _axle_slip_offsets(parts, lever):
+    u, side, r, u_left, u_right = parts
+    w = side + lever * r
     centre = np.arctan2(w, u)
-    left = centre - np.arctan2(w, np.maximum(u + half, 0.1 * u))
-    right = centre - np.arctan2(w, np.maximum(u - half, 0.1 * u))
-    return left, right
+    return centre - np.arctan2(w, u_left), centre - np.arctan2(w, u_right)
 
 
 MAX_LOAD_SHIFT = 0.9
@@ -191,11 +201,15 @@ class TrackSlip(Effect):
     def wheel_slips(self, ctx, p):
         vp = ctx.vehicle
         lever = vp.lf if ctx.axle == "front" else -vp.lr
-        left, right = wheel_slip_offsets(ctx.x, lever, p["t"])
-        shift = np.clip(
-            p["k_lt"] * ctx.x[:, 3] * ctx.x[:, 5] / vp.g, -MAX_LOAD_SHIFT, MAX_LOAD_SHIFT
-        )
-        return left, right, 0.5 * (1.0 - shift)  # a left bend (a > 0): the left wheel is inner
+        both = ctx.cache.get(self.name)  # what the axles share, formed once (ctx.cache)
+        if both is None or both[0] is not ctx.x or both[1] is not p:
+            shift = p["k_lt"] * ctx.x[:, 3] * ctx.x[:, 5] / vp.g
+            shift = np.minimum(np.maximum(shift, -MAX_LOAD_SHIFT), MAX_LOAD_SHIFT)
+            # a left bend (a > 0): the left wheel is inner
+            both = (ctx.x, p, _wheel_velocities(ctx.x, p["t"]), 0.5 * (1.0 - shift))
+            ctx.cache[self.name] = both
+        left, right = _axle_slip_offsets(both[2], lever)
+        return left, right, both[3]
 
     def signature_regressors(self, data):
         x = data.x

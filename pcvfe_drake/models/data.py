@@ -68,17 +68,27 @@ def robust_noise_sigma(y: np.ndarray, max_stride: int = 1) -> float:
     stride 1 when it exceeds it by more than ``CORRELATED_NOISE_RATIO`` (for white noise they
     agree within a few percent).
     """
+    return float(robust_noise_sigmas(np.asarray(y)[:, None], max_stride)[0])
+
+
+def robust_noise_sigmas(y: np.ndarray, max_stride: int = 1) -> np.ndarray:
+    """:func:`robust_noise_sigma` of each column of ``y`` (n, k), (k,): the same numbers, the
+    differences and medians of all columns taken in one array operation each (the context
+    fitter estimates the noise of its whole buffer at every refit)."""
+    y = np.asarray(y, dtype=float)
     estimates = []
     for stride in range(1, max(1, int(max_stride)) + 1):
         d4 = y[stride * 4 :] - 4 * y[stride * 3 : -stride] + 6 * y[stride * 2 : -2 * stride]
         d4 = d4 - 4 * y[stride : -3 * stride] + y[: -4 * stride]
-        if d4.size < 5:
+        if d4.shape[0] < 5:
             break
-        estimates.append(float(1.4826 * np.median(np.abs(d4 - np.median(d4))) / np.sqrt(70.0)))
+        mad = np.median(np.abs(d4 - np.median(d4, axis=0)), axis=0)
+        estimates.append(1.4826 * mad / np.sqrt(70.0))
     if not estimates:
-        return float(np.std(y)) or 1.0
-    top = max(estimates)
-    return top if top > CORRELATED_NOISE_RATIO * estimates[0] else estimates[0]
+        out = np.std(y, axis=0)
+        return np.where(out == 0.0, 1.0, out)
+    top = np.max(estimates, axis=0)
+    return np.where(top > CORRELATED_NOISE_RATIO * estimates[0], top, estimates[0])
 
 
 @dataclass
@@ -248,7 +258,7 @@ def prepare(
         context = np.array([lookup[s] for s in labels], dtype=int)
         names = [s if s != "" else "unknown" for s in names]
     strides = max(1, int(round(NOISE_STRIDE_S / dt)))
-    sigma = np.array([robust_noise_sigma(x[:, i], strides) for i in range(x.shape[1])])
+    sigma = robust_noise_sigmas(x, strides)
     spread = np.maximum(np.ptp(x, axis=0), 1e-6)
     sigma = np.maximum(sigma, 1e-4 * spread)
     x0 = initial_state_estimates(x, u, dt)

@@ -37,7 +37,7 @@ rollout can evaluate many parameter vectors at once (finite-difference sensitivi
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
@@ -103,6 +103,12 @@ class StepContext:
         delta_wheel: the road-wheel angle [rad] (N,) (in ``body_forces``).
         a_lat: the lateral acceleration [m/s^2] (N,) the axles' forces give the car,
             ``(F_yf + F_yr) / m`` after the ``body_forces`` hooks (in ``state_rates``).
+        cache: values an effect computes once per evaluation and reuses in its later hook
+            calls (both axles, both wheels), keyed by the effect's name: a rollout evaluates
+            the right-hand side on a handful of rows, where each numpy call's overhead, not
+            its arithmetic, is the cost. Valid for this evaluation only (a new context each);
+            an entry keeps the objects it was formed from and is formed afresh when a later
+            call passes others (a load, a stiffness, the parameters).
     """
 
     x: np.ndarray
@@ -117,6 +123,7 @@ class StepContext:
     mu: np.ndarray | float = 1.0
     delta_wheel: np.ndarray | float = 0.0
     a_lat: np.ndarray | float = 0.0
+    cache: dict = field(default_factory=dict)
 
 
 class Effect:

@@ -140,6 +140,18 @@ def training_cost(model, theta, data, starts, horizon, burn_in: int = 0) -> floa
     return float(r @ r)
 
 
+def training_costs(model, thetas, data, starts, horizon, burn_in: int = 0) -> list[float]:
+    """:func:`training_cost` of each parameter vector in ``thetas`` from one batched rollout
+    (the vectors stacked along the batch axis, as the finite differences are): on a handful of
+    windows a rollout's cost is numpy's per-call overhead, whatever its rows."""
+    thetas = np.asarray(thetas, dtype=float)
+    n = starts.size
+    rows = np.repeat(thetas, n, axis=0)
+    e = whitened_errors(model, rows, data, np.tile(starts, len(thetas)), horizon, burn_in)
+    e = e.reshape(len(thetas), -1)
+    return [float(r @ r) for r in e]
+
+
 def fit(
     model: WorkbenchModel,
     data: DriveData,
@@ -155,6 +167,7 @@ def fit(
     prior_mean: np.ndarray | None = None,
     prior_sd: np.ndarray | None = None,
     hac_lag: int | None = None,
+    jacobian_at_trials: bool = False,
 ) -> FitResult:
     """Levenberg-Marquardt fit of all model parameters within their bounds (projected steps).
 
@@ -179,6 +192,11 @@ def fit(
         hac_lag: None (default): ``std`` as below; an integer: ``std`` from the sandwich with a
             Newey-West estimate over the windows in the order of ``starts`` (time order), with
             this many lags (``least_squares.hac_covariance``; the context fitter's choice).
+        jacobian_at_trials: roll each trial point out with its finite-difference rows (one
+            rollout per accepted step instead of two, a rejected one costing the rows of the
+            differences): the choice where a rollout's cost is its per-call overhead (few
+            windows and fitted parameters, the context fitter); default False (each
+            Jacobian costs 2P + 1 times the rows of a trial).
     Returns:
         FitResult. ``std`` = sqrt(diag(s^2 (J^T J)^-1)) with s^2 = cost / (n_residuals - P),
         multiplied by sqrt(n_residuals / n_eff): errors inside a window are strongly
@@ -196,7 +214,7 @@ def fit(
     theta = model.initial_theta() if theta0 is None else np.clip(theta0, lo, hi)
     if candidates:
         options = [theta] + [np.clip(c, lo, hi) for c in candidates]
-        costs = [training_cost(model, c, data, starts, horizon, burn_in) for c in options]
+        costs = training_costs(model, options, data, starts, horizon, burn_in)
         theta = options[int(np.argmin(costs))]
 
     fixed = np.zeros(model.n_params, bool) if fixed is None else np.asarray(fixed, bool)
@@ -230,7 +248,7 @@ def fit(
             lam_up=4.0,
             lam_down=3.0,
             max_rejections=8,
-            jacobian_at_trials=False,  # finite differences: 2P + 1 rollouts
+            jacobian_at_trials=jacobian_at_trials,
             predicted_check=False,
         ),
     )

@@ -79,18 +79,23 @@ class ParamInfo(EffectParam):
 def applied_inputs(x: np.ndarray, u: np.ndarray, vp: VehicleParams):
     """CommonRoad's input constraints (as ``pcvfe_drake.vehicle.single_track.constrain_inputs``,
     which also
-    returns derivatives) in the lean form the rollouts need: (steer_rate, accel), each (N,)."""
+    returns derivatives) in the lean form the rollouts need: (steer_rate, accel), each (N,).
+
+    The rollouts call it four times per step on a handful of rows, where numpy's per-call
+    overhead is the cost: the rare cases (a steering angle or a speed at its limit) are
+    found by one cheap test each before their masks are built."""
     delta, v = x[:, DELTA], x[:, V]
     steer = np.minimum(np.maximum(u[:, 0], vp.delta_dot_min), vp.delta_dot_max)
-    stop = ((delta <= vp.delta_min) & (steer <= 0)) | ((delta >= vp.delta_max) & (steer >= 0))
-    if stop.any():
-        steer = np.where(stop, 0.0, steer)
+    if (delta <= vp.delta_min).any() or (delta >= vp.delta_max).any():
+        stop = ((delta <= vp.delta_min) & (steer <= 0)) | ((delta >= vp.delta_max) & (steer >= 0))
+        steer[stop] = 0.0
     above = v > vp.v_switch
-    upper = np.where(above, vp.a_max * vp.v_switch / np.where(above, v, 1.0), vp.a_max)
+    # a_max v_switch / v above the switching speed, a_max below (one masked division)
+    upper = np.divide(vp.a_max * vp.v_switch, v, out=np.full(v.shape, vp.a_max), where=above)
     acc = np.minimum(np.maximum(u[:, 1], -vp.a_max), upper)
-    halt = ((v <= vp.v_min) & (acc <= 0)) | ((v >= vp.v_max) & (acc >= 0))
-    if halt.any():
-        acc = np.where(halt, 0.0, acc)
+    if (v <= vp.v_min).any() or (v >= vp.v_max).any():
+        halt = ((v <= vp.v_min) & (acc <= 0)) | ((v >= vp.v_max) & (acc >= 0))
+        acc[halt] = 0.0
     return steer, acc
 
 
@@ -108,6 +113,11 @@ RHS_HOOKS = (
 )
 """The :class:`Effect` hooks the right-hand side calls (each is skipped for an effect that
 keeps the base class's, which changes nothing)."""
+
+
+def _plus(a, b):
+    """``a + b``, without the numpy call when ``b`` is the scalar 0 (a hook's "no change")."""
+    return a if isinstance(b, float | int) and b == 0 else a + b
 
 
 def _overrides(effect: Effect, hook: str) -> bool:
@@ -174,6 +184,7 @@ class WorkbenchModel:
         self._hooked = {
             hook: [(e, sl) for e, sl in pairs if _overrides(e, hook)] for hook in RHS_HOOKS
         }
+        self._with_states = [(e, sl) for e, sl in pairs if e.n_states]
 
     # ------------------------------------------------------------------ composition
     def with_effects(self, *effects) -> WorkbenchModel:
@@ -286,13 +297,14 @@ class WorkbenchModel:
                 stiff = e.cornering_stiffness(c_s, ctx, eff[e.name])
                 if stiff is not None:
                     c_s = stiff
-            c_alpha = base["mu"] * scale * c_s * fz
-            side = 0.0
+            # (no friction hook: mu x 1.0 is mu, one multiplication less per evaluation)
+            c_alpha = (base["mu"] * scale if hooked["friction"] else base["mu"]) * c_s * fz
+            side = None
             for e, sl in hooked["tire_offsets"]:
                 ctx.states = z[:, sl]
                 out = e.tire_offsets(fz, ctx, eff[e.name])
                 if out is not None:
-                    alpha, side = alpha + out[0], side + out[1]
+                    alpha, side = alpha + out[0], out[1] if side is None else side + out[1]
             spread = None
             for e, sl in hooked["wheel_slips"]:
                 ctx.states = z[:, sl]
@@ -307,33 +319,35 @@ class WorkbenchModel:
                 fy = spread[2] * self._tire_law(alpha + spread[0], fz, c_alpha, ctx, eff) + (
                     1.0 - spread[2]
                 ) * self._tire_law(alpha + spread[1], fz, c_alpha, ctx, eff)
-            forces.append(fy + side)
+            forces.append(fy if side is None else fy + side)
         fyf, fyr = forces
         ctx.delta_wheel = delta_w
         for e, _ in hooked["body_forces"]:
             out = e.body_forces(fyf, fyr, ctx, eff[e.name])
             if out is not None:
-                fyf, fyr, a_long = fyf + out[0], fyr + out[1], a_long + out[2]
-        ctx.a_lat = (fyf + fyr) / vp.m
+                fyf, fyr, a_long = (_plus(fyf, out[0]), _plus(fyr, out[1]), _plus(a_long, out[2]))
+        lateral = fyf + fyr
+        ctx.a_lat = lateral / vp.m
         zdot = np.empty_like(z)
-        zdot[:, 0] = v * np.cos(x[:, PSI] + beta)
-        zdot[:, 1] = v * np.sin(x[:, PSI] + beta)
+        course = x[:, PSI] + beta
+        zdot[:, 0] = v * np.cos(course)
+        zdot[:, 1] = v * np.sin(course)
         zdot[:, DELTA] = steer
         zdot[:, V] = a_long
         zdot[:, PSI] = r
         zdot[:, PSI_DOT] = (vp.lf * fyf - vp.lr * fyr) / vp.I_z
-        zdot[:, BETA] = (fyf + fyr) / (vp.m * vd) - r
-        for e, sl in zip(self.effects, self._state_slices, strict=True):
-            if e.n_states and not e.exact_states:
+        zdot[:, BETA] = lateral / (vp.m * vd) - r
+        for e, sl in self._with_states:
+            if not e.exact_states:
                 ctx.states = z[:, sl]
                 zdot[:, sl] = e.state_rates(ctx, x[:, DELTA], eff[e.name])
-            elif e.n_states:
+            else:
                 zdot[:, sl] = 0.0
         return zdot
 
     def _tire_law(self, alpha, fz, c_alpha, ctx: StepContext, eff: dict):
         """Step 8's law at slip ``alpha``: linear, or the last ``tire`` hook's."""
-        fy = c_alpha * alpha
+        fy = None
         for e, _ in self._hooked["tire"]:
             if self._tire_takes_ctx[e.name]:
                 out = e.tire(alpha, fz, c_alpha, eff[e.name], ctx)
@@ -341,7 +355,7 @@ class WorkbenchModel:
                 out = e.tire(alpha, fz, c_alpha, eff[e.name])
             if out is not None:
                 fy = out
-        return fy
+        return c_alpha * alpha if fy is None else fy
 
     def stable_step(self, base: dict, speeds: np.ndarray, eff: dict | None = None) -> float:
         """Largest RK4 step [s] for the lateral dynamics at the lowest speed in ``speeds``.

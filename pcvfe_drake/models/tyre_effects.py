@@ -134,10 +134,26 @@ class PeakTyre(Effect):
     starts = ((1.0,), (0.0,), (0.5,))
 
     def tire(self, alpha, fz, c_alpha, p, ctx):
-        mu = np.maximum(np.asarray(ctx.mu, dtype=float), 1e-6)
-        peak = mu * ctx.mu_scale * np.maximum(fz, 1.0)
-        stiffness = c_alpha * (ctx.vehicle.mu / mu) ** (1.0 - p["k_s"])
-        return peak * np.sin(self.shape * np.arctan(stiffness * alpha / (self.shape * peak)))
+        # The model calls the law at two slips per axle (``wheel_slips``) with the same load
+        # and stiffness: the peak and the stiffness are formed once per axle (ctx.cache), for
+        # the same inputs (the same objects).
+        key = (self.name, ctx.axle)
+        axle = ctx.cache.get(key)
+        if (
+            axle is None
+            or axle[0] is not fz
+            or axle[1] is not c_alpha
+            or axle[2] is not p
+            or axle[3] is not ctx.mu
+            or axle[4] is not ctx.mu_scale
+        ):
+            mu = np.maximum(np.asarray(ctx.mu, dtype=float), 1e-6)
+            peak = mu * ctx.mu_scale * np.maximum(fz, 1.0)
+            stiffness = c_alpha * (ctx.vehicle.mu / mu) ** (1.0 - p["k_s"])
+            axle = (fz, c_alpha, p, ctx.mu, ctx.mu_scale, peak, stiffness, self.shape * peak)
+            ctx.cache[key] = axle
+        peak, stiffness, shape_peak = axle[5:]
+        return peak * np.sin(self.shape * np.arctan(stiffness * alpha / shape_peak))
 
     def stiffness_mu(self, mu, vehicle, p):
         mu = np.maximum(np.asarray(mu, dtype=float), 1e-6)
@@ -207,8 +223,12 @@ class RollCamber(Effect):
         return a, np.tanh(a / ROLL_SIGN_WIDTH_MPS2)
 
     def tire_offsets(self, fz, ctx, p):
-        a, s = self.direction(ctx.x)
-        return p["s0"] * s, fz * (p["f0"] * s + p["f1"] * a / ctx.vehicle.g)
+        both = ctx.cache.get(self.name)  # the same for both axles: formed once (ctx.cache)
+        if both is None or both[0] is not ctx.x or both[1] is not p:
+            a, s = self.direction(ctx.x)
+            both = (ctx.x, p, p["s0"] * s, p["f0"] * s + p["f1"] * a / ctx.vehicle.g)
+            ctx.cache[self.name] = both
+        return both[2], fz * both[3]
 
     def signature_regressors(self, data):
         return self.direction(data.x)[1][:, None]
