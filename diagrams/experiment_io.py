@@ -16,8 +16,8 @@ from pathlib import Path
 import yaml
 
 from pcvfe_drake.diagrams.scenario_io import (
+    load_checked_yaml,
     load_scenario,
-    load_typed_yaml,
     read_yaml_file,
     scenario_from_yaml_text,
 )
@@ -39,11 +39,7 @@ from pcvfe_drake.worlds.world_file import WORLD_DIR, resolve_world_path
 
 def experiment_from_yaml_text(text: str, source: str = "<string>") -> Experiment:
     """Parse experiment YAML ``text``; errors name ``source`` and the offending field."""
-    exp = load_typed_yaml(Experiment, text, source, "experiment")
-    problems = experiment_problems(exp)
-    if problems:
-        raise ValueError(f"{source}: invalid experiment: " + "; ".join(problems))
-    return exp
+    return load_checked_yaml(Experiment, text, source, "experiment", experiment_problems)
 
 
 def load_experiment(path_or_name: str | Path) -> tuple[Experiment, Path]:

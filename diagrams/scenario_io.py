@@ -253,13 +253,20 @@ def load_scenario(path_or_name: str | Path | None = None, *overrides: str | Path
     return scenario
 
 
+def load_checked_yaml(schema, text: str, source: str, kind: str, problems_of):
+    """YAML ``text`` into dataclass ``schema`` (:func:`load_typed_yaml`), then checked by
+    ``problems_of`` (the object's problems, a list of strings): every problem in one
+    ``ValueError`` naming ``source``."""
+    value = load_typed_yaml(schema, text, source, kind)
+    problems = problems_of(value)
+    if problems:
+        raise ValueError(f"{source}: invalid {kind}: " + "; ".join(problems))
+    return value
+
+
 def world_from_yaml_text(text: str, source: str = "<string>") -> WorldSpec:
     """Parse and check world YAML ``text``; errors are one line naming ``source`` and the field."""
-    world = load_typed_yaml(WorldSpec, text, source, "world")
-    problems = world_problems(world)
-    if problems:
-        raise ValueError(f"{source}: invalid world: " + "; ".join(problems))
-    return world
+    return load_checked_yaml(WorldSpec, text, source, "world", world_problems)
 
 
 def check_scenario_resources(scenario: Scenario, origin: dict[str, str] | None = None) -> None:
