@@ -22,8 +22,10 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 
+# One worker per core (pytest-xdist); worksteal hands half of a busy worker's queue to an idle
+# one, so a module's fixture is mostly made once while the long workbench proofs still spread.
 test: lint
-	$(VENV)/bin/pytest -q
+	$(VENV)/bin/pytest -q -n auto --dist worksteal
 
 # Timed claims and peers. The peers: pyproject extra `peers`, sysidentpy without its numpy cap.
 bench: $(STAMP)

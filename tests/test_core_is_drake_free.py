@@ -21,7 +21,17 @@ def core_modules() -> list[str]:
 
 def test_every_core_module_imports_without_pydrake():
     modules = core_modules()
+    # Among them the modules the command line loads before it builds a diagram (the run folder,
+    # the scenario, summary and figures, the simulate command): one interpreter checks them all.
     assert "pcvfe_drake.vehicle.single_track" in modules and "pcvfe_drake.models.model" in modules
+    assert {
+        "pcvfe_drake.runs.run_folder",
+        "pcvfe_drake.runs.scenario",
+        "pcvfe_drake.runs.summary",
+        "pcvfe_drake.runs.figures",
+        "pcvfe_drake.runs.runlog",
+        "pcvfe_drake.commands.simulate",
+    } <= set(modules)
     code = (
         "import importlib, sys\n"
         f"for name in {modules!r}:\n"

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from lazy_diagnoses import LazyDiagnoses
 from workbench_states import random_states, truth_columns
 
-from pcvfe_drake.models.data import prepare
 from pcvfe_drake.models.model import WorkbenchModel
 from pcvfe_drake.vehicle.params import ford_escort
 from pcvfe_drake.workbench import synth
-from pcvfe_drake.workbench.report import diagnose
 
 
 @pytest.mark.parametrize(
@@ -80,7 +79,7 @@ def planted():
     names = ["axle_stiffness", "rotating_inertia", "wheel_force_steer"]
     truths = [synth.PLANTED[n][0] for n in names]
     logs = synth.simulate_truths(truths, duration_s=90.0, rate_hz=20.0, seed=0, substeps=2)
-    return {n: diagnose(prepare(df, n))[0] for n, df in zip(names, logs, strict=True)}
+    return LazyDiagnoses(dict(zip(names, logs, strict=True)))
 
 
 @pytest.mark.parametrize("name", ["axle_stiffness", "rotating_inertia", "wheel_force_steer"])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from lazy_diagnoses import LazyDiagnoses
 
 from pcvfe_drake.models.model import WorkbenchModel
 from pcvfe_drake.models.tyre_effects import MF_SHAPE
@@ -84,18 +85,15 @@ def test_planted_magic_formula_truth_matches_the_effect():
 
 @pytest.fixture(scope="module")
 def planted_reports():
-    from pcvfe_drake.models.data import prepare
-    from pcvfe_drake.workbench.report import diagnose
-
     truth, _, _ = synth.PLANTED["peak_tyre"]
     truths = [truth, synth.PLANTED["tire_saturation"][0]]
     logs = synth.simulate_truths(truths, duration_s=90.0, rate_hz=20.0, seed=0, substeps=2)
-    return [diagnose(prepare(df, name))[0] for df, name in zip(logs, ("mf", "brush"), strict=True)]
+    return LazyDiagnoses(dict(zip(("mf", "brush"), logs, strict=True)))
 
 
 def test_loop_selects_the_peak_tyre_and_reads_mu_as_the_peak(planted_reports):
     """Planted: a magic-formula tyre, peak 0.7, stiffness nominal (exponent 0), 90 s log."""
-    report = planted_reports[0]
+    report = planted_reports["mf"]
     assert [s["name"] for s in report["selected"]] == ["peak_tyre"]
     params = report["final"]["params"]
     assert abs(params["mu"]["value"] - 0.7) <= 0.03 * 0.7, params  # mu IS the peak
@@ -109,5 +107,5 @@ def test_loop_selects_the_peak_tyre_and_reads_mu_as_the_peak(planted_reports):
 
 
 def test_brush_truth_still_selects_tire_saturation_not_the_peak_tyre(planted_reports):
-    report = planted_reports[1]
+    report = planted_reports["brush"]
     assert [s["name"] for s in report["selected"]] == ["tire_saturation"]

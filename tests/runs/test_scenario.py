@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import pytest
 
 from pcvfe_drake.contexts.clustering import ClusteringParams
@@ -18,18 +15,6 @@ from pcvfe_drake.runs.scenario import (
     resolve_scenario_path,
     shipped_scenarios,
 )
-
-
-def test_core_scenario_module_does_not_import_pydrake():
-    code = (
-        "import sys, pcvfe_drake.runs.scenario, pcvfe_drake.runs.summary, "
-        "pcvfe_drake.runs.figures, "
-        "pcvfe_drake.runs.runlog, pcvfe_drake.commands.simulate, pcvfe_drake.cli; "
-        "pcvfe_drake.cli.build_parser(); "
-        "print('pydrake' in sys.modules)"
-    )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "False"
 
 
 def test_shipped_scenarios_load_with_their_values():

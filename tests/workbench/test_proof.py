@@ -13,6 +13,7 @@ import html
 import json
 
 import pytest
+from lazy_diagnoses import LazyDiagnoses
 
 from pcvfe_drake.models.data import prepare
 from pcvfe_drake.runs.resample import resample_log
@@ -60,7 +61,7 @@ def logs():
 
 @pytest.fixture(scope="module")
 def reports(logs):
-    return {name: diagnose(prepare(df, name))[0] for name, df in logs.items()}
+    return LazyDiagnoses(logs)
 
 
 def _check_found(report, planted):
