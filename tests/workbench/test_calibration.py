@@ -149,3 +149,43 @@ def test_the_check_surface_measures_the_held_model_at_another_friction(calibrati
     assert error.handed_mu(0.2) < 0.2  # below the checked surface: extrapolated
     with pytest.raises(ValueError, match="checked_mu must be > 0"):
         replace(model, checked_mu=-1.0)
+
+
+def test_a_check_surface_the_truth_cannot_drive_is_a_warning(
+    calibration, tmp_path, capsys, monkeypatch
+):
+    """The multi-body truth failing on the check surface leaves a model without checked_mu and
+    a warning that says why, not an internal error."""
+    import copy
+
+    import pcvfe_drake.workbench.calibration as calibration_module
+    import pcvfe_drake.workbench.calibration_drive as drive_module
+    from pcvfe_drake.cli import main
+
+    df = simulate_truths([PLANTED], VP, duration_s=25.0, seed=3)[0]
+    surfaces = []
+
+    def drive(vehicle, mapping, mu, seed=0, progress=None):
+        surfaces.append(mu)
+        if len(surfaces) == 2:
+            raise ZeroDivisionError("float division by zero")
+        return df
+
+    monkeypatch.setattr(drive_module, "calibration_drive", drive)
+    monkeypatch.setattr(calibration_module, "calibrate", lambda *a, **k: copy.deepcopy(calibration))
+    out = tmp_path / "model.yaml"
+    argv = [
+        "calibrate",
+        "--simulate",
+        "ford_escort",
+        "--mapping",
+        "lateral_peak",
+        "--out",
+        str(out),
+    ]
+    assert main([*argv, "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: the check surface" in err and "the model has no checked_mu" in err
+    assert surfaces[1] == pytest.approx(0.3 * surfaces[0])
+    model = load_model_file(out)
+    assert model.checked_mu is None and model.calibrated_mu is not None
