@@ -65,10 +65,8 @@ def _tagged(loader: yaml.SafeLoader, suffix: str, node: yaml.Node) -> dict:
 
 
 _TaggedLoader.add_multi_constructor("!", _tagged)
-_LOADER = _TaggedLoader
 _DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
-"""libyaml's safe loader and dumper where PyYAML has them (the same documents, parsed several
-times faster: a world file holds long lists of vertices)."""
+"""libyaml's safe dumper where PyYAML has it (a world file holds long lists of vertices)."""
 
 
 def _number(value):
@@ -185,7 +183,7 @@ def load_typed_yaml(schema, text: str, source: str, kind: str, defaults=None):
     when given); every error is a ``ValueError`` naming ``source`` and the dotted field. An empty
     text gives ``defaults`` (or the dataclass defaults). ``kind`` names the file in messages."""
     try:
-        raw = yaml.load(text, Loader=_LOADER)
+        raw = yaml.load(text, Loader=_TaggedLoader)
     except yaml.YAMLError as exc:
         raise ValueError(f"{source}: not valid YAML: {exc}") from exc
     if raw is None:

@@ -169,23 +169,12 @@ def experiment_problems(exp: Experiment) -> list[str]:
         need(bool(str(s).strip()), f"scenarios[{i}]", s, "must not be empty")
     need(len(exp.sources) > 0, "sources", exp.sources, "name at least one friction source")
     names = [s.name for s in exp.sources]
-    for i, s in enumerate(exp.sources):
-        need(
-            bool(_NAME_RE.match(s.name)),
-            f"sources[{i}].name",
-            s.name,
-            "letters, digits, '_' or '-' only",
-        )
-        need(names.count(s.name) == 1, f"sources[{i}].name", s.name, "used by two sources")
-    variants = [v.name for v in exp.variants]
-    for i, v in enumerate(exp.variants):
-        need(
-            bool(_NAME_RE.match(v.name)),
-            f"variants[{i}].name",
-            v.name,
-            "letters, digits, '_' or '-' only",
-        )
-        need(variants.count(v.name) == 1, f"variants[{i}].name", v.name, "used by two variants")
+    for key, items in (("sources", exp.sources), ("variants", exp.variants)):
+        listed = [item.name for item in items]
+        for i, name in enumerate(listed):
+            where = f"{key}[{i}].name"
+            need(bool(_NAME_RE.match(name)), where, name, "letters, digits, '_' or '-' only")
+            need(listed.count(name) == 1, where, name, f"used by two {key}")
     if exp.reference:
         need(exp.reference in names, "reference", exp.reference, f"must be one of {names}")
     need(

@@ -398,31 +398,22 @@ def scenario_problems(scenario: Scenario) -> list[str]:
         "must be >= 0",
     )
     rates_ok = True
+    within = {"fitter_latency_s": "fitter_period_s", "clustering_frame_offset_s": "camera_period_s"}
     for f in dataclasses.fields(Rates):
-        if f.name in ("clustering_frame_offset_s", "fitter_latency_s"):
+        if f.name in within:
             continue
         value = getattr(s.rates, f.name)
         ok = _is_number(value) and value > 0
         rates_ok &= ok
         need(ok, f"rates.{f.name}", value, "must be a period > 0 s")
-    latency = s.rates.fitter_latency_s
-    need(
-        _is_number(latency)
-        and latency >= 0
-        and (not _is_number(s.rates.fitter_period_s) or latency < s.rates.fitter_period_s),
-        "rates.fitter_latency_s",
-        latency,
-        "must be >= 0 s and shorter than rates.fitter_period_s",
-    )
-    offset = s.rates.clustering_frame_offset_s
-    need(
-        _is_number(offset)
-        and offset >= 0
-        and (not _is_number(s.rates.camera_period_s) or offset < s.rates.camera_period_s),
-        "rates.clustering_frame_offset_s",
-        offset,
-        "must be >= 0 s and shorter than rates.camera_period_s",
-    )
+    for name, period_name in within.items():  # a delay inside one period of its own rate
+        value, period = getattr(s.rates, name), getattr(s.rates, period_name)
+        need(
+            _is_number(value) and value >= 0 and (not _is_number(period) or value < period),
+            f"rates.{name}",
+            value,
+            f"must be >= 0 s and shorter than rates.{period_name}",
+        )
     if _is_number(s.rates.camera_period_s) and _is_number(s.rates.recluster_period_s):
         need(
             s.rates.recluster_period_s >= s.rates.camera_period_s,
