@@ -21,6 +21,7 @@ from pcvfe_drake.diagrams.scenario_io import (
     read_yaml_file,
     scenario_from_yaml_text,
 )
+from pcvfe_drake.diagrams.world_io import load_world
 from pcvfe_drake.evaluation.experiment import (
     Experiment,
     RunSpec,
@@ -34,7 +35,7 @@ from pcvfe_drake.evaluation.experiment import (
 from pcvfe_drake.runs.scenario import resolve_scenario_path
 from pcvfe_drake.vehicle.params import load_vehicle
 from pcvfe_drake.worlds.generate import write_generated_world
-from pcvfe_drake.worlds.world_file import WORLD_DIR, resolve_world_path
+from pcvfe_drake.worlds.world_file import WORLD_DIR, lowest_mu, resolve_world_path
 
 
 def experiment_from_yaml_text(text: str, source: str = "<string>") -> Experiment:
@@ -53,6 +54,24 @@ def _scenario_path(entry: str, experiment_path: Path) -> Path:
     if not candidate.is_absolute() and (experiment_path.parent / candidate).is_file():
         return (experiment_path.parent / candidate).resolve()
     return resolve_scenario_path(entry)
+
+
+MIN_STATED_FLOOR = 0.05
+"""The lowest stated floor an offset below a world's lowest friction gives [-] (the handing's
+smallest handed friction)."""
+
+
+def stated_floor(scenario: dict, offset: float, where: str) -> dict:
+    """``scenario`` (a dict) with the operator's stated lowest friction set from its world: the
+    world's lowest terrain friction plus ``offset``, at least ``MIN_STATED_FLOOR``, as
+    ``fitter.handing.floor_mu`` and ``fixed.conservative_mu``."""
+    try:
+        spec, _ = load_world(scenario["world"])
+    except (ValueError, FileNotFoundError) as exc:
+        raise ValueError(f"{where}: floor_offset: {exc}") from exc
+    floor = max(MIN_STATED_FLOOR, lowest_mu(spec, scenario.get("terrains")) + offset)
+    values = {"fitter.handing.floor_mu": round(floor, 6), "fixed.conservative_mu": round(floor, 6)}
+    return apply_overrides(scenario, values, f"{where}: floor_offset")
 
 
 def experiment_worlds(
@@ -137,6 +156,13 @@ def run_specs(
                 if world:  # the world axis: the world's own course, the scenario's settings
                     base_dict.update(world=world, course="")
                     cell = f"{vname}@{label}"
+                offset = (
+                    variant.floor_offset
+                    if variant.floor_offset is not None
+                    else exp.worlds.floor_offset
+                )
+                if offset is not None:
+                    base_dict = stated_floor(base_dict, offset, f"{experiment_path}: {cell}")
                 for j, src in enumerate(exp.sources):
                     where = (
                         f"{experiment_path}: sources[{j}] ({src.name}) on scenarios[{i}] ({cell})"

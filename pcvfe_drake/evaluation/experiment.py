@@ -59,6 +59,9 @@ class Variant:
     """Short name appended to the scenario's (letters, digits, ``_`` and ``-``)."""
     overrides: dict[str, OverrideValue] = field(default_factory=dict)
     """Dotted scenario field -> value, applied after the experiment's own overrides."""
+    floor_offset: float | None = None
+    """The operator's stated lowest friction in this variant's runs: each run's world's lowest
+    terrain friction plus this [-] (replaces ``worlds.floor_offset``; None: that one)."""
 
 
 @dataclass
@@ -92,6 +95,12 @@ class WorldSettings:
     names: list[str] = field(default_factory=list)
     """Shipped world names or world files (relative paths: relative to the experiment file)."""
     generate: GenerateWorlds | None = None
+    floor_offset: float | None = None
+    """The operator's stated lowest friction in each run: the lowest terrain friction of the
+    run's world plus this [-], given to ``fitter.handing.floor_mu`` and ``fixed.conservative_mu``
+    (an explicit override of either still wins). A scenario's stated floor describes its own
+    world; on worlds drawn over a friction range it would be a different guess in each. None:
+    the scenario's own values."""
 
 
 @dataclass
@@ -151,8 +160,12 @@ class Experiment:
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]*$")
 
 
+def _number(x) -> bool:
+    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+
+
 def _positive(x) -> bool:
-    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x) and x > 0
+    return _number(x) and x > 0
 
 
 def experiment_problems(exp: Experiment) -> list[str]:
@@ -199,6 +212,17 @@ def experiment_problems(exp: Experiment) -> list[str]:
     need(_positive(exp.quick.duration_s), "quick.duration_s", exp.quick.duration_s, "must be > 0")
     for i, w in enumerate(exp.worlds.names):
         need(bool(str(w).strip()), f"worlds.names[{i}]", w, "must not be empty")
+    offsets = [("worlds.floor_offset", exp.worlds.floor_offset)] + [
+        (f"variants[{i}].floor_offset", v.floor_offset) for i, v in enumerate(exp.variants)
+    ]
+    for name, offset in offsets:
+        if offset is not None:
+            need(
+                _number(offset) and -1.0 <= offset <= 1.0,
+                name,
+                offset,
+                "must be a number in [-1, 1] (added to the world's lowest friction) or null",
+            )
     gen = exp.worlds.generate
     if gen is not None:
         need(

@@ -95,3 +95,64 @@ def test_bad_world_settings_are_named(tmp_path):
     exp, path = load_experiment(path)
     with pytest.raises(ValueError, match=r"worlds.names\[0\]: world 'atlantis' is neither"):
         run_specs(exp, path, worlds_dir=tmp_path / "w")
+
+
+FLOOR = """
+name: floor
+scenarios: [paper_eval]
+variants:
+  - {name: stated}
+  - {name: above, floor_offset: 0.1}
+  - {name: fixed, floor_offset: 0.1, overrides: {fixed.conservative_mu: 0.5}}
+sources:
+  - name: fixed
+    overrides: {estimator: fixed}
+seeds: 1
+duration_s: 1.0
+worlds:
+  names: [paper_small]
+  generate: {count: 1, seed: 100, mu_range: [0.2, 0.9], terrains: 3}
+  floor_offset: -0.1
+"""
+
+
+def test_the_stated_floor_follows_each_world_s_lowest_friction(tmp_path):
+    """floor_offset gives every run the floor its own world implies; a variant's offset
+    replaces the worlds', and an explicit override of the value still wins."""
+    from pcvfe_drake.diagrams.world_io import load_world
+    from pcvfe_drake.worlds.world_file import lowest_mu
+
+    path = tmp_path / "floor.yaml"
+    path.write_text(FLOOR)
+    exp, path = load_experiment(path)
+    specs = run_specs(exp, path, worlds_dir=tmp_path / "worlds")
+    generated_low = lowest_mu(load_world(tmp_path / "worlds" / "generated_s0100.yaml")[0])
+    lows = {"paper_small": 0.3, "generated_s0100": generated_low}
+    assert 0.2 <= generated_low <= 0.9
+    for s in specs:
+        variant = s.scenario_name.split("@")[0].rsplit("-", 1)[1]
+        offset = 0.1 if variant != "stated" else -0.1
+        floor = pytest.approx(max(0.05, lows[s.world] + offset), abs=1e-6)
+        assert s.scenario["fitter"]["handing"]["floor_mu"] == floor
+        expected_fixed = 0.5 if variant == "fixed" else floor
+        assert s.scenario["fixed"]["conservative_mu"] == expected_fixed
+    assert len(specs) == 3 * 2
+
+
+def test_a_terrain_override_moves_the_lowest_friction():
+    from pcvfe_drake.diagrams.world_io import load_world
+    from pcvfe_drake.worlds.world_file import lowest_mu
+
+    spec, _ = load_world("paper_small")
+    assert lowest_mu(spec) == 0.3
+    assert lowest_mu(spec, {"patchy_grass": {"mu": 0.22}}) == 0.22
+    assert lowest_mu(spec, {"patchy_grass": {"mu": 0.9}}) == 0.45
+
+
+def test_a_bad_floor_offset_is_named():
+    bad = FLOOR.replace("floor_offset: -0.1", "floor_offset: 2")
+    with pytest.raises(ValueError, match=r"worlds.floor_offset=2.0: must be a number in \[-1, 1\]"):
+        experiment_from_yaml_text(bad, "exp.yaml")
+    bad = FLOOR.replace("{name: above, floor_offset: 0.1}", "{name: above, floor_offset: .nan}")
+    with pytest.raises(ValueError, match=r"variants\[1\].floor_offset=nan"):
+        experiment_from_yaml_text(bad, "exp.yaml")
