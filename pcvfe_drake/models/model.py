@@ -127,12 +127,20 @@ def _overrides(effect: Effect, hook: str) -> bool:
 class WorkbenchModel:
     """Baseline ST model plus effects; immutable (``with_effects`` returns a new model).
 
+    :meth:`simulate` runs its RK4 loop compiled (``models/compiled_rollout.py``) when every
+    effect that changes the right-hand side is one the compiled code knows, else with
+    :meth:`rhs` in numpy; ``compiled_rollout = False`` on an instance makes it use numpy
+    always (the reference the compiled loop is tested against).
+
     Args:
         vehicle: nominal parameters (a preset name, a file, or VehicleParams; None = Ford).
         effects: effect names or instances.
         base_params: which of ``mu, C_Sf, C_Sr`` are fitted per context.
         contexts: context labels (one base-parameter set each).
     """
+
+    compiled_rollout: bool = True
+    """Use the compiled RK4 loop where it applies (the numpy loop otherwise)."""
 
     def __init__(
         self,
@@ -185,6 +193,7 @@ class WorkbenchModel:
             hook: [(e, sl) for e, sl in pairs if _overrides(e, hook)] for hook in RHS_HOOKS
         }
         self._with_states = [(e, sl) for e, sl in pairs if e.n_states]
+        self._plan: dict | None | bool = False  # the compiled rollout's plan, on first use
 
     # ------------------------------------------------------------------ composition
     def with_effects(self, *effects) -> WorkbenchModel:
@@ -428,6 +437,12 @@ class WorkbenchModel:
         limits.append(self.stable_step(base, data.x[idx, V], eff))
         substeps = int(min(MAX_SUBSTEPS, max(1, np.ceil(data.dt / min(limits) - 1e-9))))
         h = data.dt / substeps
+        plan = self._compiled_plan() if self.compiled_rollout else None
+        if plan is not None:
+            from pcvfe_drake.models.compiled_rollout import rollout
+
+            rollout(Z, U, substeps, h, self, base, eff, plan)
+            return self._measured(Z, eff)
         pairs = zip(self.effects, self._state_slices, strict=True)
         exact = [(e, sl) for e, sl in pairs if e.exact_states]
 
@@ -446,6 +461,18 @@ class WorkbenchModel:
                 k4 = self.rhs(stage(z, z + h * k3, h), uk, base, eff)
                 z = stage(z, z + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4), h)
             Z[:, k + 1] = z
+        return self._measured(Z, eff)
+
+    def _compiled_plan(self) -> dict | None:
+        """The compiled rollout's plan for this model's effects (None: numpy), found once."""
+        if self._plan is False:
+            from pcvfe_drake.models.compiled_rollout import compiled_effect_plan
+
+            self._plan = compiled_effect_plan(self.effects)
+        return self._plan
+
+    def _measured(self, Z: np.ndarray, eff: dict) -> np.ndarray:
+        """``Z`` with its ST part as the sensor effects report it."""
         if self._sensors:
             y = Z[:, :, :NX]
             for e in self._sensors:
