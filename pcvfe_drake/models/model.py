@@ -463,6 +463,16 @@ class WorkbenchModel:
             Z[:, k + 1] = z
         return self._measured(Z, eff)
 
+    def load_compiled_rollout(self) -> bool:
+        """Load the compiled rollout now (numba's compilation or disk cache) rather than in the
+        first rollout, so that a real-time loop's first refit does not pay for it; False when
+        this model is rolled out by numpy."""
+        if not (self.compiled_rollout and self._compiled_plan() is not None):
+            return False
+        from pcvfe_drake.models.compiled_rollout import load
+
+        return load(self)
+
     def _compiled_plan(self) -> dict | None:
         """The compiled rollout's plan for this model's effects (None: numpy), found once."""
         if self._plan is False:
