@@ -136,3 +136,47 @@ def test_a_subclass_with_another_constant_is_not_mistaken_for_the_shipped_effect
     flatter.compiled_rollout = False
     assert np.array_equal(b, flatter.simulate(theta, data, starts, HORIZON))
     assert not np.allclose(a, b)
+
+
+@pytest.mark.parametrize("effects", [(), ("peak_tyre",), tuple(COMPILED_EFFECTS)])
+def test_the_exact_mu_sensitivity_is_the_limit_of_central_differences(effects):
+    """The tangent carried through the compiled RK4 steps against central differences of the
+    rollout at two steps: their gap is their truncation error, which falls with the square of
+    the step (a wrong derivative would leave a gap that does not fall)."""
+    data = _drive(seed=5)
+    model = WorkbenchModel(VP, list(effects))
+    starts = np.array([20, 90, 170, 260])
+    theta = model.initial_theta()
+    theta[0] = 0.45  # near the peak of the demanded forces: the tyre law is curved there
+    Z, sens = model.mu_sensitivity(theta, data, starts, HORIZON)
+    assert np.array_equal(Z, model.simulate(theta, data, starts, HORIZON))
+    scale = np.maximum(np.abs(sens).max(axis=(0, 1)), 1e-12)
+    gaps = []
+    for step in (1e-3, 1e-4):
+        up, down = theta.copy(), theta.copy()
+        up[0] += step
+        down[0] -= step
+        fd = model.simulate(up, data, starts, HORIZON) - model.simulate(down, data, starts, HORIZON)
+        gaps.append(np.max(np.abs(fd[:, :, :7] / (2 * step) - sens) / scale))
+    assert gaps[1] < 1e-5
+    assert gaps[1] < 0.05 * gaps[0] or gaps[0] < 1e-9
+
+
+def test_a_fit_of_mu_alone_uses_the_exact_sensitivity():
+    from pcvfe_drake.models.estimate import _residuals_and_jacobian
+
+    data = _drive(seed=6)
+    model = WorkbenchModel(VP, list(COMPILED_EFFECTS))
+    starts = np.array([15, 120, 240])
+    theta = model.initial_theta()
+    theta[0] = 0.5
+    r, jac = _residuals_and_jacobian(model, theta, data, starts, HORIZON, True, 5, np.array([0]))
+    reference = WorkbenchModel(VP, list(COMPILED_EFFECTS))
+    reference.compiled_rollout = False  # numpy: central differences
+    r_fd, jac_fd = _residuals_and_jacobian(
+        reference, theta, data, starts, HORIZON, True, 5, np.array([0])
+    )
+    np.testing.assert_allclose(r, r_fd, rtol=1e-9, atol=1e-9)
+    assert np.count_nonzero(jac[:, 1:]) == 0
+    np.testing.assert_allclose(jac[:, 0], jac_fd[:, 0], rtol=1e-4, atol=1e-6 * np.abs(jac).max())
+    assert not np.array_equal(jac[:, 0], jac_fd[:, 0])  # exact, not the differences
