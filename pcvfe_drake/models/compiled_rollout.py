@@ -346,6 +346,14 @@ def _rhs(z, dz, u0, u1, vv, mu, dmu, c_sf, c_sr, q, has, sh, out, dout):
 
 
 @_jit
+def _stage(z, dz, step, k, dk, zs, dzs):
+    """An RK4 stage's state ``z + step k`` into ``zs``, its derivative into ``dzs``."""
+    for j in range(7):
+        zs[j] = z[j] + step * k[j]
+        dzs[j] = dz[j] + step * dk[j]
+
+
+@_jit
 def _rollout_rows(Z, S, U, substeps, h, vv, mu, dmu, c_sf, c_sr, params, has):
     """RK4 as WorkbenchModel.simulate's loop, one row after the other; with ``S`` (N,
     horizon + 1, 7) the states' derivatives along mu (``S[:, 0]`` given; ``dmu`` (N,) the
@@ -369,17 +377,11 @@ def _rollout_rows(Z, S, U, substeps, h, vv, mu, dmu, c_sf, c_sr, params, has):
             u0, u1 = U[i, k, 0], U[i, k, 1]
             for _ in range(substeps):
                 _rhs(z, dz, u0, u1, vv, mu_i, dmu_i, c_sf_i, c_sr_i, q, has, sh, k1, d1)
-                for j in range(7):
-                    zs[j] = z[j] + half * k1[j]
-                    dzs[j] = dz[j] + half * d1[j]
+                _stage(z, dz, half, k1, d1, zs, dzs)
                 _rhs(zs, dzs, u0, u1, vv, mu_i, dmu_i, c_sf_i, c_sr_i, q, has, sh, k2, d2)
-                for j in range(7):
-                    zs[j] = z[j] + half * k2[j]
-                    dzs[j] = dz[j] + half * d2[j]
+                _stage(z, dz, half, k2, d2, zs, dzs)
                 _rhs(zs, dzs, u0, u1, vv, mu_i, dmu_i, c_sf_i, c_sr_i, q, has, sh, k3, d3)
-                for j in range(7):
-                    zs[j] = z[j] + h * k3[j]
-                    dzs[j] = dz[j] + h * d3[j]
+                _stage(z, dz, h, k3, d3, zs, dzs)
                 _rhs(zs, dzs, u0, u1, vv, mu_i, dmu_i, c_sf_i, c_sr_i, q, has, sh, k4, d4)
                 for j in range(7):
                     z[j] = z[j] + sixth * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
