@@ -11,6 +11,12 @@ both call the same library functions (``sin``, ``cos``, ``atan``, ``atan2``, ``p
 a few units in the last place where numpy has its own vectorised function (``tanh``, used
 by ``roll_camber``); ``tests/models/test_compiled_rollout.py`` compares them.
 
+Beside each expression of the right-hand side stands its derivative along the row's base
+``mu`` (forward mode), so the same loop can carry the states' exact sensitivity to mu through
+the RK4 steps (``WorkbenchModel.mu_sensitivity``: the derivative of the discrete rollout that
+central differences approximate). The derivatives never feed the values: a rollout without
+them gives the same numbers.
+
 A model with any other effect that changes the right-hand side (its own hooks, states, or a
 subclass of a known effect) is rolled out by the numpy code; hooks outside the RK4 loop
 (``inputs``, ``measure``, ``unmeasure``) stay in numpy either way. Without numba the numpy
