@@ -10,7 +10,9 @@ rollout (the 2P + 1 parameter vectors are stacked along the batch axis with the 
 steps of 1e-4 x each parameter's typical scale. The effect hooks are arbitrary user code, so
 finite differences keep every effect differentiable without hand-written Jacobians; the ST part
 agrees with ``pcvfe_drake.vehicle.single_track``'s exact Jacobians to the accuracy of central
-differences.
+differences. Where mu alone is fitted on a model whose rollout is compiled (the context
+fitter's case), its sensitivity is exact instead: forward mode through the same RK4 steps
+(``WorkbenchModel.mu_sensitivity``), one rollout with a tangent rather than three rows.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import numpy as np
 
 from pcvfe_drake.models import least_squares as lsq
 from pcvfe_drake.models.data import DriveData
-from pcvfe_drake.models.model import WorkbenchModel
+from pcvfe_drake.models.model import WorkbenchModel, rollout_errors
 from pcvfe_drake.vehicle.single_track import BETA, DELTA, PSI, PSI_DOT, V
 
 FIT_STATES = (DELTA, V, PSI, PSI_DOT, BETA)
@@ -111,13 +113,17 @@ def _residuals_and_jacobian(
     model, theta, data, starts, horizon, with_jacobian, burn_in=0, cols=None
 ):
     """Residuals (whitened, flattened) and their finite-difference Jacobian (columns ``cols``
-    only, default all; the other columns are zero) from one batched rollout."""
+    only, default all; the other columns are zero) from one batched rollout; mu's column
+    exact where it is the only one and the rollout is compiled (:func:`_exact_mu`)."""
     n_p = model.n_params
     n = starts.size
     if not with_jacobian:
         r = whitened_errors(model, theta, data, starts, horizon, burn_in).reshape(-1)
         return r, None
     cols = np.arange(n_p) if cols is None else np.asarray(cols, dtype=int)
+    exact = _exact_mu(model, theta, data, starts, horizon, burn_in, cols)
+    if exact is not None:
+        return exact
     n_c = cols.size
     h = FD_STEP * model.scales()
     rows = np.tile(theta, (2 * n_c + 1, 1))
@@ -132,6 +138,22 @@ def _residuals_and_jacobian(
     jac = np.zeros((r.size, n_p))
     for i, j in enumerate(cols):
         jac[:, j] = (e[1 + 2 * i] - e[2 + 2 * i]) / (2.0 * h[j])
+    return r, jac
+
+
+def _exact_mu(model, theta, data, starts, horizon, burn_in, cols):
+    """Residuals and Jacobian with mu's column exact (``WorkbenchModel.mu_sensitivity``) when
+    mu of a one-context model is the only column asked for; None otherwise."""
+    if cols.size != 1 or model.params[int(cols[0])].name != "mu" or np.ndim(theta) != 1:
+        return None
+    out = model.mu_sensitivity(theta, data, starts, horizon)
+    if out is None:
+        return None
+    Z, sens = out
+    idx = list(FIT_STATES)
+    r = (rollout_errors(Z, data, starts, horizon)[:, burn_in:, idx] / data.sigma[idx]).reshape(-1)
+    jac = np.zeros((r.size, model.n_params))
+    jac[:, int(cols[0])] = (sens[:, 1 + burn_in :, idx] / data.sigma[idx]).reshape(-1)
     return r, jac
 
 

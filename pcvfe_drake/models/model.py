@@ -127,12 +127,20 @@ def _overrides(effect: Effect, hook: str) -> bool:
 class WorkbenchModel:
     """Baseline ST model plus effects; immutable (``with_effects`` returns a new model).
 
+    :meth:`simulate` runs its RK4 loop compiled (``models/compiled_rollout.py``) when every
+    effect that changes the right-hand side is one the compiled code knows, else with
+    :meth:`rhs` in numpy; ``compiled_rollout = False`` on an instance makes it use numpy
+    always (the reference the compiled loop is tested against).
+
     Args:
         vehicle: nominal parameters (a preset name, a file, or VehicleParams; None = Ford).
         effects: effect names or instances.
         base_params: which of ``mu, C_Sf, C_Sr`` are fitted per context.
         contexts: context labels (one base-parameter set each).
     """
+
+    compiled_rollout: bool = True
+    """Use the compiled RK4 loop where it applies (the numpy loop otherwise)."""
 
     def __init__(
         self,
@@ -185,6 +193,7 @@ class WorkbenchModel:
             hook: [(e, sl) for e, sl in pairs if _overrides(e, hook)] for hook in RHS_HOOKS
         }
         self._with_states = [(e, sl) for e, sl in pairs if e.n_states]
+        self._plan: dict | None | bool = False  # the compiled rollout's plan, on first use
 
     # ------------------------------------------------------------------ composition
     def with_effects(self, *effects) -> WorkbenchModel:
@@ -389,6 +398,7 @@ class WorkbenchModel:
         horizon: int,
         ctx_rows: np.ndarray | None = None,
         x0: np.ndarray | None = None,
+        sensitivity: np.ndarray | None = None,
     ) -> np.ndarray:
         """Roll out windows of ``horizon`` steps from the measured states at ``starts``.
 
@@ -399,6 +409,8 @@ class WorkbenchModel:
             horizon: steps per window.
             ctx_rows: context index per window (default: the context at the start).
             x0: initial ST states (N, 7) as measured (default: ``data.x0[starts]``).
+            sensitivity: (N, horizon + 1, 7), filled with the ST states' derivatives along
+                each row's base mu (:meth:`mu_sensitivity`, which says when it applies).
         Returns:
             Z (N, horizon + 1, nz): RK4 with the inputs held over each sample step. Rollouts
             start from the measured state passed back through the sensor effects'
@@ -428,6 +440,14 @@ class WorkbenchModel:
         limits.append(self.stable_step(base, data.x[idx, V], eff))
         substeps = int(min(MAX_SUBSTEPS, max(1, np.ceil(data.dt / min(limits) - 1e-9))))
         h = data.dt / substeps
+        plan = self._compiled_plan() if self.compiled_rollout else None
+        if plan is not None:
+            from pcvfe_drake.models.compiled_rollout import rollout
+
+            rollout(Z, U, substeps, h, self, base, eff, plan, S=sensitivity)
+            return self._measured(Z, eff)
+        if sensitivity is not None:
+            raise ValueError("WorkbenchModel.simulate: a sensitivity needs the compiled rollout")
         pairs = zip(self.effects, self._state_slices, strict=True)
         exact = [(e, sl) for e, sl in pairs if e.exact_states]
 
@@ -446,6 +466,43 @@ class WorkbenchModel:
                 k4 = self.rhs(stage(z, z + h * k3, h), uk, base, eff)
                 z = stage(z, z + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4), h)
             Z[:, k + 1] = z
+        return self._measured(Z, eff)
+
+    def mu_sensitivity(
+        self, theta_rows: np.ndarray, data: DriveData, starts: np.ndarray, horizon: int
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(Z, dZ/dmu)``: :meth:`simulate`'s rollout and the exact derivative of its ST states
+        (N, horizon + 1, 7) along each row's base ``mu`` (forward mode through the same RK4
+        steps, ``compiled_rollout``), instead of finite differences. None where it does not
+        apply: the rollout is not compiled, or a sensor effect reports other states than the
+        model's (its derivative is not the states')."""
+        if not self.compiled_rollout or self._compiled_plan() is None or self._sensors:
+            return None
+        n = np.asarray(starts).size
+        sens = np.zeros((n, horizon + 1, NX))
+        Z = self.simulate(theta_rows, data, starts, horizon, sensitivity=sens)
+        return Z, sens
+
+    def load_compiled_rollout(self) -> bool:
+        """Load the compiled rollout now (numba's compilation or disk cache) rather than in the
+        first rollout, so that a real-time loop's first refit does not pay for it; False when
+        this model is rolled out by numpy."""
+        if not (self.compiled_rollout and self._compiled_plan() is not None):
+            return False
+        from pcvfe_drake.models.compiled_rollout import load
+
+        return load(self)
+
+    def _compiled_plan(self) -> dict | None:
+        """The compiled rollout's plan for this model's effects (None: numpy), found once."""
+        if self._plan is False:
+            from pcvfe_drake.models.compiled_rollout import compiled_effect_plan
+
+            self._plan = compiled_effect_plan(self.effects)
+        return self._plan
+
+    def _measured(self, Z: np.ndarray, eff: dict) -> np.ndarray:
+        """``Z`` with its ST part as the sensor effects report it."""
         if self._sensors:
             y = Z[:, :, :NX]
             for e in self._sensors:
@@ -458,7 +515,12 @@ class WorkbenchModel:
     ) -> np.ndarray:
         """Prediction minus measurement (N, horizon, 7) for steps 1..horizon (heading wrapped)."""
         Z = self.simulate(theta_rows, data, starts, horizon)
-        idx = np.asarray(starts)[:, None] + np.arange(1, horizon + 1)[None, :]
-        err = Z[:, 1:, :NX] - data.x[idx]
-        err[:, :, PSI] = wrap_angle(err[:, :, PSI])
-        return err
+        return rollout_errors(Z, data, starts, horizon)
+
+
+def rollout_errors(Z: np.ndarray, data: DriveData, starts: np.ndarray, horizon: int) -> np.ndarray:
+    """:meth:`WorkbenchModel.errors` of the rollout ``Z`` (N, horizon + 1, nz)."""
+    idx = np.asarray(starts)[:, None] + np.arange(1, horizon + 1)[None, :]
+    err = Z[:, 1:, :NX] - data.x[idx]
+    err[:, :, PSI] = wrap_angle(err[:, :, PSI])
+    return err
