@@ -89,3 +89,27 @@ def proof_logs(run_cache: Path | None, group: str) -> dict[str, pd.DataFrame]:
     if _LOGS is None:
         _LOGS = shared(run_cache, "seed0-logs", _simulate)
     return _LOGS[group]
+
+
+def seed3_logs(run_cache: Path | None) -> dict[str, pd.DataFrame]:
+    """Planted drag and planted rolling resistance, 90 s at 20 Hz, program seed 3 (noise seeds
+    4 and 5): the stand-in tests' logs; the drag log is also the long-log test's."""
+    names = ("drag", "rolling_resistance")
+
+    def make() -> dict[str, pd.DataFrame]:
+        truths = [synth.PLANTED[n][0] for n in names]
+        frames = synth.simulate_truths(truths, duration_s=90.0, rate_hz=20.0, seed=3, substeps=2)
+        return dict(zip(names, frames, strict=True))
+
+    return shared(run_cache, "seed3-logs", make)
+
+
+def drag_45s_log(run_cache: Path | None) -> pd.DataFrame:
+    """Planted drag, 45 s at 20 Hz, program seed 3: the command-line tests' log (a copy: the
+    tests may change it)."""
+
+    def make() -> pd.DataFrame:
+        truth = synth.PLANTED["drag"][0]
+        return synth.simulate_truths([truth], duration_s=45.0, rate_hz=20.0, seed=3, substeps=2)[0]
+
+    return shared(run_cache, "drag-45s-seed3", make).copy()
