@@ -183,8 +183,12 @@ class Workbench:
         if not self.config.lr_tol:
             return fit(*args, rtol=FIT_RTOL, **common)
         res = fit(*args, rtol=rtol, **common)
-        if res.converged and gauss_newton_gain(res) >= self.config.lr_tol:
-            # a small step far from the minimum: the fit as the fitter's tolerance makes it
+        h = res.history
+        # stopped by lr_tol where the fitter's tolerance would have gone on (not at max_iter,
+        # nor after a rejected step), and a small step far from the minimum: made again as the
+        # fitter's tolerance makes it
+        early = len(h) >= 2 and FIT_RTOL * h[-2] < h[-2] - h[-1] <= rtol * h[-2]
+        if early and gauss_newton_gain(res) >= self.config.lr_tol:
             res = fit(*args, rtol=FIT_RTOL, **common)
         return res
 
