@@ -21,7 +21,7 @@ from scipy.stats import chi2
 
 from pcvfe_drake.models.data import DriveData, window_starts
 from pcvfe_drake.models.effects import get_effect, known_effects
-from pcvfe_drake.models.estimate import FitResult, fit
+from pcvfe_drake.models.estimate import FIT_STATES, FitResult, fit
 from pcvfe_drake.models.model import WorkbenchModel
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import STATE_NAMES
@@ -60,6 +60,37 @@ class DiagnoseConfig:
     base_params: tuple[str, ...] = ("mu",)
     max_iter: int = 15
     max_steps: int = 8
+    lr_tol: float = 0.01
+    """A fit stops once an accepted step raises the likelihood-ratio statistic (``n_eff`` times
+    the log of the cost ratio) by less than this, when the Gauss-Newton step from there
+    promises less than this too: every decision of the loop compares such statistics with
+    chi-square quantiles, which a hundredth does not move. A small step that leaves more
+    promised was a damped one far from the minimum: that fit is made again at ``FIT_RTOL``,
+    as with ``lr_tol`` 0 (the fitter's relative tolerance throughout)."""
+
+
+FIT_RTOL = 1e-7
+"""The fitter's relative tolerance where ``lr_tol`` does not stop a fit."""
+
+
+def gauss_newton_gain(res: FitResult) -> float:
+    """The likelihood-ratio statistic (``n_eff`` times the relative cost decrease) that a
+    Gauss-Newton step from ``res`` promises, from its stored residuals and Jacobian: over the
+    informed parameters, less those on a bound that the step would push beyond it. Infinite
+    without them."""
+    jac, r = res.jacobian, res.residuals
+    if jac is None or r is None or not np.all(np.isfinite(jac)):
+        return float("inf")
+    lo, hi = res.model.bounds()
+    g = jac.T @ r  # half the cost's gradient: descent is -g
+    tol = 1e-6 * (hi - lo)
+    blocked = ((res.theta <= lo + tol) & (g > 0)) | ((res.theta >= hi - tol) & (g < 0))
+    free = np.any(jac != 0.0, axis=0) & ~blocked
+    if not free.any():
+        return 0.0
+    jf, gf = jac[:, free], g[free]
+    step = np.linalg.lstsq(jf.T @ jf, gf, rcond=None)[0]
+    return res.n_eff * max(float(gf @ step), 0.0) / max(res.cost, 1e-300)
 
 
 def _steps(seconds: float, data: DriveData) -> int:
@@ -112,6 +143,9 @@ class Workbench:
         (model-wide names) at given values (``pcvfe fit --effects``); ``hac_lag``: the std
         from the Newey-West sandwich with this many lags (``fit``)."""
         self.n_fits += 1
+        n_windows = (self.train_starts if starts is None else starts).size
+        # the relative cost decrease that moves the LR statistic by lr_tol (n_eff as ``fit``)
+        rtol = self.config.lr_tol / max(n_windows * len(FIT_STATES), 1)
         theta0 = model.initial_theta() if warm is None else model.transfer(warm.theta, warm.model)
         mask = np.array([p in (fixed or {}) for p in model.param_names])
         values = np.array([(fixed or {}).get(p, 0.0) for p in model.param_names])
@@ -137,18 +171,26 @@ class Workbench:
                         c[idx] = start
                         c[mu_idx] = used
                         candidates.append(c)
-        return fit(
-            model,
-            self.data,
-            self.train_starts if starts is None else starts,
-            self.h_fit,
-            theta0=theta0,
-            candidates=candidates,
-            max_iter=self.config.max_iter,
-            burn_in=min(_steps(self.config.fit_burn_in_s, self.data), self.h_fit - 1),
-            fixed=mask,
-            hac_lag=hac_lag,
-        )
+        args = (model, self.data, self.train_starts if starts is None else starts, self.h_fit)
+        common = {
+            "theta0": theta0,
+            "candidates": candidates,
+            "max_iter": self.config.max_iter,
+            "burn_in": min(_steps(self.config.fit_burn_in_s, self.data), self.h_fit - 1),
+            "fixed": mask,
+            "hac_lag": hac_lag,
+        }
+        if not self.config.lr_tol:
+            return fit(*args, rtol=FIT_RTOL, **common)
+        res = fit(*args, rtol=rtol, **common)
+        h = res.history
+        # stopped by lr_tol where the fitter's tolerance would have gone on (not at max_iter,
+        # nor after a rejected step), and a small step far from the minimum: made again as the
+        # fitter's tolerance makes it
+        early = len(h) >= 2 and FIT_RTOL * h[-2] < h[-2] - h[-1] <= rtol * h[-2]
+        if early and gauss_newton_gain(res) >= self.config.lr_tol:
+            res = fit(*args, rtol=FIT_RTOL, **common)
+        return res
 
     def used_friction(self, model: WorkbenchModel) -> np.ndarray:
         """Per base ``mu`` entry of ``model`` (one per context): 1.05 x the largest friction

@@ -465,14 +465,21 @@ def simulate_truths(
     substeps: int = 5,
     v0_mps: float = 10.0,
     v_ref_factor: float = 1.0,
+    noise_seeds: list[int] | None = None,
 ) -> list[pd.DataFrame]:
     """Drive logs (drive-log DataFrames) of several truths at once, same driving program.
 
     The commands are computed at the log rate by the speed controller and steering tracker
     from each plant's true state and held until the next sample; the plant is integrated with
-    RK4 at ``substeps`` steps per sample. Noise seeds differ per log (``seed + 1 + i``).
+    RK4 at ``substeps`` steps per sample. Noise seeds differ per log (``seed + 1 + i``, or
+    ``noise_seeds[i]``: a log keeps its noise when simulated in another batch, and a batch
+    costs about what one log does, the integration's cost being numpy's per-call overhead).
     ``v_ref_factor`` scales the program's speed targets (``design_excitation``).
     """
+    if noise_seeds is not None and len(noise_seeds) != len(truths):
+        raise ValueError(
+            f"simulate_truths: {len(noise_seeds)} noise seeds for {len(truths)} truths"
+        )
     vp = vehicle if isinstance(vehicle, VehicleParams) else load_vehicle(vehicle)
     dt = 1.0 / rate_hz
     ex = design_excitation(vp, duration_s, dt, seed, v_ref_factor)
@@ -508,8 +515,9 @@ def simulate_truths(
             s = s + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
         if not np.all(np.isfinite(s)):
             raise RuntimeError(f"truth simulation diverged at t={k * dt:.2f} s")
+    seeds = [seed + 1 + i for i in range(b)] if noise_seeds is None else list(noise_seeds)
     return [
-        _to_log(states[:, i], steer_log[:, i], acc_log[:, i], dt, noise, seed + 1 + i, truths[i])
+        _to_log(states[:, i], steer_log[:, i], acc_log[:, i], dt, noise, seeds[i], truths[i])
         for i in range(b)
     ]
 

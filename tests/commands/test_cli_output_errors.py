@@ -9,12 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from drive_logs import drag_45s_log
 
 from pcvfe_drake import cli
 from pcvfe_drake.cli import main
 from pcvfe_drake.runs import output_paths
 from pcvfe_drake.runs.drivelog import DriveLogWriter, write_drive_log
-from pcvfe_drake.workbench import synth
 
 HAS_DEV_FULL = Path("/dev/full").exists()
 
@@ -90,10 +90,8 @@ def test_full_stdout_is_a_clean_error(tmp_path, capsys, monkeypatch):
 
 
 @pytest.fixture(scope="module")
-def small_log(tmp_path_factory):
-    df = synth.simulate_truths(
-        [synth.PLANTED["drag"][0]], duration_s=45.0, rate_hz=20.0, seed=3, substeps=2
-    )[0]
+def small_log(tmp_path_factory, run_cache):
+    df = drag_45s_log(run_cache)
     path = tmp_path_factory.mktemp("logs") / "drive.csv"
     write_drive_log(df, path)
     return path

@@ -59,9 +59,10 @@ def test_fit_command_reports_the_cap(noisy_drive, tmp_path, capsys):
     assert entry["n_windows"] == entry["windows_available"] == 799
 
 
-def test_workbench_analyses_evenly_spaced_excerpts_of_a_long_log():
+def test_workbench_analyses_evenly_spaced_excerpts_of_a_long_log(run_cache):
+    from drive_logs import seed3_logs
+
     from pcvfe_drake.models.data import excerpt_rows, prepare, window_starts
-    from pcvfe_drake.workbench import synth
 
     rows = excerpt_rows(1000, max_samples=120, excerpts=6)
     assert rows.size == 120 and rows[0] == 0 and rows[-1] == 999
@@ -69,9 +70,7 @@ def test_workbench_analyses_evenly_spaced_excerpts_of_a_long_log():
     assert np.array_equal(starts, np.linspace(0, 980, 6).round())
     assert np.array_equal(excerpt_rows(100, max_samples=120), np.arange(100))
 
-    df = synth.simulate_truths(
-        [synth.PLANTED["drag"][0]], duration_s=90.0, rate_hz=20.0, seed=3, substeps=2
-    )[0]
+    df = seed3_logs(run_cache)["drag"]  # planted drag, 90 s at 20 Hz
     full = prepare(df, "log", max_samples=None)
     data = prepare(df, "log", max_samples=1200)
     assert full.n == full.rows_in_log == len(df)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from drive_logs import proof_logs
 from lazy_diagnoses import LazyDiagnoses
 from workbench_states import random_states, truth_columns
 
@@ -75,11 +76,8 @@ def test_axle_stiffness_leaves_the_peak_of_the_peak_tyre():
 
 
 @pytest.fixture(scope="module")
-def planted():
-    names = ["axle_stiffness", "rotating_inertia", "wheel_force_steer"]
-    truths = [synth.PLANTED[n][0] for n in names]
-    logs = synth.simulate_truths(truths, duration_s=90.0, rate_hz=20.0, seed=0, substeps=2)
-    return LazyDiagnoses(dict(zip(names, logs, strict=True)))
+def planted(run_cache):
+    return LazyDiagnoses(proof_logs(run_cache, "chassis"), run_cache, "chassis-")
 
 
 @pytest.mark.parametrize("name", ["axle_stiffness", "rotating_inertia", "wheel_force_steer"])

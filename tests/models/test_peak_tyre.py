@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from drive_logs import proof_logs
 from lazy_diagnoses import LazyDiagnoses
 
 from pcvfe_drake.models.model import WorkbenchModel
@@ -84,11 +85,9 @@ def test_planted_magic_formula_truth_matches_the_effect():
 
 
 @pytest.fixture(scope="module")
-def planted_reports():
-    truth, _, _ = synth.PLANTED["peak_tyre"]
-    truths = [truth, synth.PLANTED["tire_saturation"][0]]
-    logs = synth.simulate_truths(truths, duration_s=90.0, rate_hz=20.0, seed=0, substeps=2)
-    return LazyDiagnoses(dict(zip(("mf", "brush"), logs, strict=True)))
+def planted_reports(run_cache):
+    """The peak tyre's truth ("mf") and the brush tyre's ("brush"), 90 s logs."""
+    return LazyDiagnoses(proof_logs(run_cache, "peak_tyre"), run_cache, "peak-tyre-")
 
 
 def test_loop_selects_the_peak_tyre_and_reads_mu_as_the_peak(planted_reports):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from drive_logs import proof_logs
 from workbench_states import TYRE_LAWS, random_states, truth_columns
 
 from pcvfe_drake.models.data import prepare
@@ -87,10 +88,9 @@ def test_the_slip_shift_moves_the_curve_and_not_the_peak():
 
 
 @pytest.fixture(scope="module")
-def logs():
-    truths = [synth.PLANTED["roll_camber"][0], synth.Truth()]
-    frames = synth.simulate_truths(truths, duration_s=90.0, rate_hz=20.0, seed=0, substeps=2)
-    return {"planted": frames[0], "clean": frames[1]}
+def logs(run_cache):
+    """The planted truth ("planted") and the same car without it ("clean"), 90 s logs."""
+    return proof_logs(run_cache, "roll_camber")
 
 
 def test_loop_finds_the_planted_roll_camber(logs):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from drive_logs import proof_logs
 from scipy.linalg import expm
 from workbench_states import random_states, truth_columns
 
@@ -103,10 +104,9 @@ def test_steady_state_is_the_instant_transfer_and_initial_states_follow_the_log(
 
 
 @pytest.fixture(scope="module")
-def logs():
-    truths = [synth.PLANTED["suspension_lag"][0], synth.Truth()]
-    frames = synth.simulate_truths(truths, duration_s=90.0, rate_hz=20.0, seed=0, substeps=2)
-    return {"planted": frames[0], "clean": frames[1]}
+def logs(run_cache):
+    """The planted truth ("planted") and the same car without it ("clean"), 90 s logs."""
+    return proof_logs(run_cache, "suspension_lag")
 
 
 def test_loop_finds_the_planted_pitch_mode(logs):

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from drive_logs import proof_logs
 from workbench_states import TYRE_LAWS, random_states, truth_columns
 
 from pcvfe_drake.models.data import prepare
@@ -112,10 +113,9 @@ def test_initial_state_is_the_lagged_lateral_acceleration():
 
 
 @pytest.fixture(scope="module")
-def logs():
-    truths = [synth.PLANTED["wheel_camber"][0], synth.Truth()]
-    frames = synth.simulate_truths(truths, duration_s=90.0, rate_hz=20.0, seed=0, substeps=2)
-    return {"planted": frames[0], "clean": frames[1]}
+def logs(run_cache):
+    """The planted truth ("planted") and the same car without it ("clean"), 90 s logs."""
+    return proof_logs(run_cache, "wheel_camber")
 
 
 def test_loop_finds_the_planted_wheel_camber(logs):

@@ -92,13 +92,19 @@ def test_calibrate_arguments_are_checked_before_any_work(argv, message, capsys):
     assert message in err and "Traceback" not in err
 
 
-def test_calibrate_reads_only_what_a_car_measures(tmp_path, capsys, monkeypatch):
+@pytest.fixture(scope="module")
+def short_log():
+    """The planted car, 25 s (a log for the command's plumbing; copy before changing it)."""
+    return simulate_truths([PLANTED], VP, duration_s=25.0, seed=3)[0]
+
+
+def test_calibrate_reads_only_what_a_car_measures(short_log, tmp_path, capsys, monkeypatch):
     """Truth columns of the log never reach the calibration."""
     import pcvfe_drake.models.data as data_module
     from pcvfe_drake.cli import main
     from pcvfe_drake.runs.drivelog import REQUIRED_COLUMNS
 
-    df = simulate_truths([PLANTED], VP, duration_s=25.0, seed=3)[0]
+    df = short_log.copy()
     df["mu_true"] = 0.8
     df["true_v"] = df["v"]
     df.to_csv(tmp_path / "drive.csv", index=False)
@@ -152,7 +158,7 @@ def test_the_check_surface_measures_the_held_model_at_another_friction(calibrati
 
 
 def test_a_check_surface_the_truth_cannot_drive_is_a_warning(
-    calibration, tmp_path, capsys, monkeypatch
+    calibration, short_log, tmp_path, capsys, monkeypatch
 ):
     """The multi-body truth failing on the check surface leaves a model without checked_mu and
     a warning that says why, not an internal error."""
@@ -162,7 +168,7 @@ def test_a_check_surface_the_truth_cannot_drive_is_a_warning(
     import pcvfe_drake.workbench.calibration_drive as drive_module
     from pcvfe_drake.cli import main
 
-    df = simulate_truths([PLANTED], VP, duration_s=25.0, seed=3)[0]
+    df = short_log.copy()
     surfaces = []
 
     def drive(vehicle, mapping, mu, seed=0, progress=None):

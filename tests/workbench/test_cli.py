@@ -6,17 +6,15 @@ import json
 
 import numpy as np
 import pytest
+from drive_logs import drag_45s_log
 
 from pcvfe_drake.cli import main
 from pcvfe_drake.runs.drivelog import write_drive_log
-from pcvfe_drake.workbench import synth
 
 
 @pytest.fixture(scope="module")
-def drag_log(tmp_path_factory):
-    df = synth.simulate_truths(
-        [synth.PLANTED["drag"][0]], duration_s=45.0, rate_hz=20.0, seed=3, substeps=2
-    )[0]
+def drag_log(tmp_path_factory, run_cache):
+    df = drag_45s_log(run_cache)
     path = tmp_path_factory.mktemp("logs") / "drive.csv"
     write_drive_log(df, path)
     return df, path

@@ -13,6 +13,7 @@ import html
 import json
 
 import pytest
+from drive_logs import COMBOS, SINGLES, proof_logs
 from lazy_diagnoses import LazyDiagnoses
 
 from pcvfe_drake.models.data import prepare
@@ -20,48 +21,15 @@ from pcvfe_drake.runs.resample import resample_log
 from pcvfe_drake.workbench import synth
 from pcvfe_drake.workbench.report import _html, diagnose
 
-SINGLES = [
-    "drag",
-    "rolling_resistance",
-    "steering_lag",
-    "input_delay",
-    "tire_saturation",
-    "gyro_bias",
-    "speed_scale",
-    "steering_offset",
-    "friction_speed",
-    "friction_load",
-]
-COMBOS = {
-    "input_delay+rolling_resistance": ("input_delay", "rolling_resistance"),
-    "steering_lag+tire_saturation": ("steering_lag", "tire_saturation"),
-    "drag+steering_lag+input_delay": ("drag", "steering_lag", "input_delay"),
-}
 
-
-def combined_truth(names) -> synth.Truth:
-    """One truth with every named effect planted at its PLANTED magnitude."""
-    fields = {}
-    for name in names:
-        truth = synth.PLANTED[name][0]
-        for key, value in truth.__dict__.items():
-            if value != getattr(synth.Truth(), key):
-                fields[key] = value
-    return synth.Truth(**fields)
+@pytest.fixture(scope="module")
+def logs(run_cache):
+    return proof_logs(run_cache, "proof")
 
 
 @pytest.fixture(scope="module")
-def logs():
-    names = ["clean", *SINGLES, *COMBOS]
-    truths = [synth.Truth()] + [synth.PLANTED[n][0] for n in SINGLES]
-    truths += [combined_truth(c) for c in COMBOS.values()]
-    frames = synth.simulate_truths(truths, duration_s=90.0, rate_hz=20.0, seed=0, substeps=2)
-    return dict(zip(names, frames, strict=True))
-
-
-@pytest.fixture(scope="module")
-def reports(logs):
-    return LazyDiagnoses(logs)
+def reports(logs, run_cache):
+    return LazyDiagnoses(logs, run_cache, "proof-")
 
 
 def _check_found(report, planted):

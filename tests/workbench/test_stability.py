@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from drive_logs import seed3_logs
 from scipy.stats import chi2
 
 from pcvfe_drake.models.data import prepare, window_starts
-from pcvfe_drake.workbench import synth
 from pcvfe_drake.workbench.ranking import Workbench
 from pcvfe_drake.workbench.stability import (
     parameter_stability,
@@ -50,12 +50,8 @@ def test_wald_equal_holds_its_size_under_equal_parameters():
 
 
 @pytest.fixture(scope="module")
-def benches():
-    names = ["drag", "rolling_resistance"]
-    frames = synth.simulate_truths(
-        [synth.PLANTED[n][0] for n in names], duration_s=90.0, rate_hz=20.0, seed=3, substeps=2
-    )
-    return {n: Workbench(prepare(df, n)) for n, df in zip(names, frames, strict=True)}
+def benches(run_cache):
+    return {n: Workbench(prepare(df, n)) for n, df in seed3_logs(run_cache).items()}
 
 
 def test_partitions_are_disjoint_and_cover_the_regimes(benches):
