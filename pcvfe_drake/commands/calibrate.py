@@ -18,6 +18,76 @@ CHECK_FRACTION = 0.3
 loose or wet surface (about a third of dry asphalt's grip), the low end of what an off-road car
 meets, so that the held constants are checked across the range the fitter will use them on."""
 
+CHECK_SLOWDOWN = 5.0
+"""The check drive may take this many times the wall time per simulated second that the
+calibration drive took (times the check programme's simulated seconds): the same programme at a
+lower friction costs the integrator a few times more steps where the tyres slide; a drive far
+slower than that is a multi-body state the integrator crawls through (a wheel's speed near zero,
+which the CommonRoad model divides by), which it does not leave."""
+CHECK_MIN_S = 30.0
+"""The least time [s] the check drive is given, whatever the calibration drive took: starting
+the drive's process and the truth's setup cost seconds however short the programme."""
+
+
+class CheckDriveTimeout(RuntimeError):
+    """The check surface's drive ran past its bound (``check_drive_limit_s``)."""
+
+
+def check_drive_limit_s(calibration_wall_s: float, calibration_sim_s: float, check_sim_s: float):
+    """The wall-time bound [s] of the check drive: ``CHECK_SLOWDOWN`` times the calibration
+    drive's wall time per simulated second, times the check programme's simulated seconds, at
+    least ``CHECK_MIN_S``."""
+    rate = calibration_wall_s / max(calibration_sim_s, 1e-9)
+    return max(CHECK_MIN_S, CHECK_SLOWDOWN * rate * check_sim_s)
+
+
+def _drive_child(conn, drive, args, kwargs) -> None:  # pragma: no cover - runs in the child
+    try:
+        conn.send(("ok", drive(*args, **kwargs)))
+    except BaseException as exc:  # noqa: BLE001 - every failure goes back to the parent
+        try:
+            conn.send(("error", exc))
+        except Exception:  # noqa: BLE001 - an exception that does not pickle
+            conn.send(("error", RuntimeError(f"{type(exc).__name__}: {exc}")))
+    finally:
+        conn.close()
+
+
+def bounded_drive(drive, limit_s: float, *args, **kwargs):
+    """``drive(*args, **kwargs)`` in a child process, ended after ``limit_s`` [s] of wall time
+    (:class:`CheckDriveTimeout`); the child's exception is raised here. A drive may hang inside
+    one integrator call (no progress callback runs there), so only a process can bound it.
+    Where processes cannot be forked the drive runs here, unbounded."""
+    import multiprocessing
+
+    if "fork" not in multiprocessing.get_all_start_methods():
+        return drive(*args, **kwargs)
+    ctx = multiprocessing.get_context("fork")
+    parent, child = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_drive_child, args=(child, drive, args, kwargs), daemon=True)
+    proc.start()
+    child.close()
+    try:
+        if not parent.poll(limit_s):
+            raise CheckDriveTimeout(
+                f"the drive ran past its bound of {limit_s:.0f} s (wall time) and was stopped"
+            )
+        try:
+            kind, value = parent.recv()
+        except EOFError:
+            raise RuntimeError(f"the drive's process ended (exit code {proc.exitcode})") from None
+    finally:
+        if proc.is_alive():
+            proc.terminate()
+        proc.join(5.0)
+        if proc.is_alive():
+            proc.kill()
+            proc.join()
+        parent.close()
+    if kind == "error":
+        raise value
+    return value
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -126,7 +196,11 @@ def run(args: argparse.Namespace) -> int:
     known_mu = args.surface_mu
     if args.simulate is not None:
         from pcvfe_drake.vehicle.mb_truth import commonroad_parameters
-        from pcvfe_drake.workbench.calibration_drive import calibration_drive
+        from pcvfe_drake.workbench.calibration_drive import (
+            calibration_drive,
+            programme,
+            programme_duration_s,
+        )
 
         commonroad_parameters(vehicle)  # a vehicle without multi-body parameters fails here
         if known_mu is None:
@@ -141,9 +215,11 @@ def run(args: argparse.Namespace) -> int:
                 report(f"calibration drive {fraction:4.0%}")
 
         report(f"driving the calibration programme: {vehicle}, {args.mapping}, mu {known_mu:g}")
+        wall0 = time.monotonic()
         df = calibration_drive(
             vehicle, args.mapping, known_mu, seed=args.seed, progress=drive_progress
         )
+        drive_wall_s = time.monotonic() - wall0
         if args.save_log:
             try:
                 write_drive_log(df, args.save_log, validate=False)
@@ -166,15 +242,30 @@ def run(args: argparse.Namespace) -> int:
     check = None
     if args.simulate is not None and (args.check_mu is None or args.check_mu > 0):
         check_mu = CHECK_FRACTION * known_mu if args.check_mu is None else args.check_mu
-        report(f"driving the programme on the check surface: mu {check_mu:.3g}")
+        limit_s = check_drive_limit_s(
+            drive_wall_s,
+            programme_duration_s(programme(vehicle, known_mu)),
+            programme_duration_s(programme(vehicle, check_mu)),
+        )
+        report(
+            f"driving the programme on the check surface: mu {check_mu:.3g} "
+            f"(at most {limit_s:.0f} s)"
+        )
         last[0] = -1
         try:
-            check_df = calibration_drive(
-                vehicle, args.mapping, check_mu, seed=args.seed, progress=drive_progress
+            check_df = bounded_drive(
+                calibration_drive,
+                limit_s,
+                vehicle,
+                args.mapping,
+                check_mu,
+                seed=args.seed,
+                progress=drive_progress,
             )
         except (ZeroDivisionError, FloatingPointError, RuntimeError) as exc:
-            # the multi-body truth cannot drive the programme there: the model is written
-            # without a check (its error is extrapolated below the calibration surface)
+            # the multi-body truth cannot drive the programme there (or crawls: the bound):
+            # the model is written without a check (its error is extrapolated below the
+            # calibration surface)
             print(
                 f"warning: the check surface (mu {check_mu:g}) could not be driven on the "
                 f"multi-body truth ({type(exc).__name__}: {exc}); the model has no checked_mu",

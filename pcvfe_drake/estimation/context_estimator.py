@@ -56,6 +56,7 @@ from pcvfe_drake.estimation.fit_options import (
     joint_options,
     without_model_error,
 )
+from pcvfe_drake.estimation.fit_quality import peak_not_shown
 from pcvfe_drake.estimation.fitting import fit_gauss_newton
 from pcvfe_drake.estimation.incremental_fit import WindowInformation
 from pcvfe_drake.estimation.probe import DEFAULT_PROBE_USE_FRACTION, wheel_peak_share
@@ -615,6 +616,11 @@ class ContextEstimator:
         if peak and track > 0:
             th = np.asarray(result.theta, dtype=float)
             share = wheel_peak_share(t, states, self.params, th[0], th[0] * th[1:], track)
+        judged = self._identifiability(old, t, states, result.theta[0], result.std[0], peak, share)
+        untrusted = ""  # a peak the data do not show is not identified (fit_quality)
+        if peak and judged["identifiable"]:
+            untrusted = peak_not_shown(self._effect_fitter, t, states, inputs, result)
+            judged["identifiable"] = not untrusted
         slot.estimate = ContextEstimate(
             context_id=old.context_id,
             theta=tuple(float(v) for v in result.theta),
@@ -635,7 +641,8 @@ class ContextEstimator:
                     result.param_names, result.model_theta, result.model_std, strict=True
                 )
             ),
-            **self._identifiability(old, t, states, result.theta[0], result.std[0], peak, share),
+            untrusted=untrusted,
+            **judged,
         )
         self._published(slot, t, result.data_end_s, t_now)
 

@@ -195,3 +195,87 @@ def _influence(theta, std, R, J, data, options, params, warnings) -> list[dict]:
         f"{together[k]:+.3g}; check the log there (a corrupt sample?) or drop those rows"
     )
     return listed
+
+
+# --- is a friction peak shown by the data? ---------------------------------------------------
+
+PEAK_SHOWN_CHI2 = 3.84
+"""A fitted peak counts as shown when its quasi-likelihood ratio against a tyre without a peak
+reaches the chi-square 95 % quantile of one degree of freedom (the handing's 95 %)."""
+NO_PEAK_FACTOR = 1000.0
+"""The tyre "without a peak" is the fitted tyre with its peak this many times the fitted one,
+at the fitted small-slip stiffness: over any data a car can drive it is the linear tyre."""
+
+
+def no_peak_theta(model, theta: np.ndarray) -> np.ndarray:
+    """``theta`` (mu first) with the peak ``NO_PEAK_FACTOR`` times higher and the same
+    small-slip stiffness: ``peak_tyre``'s stiffness ``mu_nom (mu / mu_nom)^k_s`` kept by
+    changing ``k_s`` with it."""
+    theta = np.asarray(theta, dtype=float)
+    flat = theta.copy()
+    mu = float(theta[0])
+    flat[0] = mu * NO_PEAK_FACTOR
+    names = list(model.param_names)
+    if "peak_tyre.k_s" in names:
+        k = names.index("peak_tyre.k_s")
+        log_nom = math.log(float(model.vehicle.mu))
+        flat[k] = theta[k] * (math.log(mu) - log_nom) / (math.log(flat[0]) - log_nom)
+    return flat
+
+
+def peak_evidence(model, theta: np.ndarray, data, starts, horizon: int, burn_in: int, overlap):
+    """How strongly the data reject a tyre without a peak, against the fitted peak: the
+    quasi-likelihood ratio ``(cost_no_peak - cost_fit) n_eff / cost_fit``.
+
+    ``model`` the workbench model at ``theta`` (mu first; a ``peak_tyre``), fitted on ``data``'s
+    windows ``starts`` (``horizon`` steps, ``burn_in`` left out of the cost, as the fit's
+    cost); ``overlap`` the windows' overlap (horizon over stride). ``n_eff`` is the fitter's
+    count of independent residuals (windows over the overlap, times the fitted states), so
+    ``cost_fit / n_eff`` is the variance of one independent residual, model error included:
+    the ratio is the cost difference in the units chance gives it, a chi-square with one degree
+    of freedom where no peak is the truth. NaN where it cannot be formed.
+
+    Why: with a tyre whose stiffness does not follow the friction (``k_s`` 0) the linear range
+    says nothing about the peak, and data driven far below it are explained by any peak above
+    the friction they used. A model error in the most cornering window (the car turning less
+    than the model says) is then explained best by a peak just above that window's friction:
+    the fit settles there with a small std (the cost rises steeply below it) and looks near
+    its limit by construction, yet the data as a whole barely prefer it to no peak at all.
+    Data driven at the limit prefer their peak by orders of magnitude more."""
+    from pcvfe_drake.models.estimate import FIT_STATES, training_costs
+
+    theta = np.asarray(theta, dtype=float)
+    n = len(starts)
+    if n < 1 or not (math.isfinite(theta[0]) and theta[0] > 0):
+        return math.nan
+    rows = np.stack([theta, no_peak_theta(model, theta)])
+    cost = training_costs(model, rows, data, np.asarray(starts), horizon, burn_in)
+    n_eff = n / max(float(overlap), 1.0) * len(FIT_STATES)
+    if not (all(math.isfinite(c) for c in cost) and cost[0] > 0):
+        return math.nan
+    return float((cost[1] - cost[0]) * n_eff / cost[0])
+
+
+def peak_not_shown(fitter, t, states, inputs, result) -> str:
+    """Why the effect fit ``result`` of ``fitter`` (an ``EffectFitter`` with a peak tyre) on
+    the buffer ``t``, ``states``, ``inputs`` does not show its friction peak ("": it does; see
+    :func:`peak_evidence`)."""
+    from pcvfe_drake.estimation.effect_fit import drive_data_from_arrays
+
+    data = drive_data_from_arrays(t, states, inputs, "context buffer")
+    starts, horizon, burn_in = fitter.windows(data)
+    ratio = peak_evidence(
+        fitter.model,
+        result.model_theta,
+        data,
+        starts,
+        horizon,
+        burn_in,
+        fitter.horizon_s / fitter.stride_s,
+    )
+    if math.isfinite(ratio) and ratio >= PEAK_SHOWN_CHI2:
+        return ""
+    return (
+        f"the data do not show the peak: a tyre without one explains them nearly as well "
+        f"(quasi-likelihood ratio {ratio:.3g} < {PEAK_SHOWN_CHI2:g})"
+    )

@@ -7,7 +7,9 @@ not); these rules decide what the controller gets for it:
 * no fit yet: **unknown** (the unknown-context value, ``pcvfe_drake.handing.unknown``);
 * identifiable: **identified**, handed its own estimate, also below the stated floor (the floor
   is an operator's guess, the fit a measurement), less the model error that grows away from the
-  frictions the effect model was calibrated at (:class:`ModelError`);
+  frictions the effect model was calibrated at (:class:`ModelError`), but never less than the
+  friction its data used (the car drove it without sliding: a measured lower bound, whatever
+  the model's error);
 * not identifiable: **exploring** (``!Probe``: the probe's level, at most the upper end of the
   fit's 95 % interval; ``!LowerBound``: the friction the data used, at least the floor, at most
   the fit; ``!Estimate``: the fit), or **backed off** while the probe's last move was a
@@ -123,15 +125,18 @@ def handed_theta(
     if estimate.below_used:
         mu = max(mu, bound)
     if estimate.identifiable:
-        mu = max(model_error.handed_mu(mu), bound if estimate.below_used else 0.0)
+        # the grown model error never takes it below the friction the car demonstrated there
+        mu = max(model_error.handed_mu(mu), bound)
     elif isinstance(policy, LowerBound):
         cap = math.inf if estimate.below_used else mu
         mu = min(max(bound, floor_mu), cap)
     elif isinstance(policy, Probe):
         # at most the upper end of the fit's 95 % interval (a value its data do not exclude),
-        # never below the floor where the probe starts
+        # never below the floor where the probe starts; a fit below the friction used or whose
+        # peak the data do not show (``untrusted``) excludes nothing above it
         std = estimate.mu_std
-        cap = mu + Z_95 * std if math.isfinite(std) and not estimate.below_used else math.inf
+        bounded = math.isfinite(std) and not (estimate.below_used or estimate.untrusted)
+        cap = mu + Z_95 * std if bounded else math.inf
         start = probe.mu if probe.started else max(bound, floor_mu)
         mu = min(start, max(cap, floor_mu))
     elif not isinstance(policy, Estimate):

@@ -239,7 +239,8 @@ class Handing:
                 state.handed_fit_mu = state.handed_fit_end_s = math.nan
         handed = self.context_theta(estimate)  # what the car drove with
         tight = math.isfinite(estimate.mu_std) and estimate.mu_std <= self.identifiable_std
-        target = estimate.mu if tight and not estimate.below_used else math.nan
+        shown = not (estimate.below_used or estimate.untrusted)  # a fit its data contradict
+        target = estimate.mu if tight and shown else math.nan  # is no level to rise to
         state.probe = probe_update(
             state.probe,
             t_now,

@@ -149,6 +149,11 @@ def test_model_error_grows_away_from_the_calibrated_frictions():
     assert err.handed_mu(1.05) < 0.9  # an over-estimate of a 0.9 ground is not handed
     assert err.handed_mu(0.2) < 0.2 and err.rel_at(0.2) == pytest.approx(0.11 * 1.5)
     assert ModelError(0.11).handed_mu(1.05) == 1.05  # no calibration known: no growth
+    # below the checked friction the grown error is never handed below the friction used
+    low = Handing(HandingConfig(), PRIOR, VP, model_error=err)
+    assert err.handed_mu(0.12) < 0.1
+    assert low.context_theta(fit(0, 0.12, used=0.1))[0] == pytest.approx(0.1)
+    assert low.context_theta(fit(0, 0.12))[0] == pytest.approx(max(err.handed_mu(0.12), 0.05))
     h = Handing(HandingConfig(), PRIOR, VP, model_error=err)
     assert h.context_theta(fit(0, 1.05))[0] == pytest.approx(expected)
     assert h.context_theta(fit(0, 1.05, identifiable=False))[0] == 1.05  # !Estimate: the fit

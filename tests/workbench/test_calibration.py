@@ -192,6 +192,63 @@ def test_a_check_surface_the_truth_cannot_drive_is_a_warning(
     assert main([*argv, "--no-progress"]) == 0
     err = capsys.readouterr().err
     assert "warning: the check surface" in err and "the model has no checked_mu" in err
-    assert surfaces[1] == pytest.approx(0.3 * surfaces[0])
+    assert "ZeroDivisionError: float division by zero" in err  # raised in the drive's process
+    check_mu = float(err.split("the check surface (mu ")[1].split(")")[0])
+    assert check_mu == pytest.approx(0.3 * surfaces[0], rel=1e-4)
     model = load_model_file(out)
     assert model.checked_mu is None and model.calibrated_mu is not None
+
+
+def test_a_check_drive_past_its_bound_is_stopped_with_a_warning(
+    calibration, tmp_path, capsys, monkeypatch
+):
+    """A check drive that crawls (here: hangs) is stopped after its bound, derived from the
+    calibration drive's wall time per simulated second; the model is written without
+    checked_mu, as when the truth fails there."""
+    import copy
+    import time
+
+    import pcvfe_drake.commands.calibrate as command
+    import pcvfe_drake.workbench.calibration as calibration_module
+    import pcvfe_drake.workbench.calibration_drive as drive_module
+    from pcvfe_drake.cli import main
+
+    df = simulate_truths([PLANTED], VP, duration_s=25.0, seed=3)[0]
+    calls = []
+
+    def drive(vehicle, mapping, mu, seed=0, progress=None):
+        calls.append(mu)
+        if len(calls) == 2:  # in the check drive's process
+            time.sleep(60.0)
+        time.sleep(0.02)
+        return df
+
+    monkeypatch.setattr(drive_module, "calibration_drive", drive)
+    monkeypatch.setattr(calibration_module, "calibrate", lambda *a, **k: copy.deepcopy(calibration))
+    monkeypatch.setattr(command, "CHECK_MIN_S", 0.5)
+    out = tmp_path / "model.yaml"
+    argv = ["calibrate", "--simulate", "ford_escort", "--mapping", "lateral_peak"]
+    start = time.monotonic()
+    assert main([*argv, "--out", str(out), "--no-progress"]) == 0
+    assert time.monotonic() - start < 20.0
+    err = capsys.readouterr().err
+    assert "CheckDriveTimeout" in err and "ran past its bound" in err
+    assert "the model has no checked_mu" in err
+    model = load_model_file(out)
+    assert model.checked_mu is None and model.calibrated_mu is not None
+
+
+def test_the_check_drive_bound_follows_the_calibration_drive():
+    from pcvfe_drake.commands.calibrate import (
+        CHECK_MIN_S,
+        CHECK_SLOWDOWN,
+        bounded_drive,
+        check_drive_limit_s,
+    )
+
+    # 100 s of programme driven in 200 s: 2 s per simulated second
+    assert check_drive_limit_s(200.0, 100.0, 120.0) == pytest.approx(CHECK_SLOWDOWN * 240.0)
+    assert check_drive_limit_s(0.1, 100.0, 100.0) == CHECK_MIN_S
+    assert bounded_drive(lambda a, b=0: a + b, 5.0, 1, b=2) == 3
+    with pytest.raises(FloatingPointError, match="overflow"):
+        bounded_drive(lambda: (_ for _ in ()).throw(FloatingPointError("overflow")), 5.0)
