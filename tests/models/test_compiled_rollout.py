@@ -180,3 +180,11 @@ def test_a_fit_of_mu_alone_uses_the_exact_sensitivity():
     assert np.count_nonzero(jac[:, 1:]) == 0
     np.testing.assert_allclose(jac[:, 0], jac_fd[:, 0], rtol=1e-4, atol=1e-6 * np.abs(jac).max())
     assert not np.array_equal(jac[:, 0], jac_fd[:, 0])  # exact, not the differences
+
+
+def test_the_compiled_rollout_releases_the_gil():
+    """The LCM station refits in a worker thread beside the loop's thread: the compiled rollout
+    (most of a refit's arithmetic) must not hold the GIL, or the loop would wait for it."""
+    from pcvfe_drake.models import compiled_rollout
+
+    assert compiled_rollout._rollout_rows.targetoptions.get("nogil") is True
