@@ -1,15 +1,13 @@
 """Online per-context friction estimation: a labelled sample store, bounded refits, a table.
 
-:class:`ContextEstimator` is the core of the ``ContextFitter`` LeafSystem (and usable without
-Drake): samples of (time, state, input) are appended, labelled with the current context id, to
-one time-ordered store (:class:`pcvfe_drake.estimation.sample_store.SampleStore`) at the data
-rate; :meth:`ContextEstimator.relabel` gives the stored samples the labels of the clustering as
-it now stands (paper eq. 5d: after a re-clustering, the noise samples of a terrain that was new
-join its context); :meth:`ContextEstimator.refit` refits contexts whose data changed (samples
-gained, or relabelled in or out), a bounded amount of work per call (at most
-``max_contexts_per_update`` contexts, each on at most ``max_windows`` of its most recent windows
-for at most ``max_iterations`` Gauss-Newton iterations, warm-started from the previous estimate;
-contexts are served round-robin).
+:class:`ContextEstimator` is the core of the ``ContextFitter`` LeafSystem (usable without Drake):
+samples (time, state, input) are appended, labelled with the current context id, to one
+time-ordered store (``sample_store.SampleStore``) at the data rate; :meth:`relabel` gives them
+the labels of the clustering as it now stands (paper eq. 5d: after a re-clustering, the noise
+samples of a terrain that was new join its context); :meth:`refit` refits contexts whose data
+changed (samples gained, or relabelled in or out), a bounded amount of work per call (at most
+``max_contexts_per_update`` contexts, round-robin, each on at most ``max_windows`` of its most
+recent windows for at most ``max_iterations`` iterations, warm-started).
 
 Rules (the "bad input" behaviour):
 
@@ -18,16 +16,14 @@ Rules (the "bad input" behaviour):
   fitted unless a relabelling gives them a context;
 * a context with fewer than ``min_windows`` usable windows keeps the prior theta and its table
   entry says so (status ``"too_little_data"``);
-* what the controller gets for the current frame, a noise frame or a context without a fit
-  is decided by the handing (``pcvfe_drake.handing``: the fitter's estimates in, the handed
-  theta and each context's state out);
+* what the controller gets (current frame, noise frame, context without a fit) is decided by
+  the handing (``pcvfe_drake.handing``: estimates in, handed theta and context states out);
 * a refit whose solver diverges (non-finite loss or estimate) keeps the last good estimate and
   increments the context's ``diverged`` count;
 * :meth:`ContextEstimator.theta_for` always returns finite numbers.
 
-The object is copied by Drake at every state update; the store is chunked so that a copy shares
-the full, immutable chunks and copies only the partly filled one. Memory: each label (every
-context, and noise) keeps its newest ``buffer_s`` of samples.
+Drake copies the object at every state update; the chunked store's copy shares the full chunks
+and copies the partly filled one. Memory: each label keeps its newest ``buffer_s`` of samples.
 """
 
 from __future__ import annotations

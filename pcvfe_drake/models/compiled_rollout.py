@@ -80,8 +80,7 @@ def compiled_effect_plan(effects) -> dict | None:
     if numba is None:
         return None
     from pcvfe_drake.models.chassis_effects import AxleStiffness, TrackSlip, WheelForceSteer
-    from pcvfe_drake.models.effects import Effect
-    from pcvfe_drake.models.model import RHS_HOOKS
+    from pcvfe_drake.models.effects import RHS_HOOKS, Effect
     from pcvfe_drake.models.tyre_effects import PeakTyre, RollCamber
 
     known = (PeakTyre, TrackSlip, RollCamber, WheelForceSteer, AxleStiffness)
@@ -114,7 +113,7 @@ def _constants(vp, effects) -> np.ndarray:
     """The vehicle's parameters and the constants of the model and its effects, passed at run
     time (a compiled function's globals would be frozen into its disk cache)."""
     from pcvfe_drake.models.chassis_effects import MAX_LOAD_SHIFT
-    from pcvfe_drake.models.model import V_FLOOR_MPS
+    from pcvfe_drake.models.effects import V_FLOOR_MPS
     from pcvfe_drake.models.tyre_effects import MF_SHAPE, ROLL_SIGN_WIDTH_MPS2
 
     shape = next((e.shape for e in effects if e.name == "peak_tyre"), MF_SHAPE)

@@ -126,6 +126,25 @@ class StepContext:
     cache: dict = field(default_factory=dict)
 
 
+V_FLOOR_MPS = 0.1
+"""Speed below which the force-form model is evaluated at this speed (matches vehicle.py)."""
+
+RHS_HOOKS = (
+    "accel",
+    "wheel_angle",
+    "longitudinal",
+    "load_transfer",
+    "friction",
+    "cornering_stiffness",
+    "tire_offsets",
+    "wheel_slips",
+    "tire",
+    "body_forces",
+)
+"""The :class:`Effect` hooks the right-hand side calls (each is skipped for an effect that
+keeps the base class's, which changes nothing)."""
+
+
 class Effect:
     """Base class of an effect; subclasses override the hooks they need.
 

@@ -49,12 +49,16 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from pcvfe_drake.models.data import DriveData
-from pcvfe_drake.models.effects import Effect, EffectParam, StepContext, get_effect
+from pcvfe_drake.models.effects import (
+    RHS_HOOKS,
+    V_FLOOR_MPS,
+    Effect,
+    EffectParam,
+    StepContext,
+    get_effect,
+)
 from pcvfe_drake.vehicle.params import THETA_NAMES, VehicleParams, load_vehicle
 from pcvfe_drake.vehicle.single_track import BETA, DELTA, NX, PSI, PSI_DOT, V, wrap_angle
-
-V_FLOOR_MPS = 0.1
-"""Speed below which the force-form model is evaluated at this speed (matches vehicle.py)."""
 
 MAX_SUBSTEPS = 50
 """Most RK4 steps per sample step (taken at low speed, slow rates or fast effects)."""
@@ -97,22 +101,6 @@ def applied_inputs(x: np.ndarray, u: np.ndarray, vp: VehicleParams):
         halt = ((v <= vp.v_min) & (acc <= 0)) | ((v >= vp.v_max) & (acc >= 0))
         acc[halt] = 0.0
     return steer, acc
-
-
-RHS_HOOKS = (
-    "accel",
-    "wheel_angle",
-    "longitudinal",
-    "load_transfer",
-    "friction",
-    "cornering_stiffness",
-    "tire_offsets",
-    "wheel_slips",
-    "tire",
-    "body_forces",
-)
-"""The :class:`Effect` hooks the right-hand side calls (each is skipped for an effect that
-keeps the base class's, which changes nothing)."""
 
 
 def _plus(a, b):
