@@ -34,8 +34,14 @@ from pcvfe_drake.evaluation.experiment import (
 )
 from pcvfe_drake.runs.scenario import resolve_scenario_path
 from pcvfe_drake.vehicle.params import load_vehicle
+from pcvfe_drake.worlds import build as world_build
 from pcvfe_drake.worlds.generate import write_generated_world
-from pcvfe_drake.worlds.world_file import WORLD_DIR, lowest_mu, resolve_world_path
+from pcvfe_drake.worlds.world_file import (
+    WORLD_DIR,
+    TerrainOverride,
+    lowest_mu,
+    resolve_world_path,
+)
 
 
 def experiment_from_yaml_text(text: str, source: str = "<string>") -> Experiment:
@@ -67,9 +73,11 @@ def stated_floor(scenario: dict, offset: float, where: str) -> dict:
     ``fitter.handing.floor_mu`` and ``fixed.conservative_mu``."""
     try:
         spec, _ = load_world(scenario["world"])
+        changes = {n: TerrainOverride(**c) for n, c in (scenario.get("terrains") or {}).items()}
+        spec = world_build.apply_overrides(spec, changes, where)
     except (ValueError, FileNotFoundError) as exc:
         raise ValueError(f"{where}: floor_offset: {exc}") from exc
-    floor = max(MIN_STATED_FLOOR, lowest_mu(spec, scenario.get("terrains")) + offset)
+    floor = max(MIN_STATED_FLOOR, lowest_mu(spec) + offset)
     values = {"fitter.handing.floor_mu": round(floor, 6), "fixed.conservative_mu": round(floor, 6)}
     return apply_overrides(scenario, values, f"{where}: floor_offset")
 

@@ -615,7 +615,7 @@ class ContextEstimator:
         judged = self._identifiability(old, t, states, result.theta[0], result.std[0], peak, share)
         untrusted = ""  # a peak the data do not show is not identified (fit_quality)
         if peak and judged["identifiable"]:
-            untrusted = peak_not_shown(self._effect_fitter, t, states, inputs, result)
+            untrusted = peak_not_shown(self._effect_fitter, result)
             judged["identifiable"] = not untrusted
         slot.estimate = ContextEstimate(
             context_id=old.context_id,

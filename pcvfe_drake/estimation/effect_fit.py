@@ -261,6 +261,9 @@ class EffectFitResult:
     """Batched rollouts of an incremental refit (0: a batch fit)."""
     data_end_s: float = math.nan
     """The newest sample time inside a fitted window [s]."""
+    windows: tuple | None = field(default=None, repr=False, compare=False)
+    """What the fit was made on, ``(DriveData, starts, horizon, burn_in)``, for checks of the
+    same windows (``fit_quality.peak_not_shown``) without building the data again."""
 
 
 @dataclass
@@ -385,6 +388,7 @@ class EffectFitter:
         )
         result = to_result(self.model, res, starts.size, self.model_error_rel)
         result.data_end_s = float(data.t[starts[-1] + horizon])
+        result.windows = (data, starts, horizon, burn_in)
         if not with_information or res.residuals is None or res.jacobian is None:
             return result
         if not np.all(np.isfinite(res.residuals)):
@@ -496,6 +500,7 @@ class EffectFitter:
         result = to_result(model, res, starts.size, self.model_error_rel)
         result.incremental, result.rollouts = True, out.rollouts
         result.data_end_s = float(data.t[starts[-1] + horizon])
+        result.windows = (data, starts, horizon, burn_in)
         return result, out.info
 
 

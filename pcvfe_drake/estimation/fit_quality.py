@@ -256,23 +256,13 @@ def peak_evidence(model, theta: np.ndarray, data, starts, horizon: int, burn_in:
     return float((cost[1] - cost[0]) * n_eff / cost[0])
 
 
-def peak_not_shown(fitter, t, states, inputs, result) -> str:
-    """Why the effect fit ``result`` of ``fitter`` (an ``EffectFitter`` with a peak tyre) on
-    the buffer ``t``, ``states``, ``inputs`` does not show its friction peak ("": it does; see
-    :func:`peak_evidence`)."""
-    from pcvfe_drake.estimation.effect_fit import drive_data_from_arrays
-
-    data = drive_data_from_arrays(t, states, inputs, "context buffer")
-    starts, horizon, burn_in = fitter.windows(data)
-    ratio = peak_evidence(
-        fitter.model,
-        result.model_theta,
-        data,
-        starts,
-        horizon,
-        burn_in,
-        fitter.horizon_s / fitter.stride_s,
-    )
+def peak_not_shown(fitter, result) -> str:
+    """Why the effect fit ``result`` of ``fitter`` (an ``EffectFitter`` with a peak tyre) does
+    not show its friction peak on the windows it was fitted on (``result.windows``; "": it
+    does; see :func:`peak_evidence`)."""
+    data, starts, horizon, burn_in = result.windows
+    overlap = fitter.horizon_s / fitter.stride_s
+    ratio = peak_evidence(fitter.model, result.model_theta, data, starts, horizon, burn_in, overlap)
     if math.isfinite(ratio) and ratio >= PEAK_SHOWN_CHI2:
         return ""
     return (

@@ -94,19 +94,15 @@ def compiled_effect_plan(effects) -> dict | None:
     return present
 
 
-def load(model) -> bool:
-    """Compile the rollout, or load it from the disk cache, now (a tiny rollout of ``model``)
-    instead of in the first refit: a loop that starts with it loaded never waits for numba.
-    False when the model's rollout is not compiled."""
-    plan = compiled_effect_plan(model.effects)
-    if plan is None:
-        return False
+def load(model, plan: dict) -> None:
+    """Compile the rollout, or load it from the disk cache, now (a tiny rollout of ``model``,
+    whose :func:`compiled_effect_plan` is ``plan``) instead of in the first refit: a loop that
+    starts with it loaded never waits for numba."""
     theta = np.atleast_2d(model.initial_theta())
     base, eff = model._unpack(theta, np.zeros(1, dtype=int))
     Z = np.zeros((1, 2, 7))
     Z[0, 0, 3] = 5.0
     rollout(Z, np.zeros((1, 1, 2)), 1, 0.01, model, base, eff, plan)
-    return True
 
 
 def _constants(vp, effects) -> np.ndarray:

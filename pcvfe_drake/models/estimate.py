@@ -104,7 +104,12 @@ def whitened_errors(
 ) -> np.ndarray:
     """Errors (N, horizon - burn_in, len(FIT_STATES)) divided by the log's noise scales,
     leaving out the first ``burn_in`` steps of each window."""
-    err = model.errors(theta_rows, data, starts, horizon)
+    return _whitened(model.errors(theta_rows, data, starts, horizon), data, burn_in)
+
+
+def _whitened(err: np.ndarray, data: DriveData, burn_in: int) -> np.ndarray:
+    """``err`` (N, steps, 7), per fitted state divided by its noise scale, without the first
+    ``burn_in`` steps."""
     idx = list(FIT_STATES)
     return err[:, burn_in:, idx] / data.sigma[idx]
 
@@ -150,10 +155,9 @@ def _exact_mu(model, theta, data, starts, horizon, burn_in, cols):
     if out is None:
         return None
     Z, sens = out
-    idx = list(FIT_STATES)
-    r = (rollout_errors(Z, data, starts, horizon)[:, burn_in:, idx] / data.sigma[idx]).reshape(-1)
+    r = _whitened(rollout_errors(Z, data, starts, horizon), data, burn_in).reshape(-1)
     jac = np.zeros((r.size, model.n_params))
-    jac[:, int(cols[0])] = (sens[:, 1 + burn_in :, idx] / data.sigma[idx]).reshape(-1)
+    jac[:, int(cols[0])] = _whitened(sens[:, 1:], data, burn_in).reshape(-1)
     return r, jac
 
 

@@ -428,7 +428,7 @@ class WorkbenchModel:
         limits.append(self.stable_step(base, data.x[idx, V], eff))
         substeps = int(min(MAX_SUBSTEPS, max(1, np.ceil(data.dt / min(limits) - 1e-9))))
         h = data.dt / substeps
-        plan = self._compiled_plan() if self.compiled_rollout else None
+        plan = self._compiled_plan()
         if plan is not None:
             from pcvfe_drake.models.compiled_rollout import rollout
 
@@ -464,7 +464,7 @@ class WorkbenchModel:
         steps, ``compiled_rollout``), instead of finite differences. None where it does not
         apply: the rollout is not compiled, or a sensor effect reports other states than the
         model's (its derivative is not the states')."""
-        if not self.compiled_rollout or self._compiled_plan() is None or self._sensors:
+        if self._compiled_plan() is None or self._sensors:
             return None
         n = np.asarray(starts).size
         sens = np.zeros((n, horizon + 1, NX))
@@ -475,14 +475,19 @@ class WorkbenchModel:
         """Load the compiled rollout now (numba's compilation or disk cache) rather than in the
         first rollout, so that a real-time loop's first refit does not pay for it; False when
         this model is rolled out by numpy."""
-        if not (self.compiled_rollout and self._compiled_plan() is not None):
+        plan = self._compiled_plan()
+        if plan is None:
             return False
         from pcvfe_drake.models.compiled_rollout import load
 
-        return load(self)
+        load(self, plan)
+        return True
 
     def _compiled_plan(self) -> dict | None:
-        """The compiled rollout's plan for this model's effects (None: numpy), found once."""
+        """The compiled rollout's plan for this model's effects, found once; None: the numpy
+        rollout (effects the compiled code does not know, or ``compiled_rollout`` off)."""
+        if not self.compiled_rollout:
+            return None
         if self._plan is False:
             from pcvfe_drake.models.compiled_rollout import compiled_effect_plan
 

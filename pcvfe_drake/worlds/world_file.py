@@ -164,18 +164,12 @@ def _is_number(value) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
-def lowest_mu(world: WorldSpec, terrains: dict | None = None) -> float:
-    """The lowest nominal friction among the world's terrains [-], with a scenario's per-terrain
-    ``terrains`` overrides (``{name: {mu: ...}}``) applied. A terrain's spatial variation is
-    left out: it is the ground's spread around the friction an operator would name."""
-    changed = {
-        name: (o.get("mu") if isinstance(o, dict) else getattr(o, "mu", None))
-        for name, o in (terrains or {}).items()
-    }
-    return min(
-        float(changed[t.name]) if changed.get(t.name) is not None else float(t.mu)
-        for t in world.terrains
-    )
+def lowest_mu(world: WorldSpec) -> float:
+    """The lowest nominal friction among the world's terrains [-] (a scenario's ``terrains``
+    overrides applied first by ``worlds.build.apply_overrides``). A terrain's spatial
+    variation is left out: it is the ground's spread around the friction an operator would
+    name."""
+    return min(float(t.mu) for t in world.terrains)
 
 
 def mu_problem(value) -> str:

@@ -57,7 +57,7 @@ def test_a_drive_near_its_peak_shows_it_one_far_below_does_not(drives):
     assert abs(near.theta[0] - 0.45) < 0.05
     assert friction_used(t, x, lateral_only=True) > 0.6 * 0.45  # the drive came near it
     assert evidence(fitter, t, x, u, near.model_theta) > PEAK_SHOWN_CHI2
-    assert peak_not_shown(fitter, t, x, u, near) == ""
+    assert peak_not_shown(fitter, near) == ""
 
     used = friction_used(t2, x2, lateral_only=True)
     assert used < 0.25 * 3.0  # far below the peak
@@ -69,7 +69,7 @@ def test_a_drive_near_its_peak_shows_it_one_far_below_does_not(drives):
     knee[0] = used / 0.6
     assert evidence(fitter, t2, x2, u2, knee) < PEAK_SHOWN_CHI2
     far.model_theta[:] = knee
-    assert "the data do not show the peak" in peak_not_shown(fitter, t2, x2, u2, far)
+    assert "the data do not show the peak" in peak_not_shown(fitter, far)
 
 
 @pytest.mark.parametrize("k_s", [0.0, 1.0, 0.5])

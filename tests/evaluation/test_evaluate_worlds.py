@@ -140,13 +140,20 @@ def test_the_stated_floor_follows_each_world_s_lowest_friction(tmp_path):
 
 
 def test_a_terrain_override_moves_the_lowest_friction():
+    from pcvfe_drake.diagrams.experiment_io import stated_floor
     from pcvfe_drake.diagrams.world_io import load_world
+    from pcvfe_drake.runs.scenario import Scenario
     from pcvfe_drake.worlds.world_file import lowest_mu
 
     spec, _ = load_world("paper_small")
     assert lowest_mu(spec) == 0.3
-    assert lowest_mu(spec, {"patchy_grass": {"mu": 0.22}}) == 0.22
-    assert lowest_mu(spec, {"patchy_grass": {"mu": 0.9}}) == 0.45
+
+    def floor(terrains):
+        scenario = dict(Scenario().to_dict(), world="paper_small", terrains=terrains)
+        return stated_floor(scenario, 0.0, "test")["fitter"]["handing"]["floor_mu"]
+
+    assert floor({"patchy_grass": {"mu": 0.22}}) == 0.22
+    assert floor({"patchy_grass": {"mu": 0.9}}) == 0.45
 
 
 def test_a_bad_floor_offset_is_named():
