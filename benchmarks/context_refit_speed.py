@@ -27,7 +27,8 @@ import time
 
 import numpy as np
 
-from pcvfe_drake.estimation.context_estimator import ContextEstimator, LiveFitConfig
+from pcvfe_drake.estimation.context_estimator import ContextEstimator
+from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 from pcvfe_drake.models.effect_model import EffectModel
 from pcvfe_drake.vehicle.params import ford_escort
 from pcvfe_drake.workbench import synth

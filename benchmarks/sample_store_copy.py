@@ -21,7 +21,8 @@ import time
 
 import numpy as np
 
-from pcvfe_drake.estimation.context_estimator import ContextEstimator, LiveFitConfig
+from pcvfe_drake.estimation.context_estimator import ContextEstimator
+from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 from pcvfe_drake.vehicle.params import ford_escort
 
 

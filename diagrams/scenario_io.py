@@ -26,7 +26,7 @@ import yaml
 from pydrake.common.yaml import yaml_load_typed
 from pydrake.systems.analysis import GetIntegrationSchemes
 
-from pcvfe_drake.estimation.context_estimator import LiveFitConfig
+from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 from pcvfe_drake.handing.config import FLAT_FIELDS
 from pcvfe_drake.runs.scenario import (
     DERIVED_FIELDS,

@@ -12,7 +12,8 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, Context, EventStatus, LeafSystem, State
 
 from pcvfe_drake.contexts.cluster_table import FrameLabels
-from pcvfe_drake.estimation.context_estimator import ContextEstimator, EstimateTable, LiveFitConfig
+from pcvfe_drake.estimation.context_estimator import ContextEstimator, EstimateTable
+from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 from pcvfe_drake.estimation.probe import DEFAULT_PROBE_USE_FRACTION
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import NTHETA, NU, NX
@@ -60,7 +61,7 @@ class ContextFitter(LeafSystem):
     starts a refit of the contexts whose data changed, on the data up to then, published
     ``latency_s`` later (the declared latency, in simulated time: the NMPC never waits for a
     refit, and a seed still gives one result; 0: published at once), bounded per update (see
-    :class:`pcvfe_drake.estimation.context_estimator.LiveFitConfig`: ``max_contexts_per_update``,
+    :class:`pcvfe_drake.estimation.live_fit_config.LiveFitConfig`: ``max_contexts_per_update``,
     ``max_windows``, ``max_iterations``). When both fire at once the sample is taken first. The
     :class:`ContextEstimator` (sample store, estimates) lives in the context's abstract state.
     """

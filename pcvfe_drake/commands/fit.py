@@ -207,7 +207,7 @@ def default_fit_model(log: Path, scenario: str | Path | None = None) -> FitModel
 
     Raises ValueError naming the file when the scenario cannot be read or its ``fitter`` section
     is invalid (a run's model is never swapped silently for another)."""
-    from pcvfe_drake.estimation.context_estimator import LiveFitConfig
+    from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 
     if scenario is not None:
         from pcvfe_drake.runs.scenario_files import resolve_scenario_path

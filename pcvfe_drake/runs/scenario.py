@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 from pcvfe_drake.contexts.clustering_params import ClusteringParams
 from pcvfe_drake.control.nmpc_config import NmpcConfig
-from pcvfe_drake.estimation.context_estimator import LiveFitConfig
+from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 from pcvfe_drake.models.effect_model import EffectModel, resolve_model
 from pcvfe_drake.estimation.ukf import UkfConfig
 from pcvfe_drake.hardware.settings import HardwareSettings, hardware_problems

@@ -187,7 +187,7 @@ def test_ctrl_c_or_an_error_keeps_what_was_logged(tmp_path, monkeypatch, stop):
 
 def test_the_scenario_configs_reach_the_systems():
     """The diagram is built from the scenario's own configs, with the rates filled in."""
-    from pcvfe_drake.estimation.context_estimator import LiveFitConfig
+    from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
     from pcvfe_drake.handing.config import HandingConfig
 
     handing = HandingConfig(noise_hold_s=0.5)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from pcvfe_drake.cli import main
-from pcvfe_drake.estimation.context_estimator import ContextEstimator, LiveFitConfig
+from pcvfe_drake.estimation.context_estimator import ContextEstimator
 from pcvfe_drake.estimation.effect_fit import (
     EffectFitter,
     build_model,
@@ -19,6 +19,7 @@ from pcvfe_drake.estimation.effect_fit import (
     friction_used,
     small_slip_stiffness,
 )
+from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 from pcvfe_drake.handing.config import HandingConfig, LowerBound
 from pcvfe_drake.models.effect_model import EffectModel, FitterEffect, parse_effects
 from pcvfe_drake.runs.drivelog import write_drive_log

@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from pcvfe_drake.estimation.context_estimator import ContextEstimator, LiveFitConfig
+from pcvfe_drake.estimation.context_estimator import ContextEstimator
 from pcvfe_drake.estimation.fit_dataset import SKIP_REASONS, build_windows, windows_from_log
 from pcvfe_drake.estimation.fit_loss import window_loss, window_loss_and_gradient
 from pcvfe_drake.estimation.fit_options import (
@@ -18,6 +18,7 @@ from pcvfe_drake.estimation.fit_options import (
     joint_options,
 )
 from pcvfe_drake.estimation.fitting import fit_adam, fit_contexts, fit_gauss_newton
+from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 from pcvfe_drake.handing.config import HandingConfig, Prior
 from pcvfe_drake.models.synthetic_drive import drive_frame, s_curve_drive
 from pcvfe_drake.vehicle.measurement_noise import MeasurementNoise

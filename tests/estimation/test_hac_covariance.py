@@ -174,9 +174,9 @@ def test_st_fit_std_and_model_error_budget():
 
 
 def test_bad_settings_are_refused():
-    from pcvfe_drake.estimation.context_estimator import LiveFitConfig
     from pcvfe_drake.estimation.effect_fit import EffectFitter
     from pcvfe_drake.estimation.fit_options import FitOptions
+    from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
     from pcvfe_drake.models.effect_model import EffectModel
     from pcvfe_drake.vehicle.params import ford_escort
 

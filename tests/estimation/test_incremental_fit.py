@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pcvfe_drake.estimation.context_estimator import ContextEstimator, LiveFitConfig
+from pcvfe_drake.estimation.context_estimator import ContextEstimator
 from pcvfe_drake.estimation.effect_fit import EffectFitter
 from pcvfe_drake.estimation.incremental_fit import (
     RELINEARISE_SCALE,
@@ -17,6 +17,7 @@ from pcvfe_drake.estimation.incremental_fit import (
     quadratic,
     window_sums,
 )
+from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 from pcvfe_drake.models import least_squares as lsq
 from pcvfe_drake.models.effect_model import EffectModel
 from pcvfe_drake.vehicle.params import ford_escort

@@ -7,8 +7,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from pcvfe_drake.estimation.context_estimator import ContextEstimator, LiveFitConfig
+from pcvfe_drake.estimation.context_estimator import ContextEstimator
 from pcvfe_drake.estimation.effect_fit import friction_used
+from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 from pcvfe_drake.estimation.probe import (
     ProbeSettings,
     ProbeState,

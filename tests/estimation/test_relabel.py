@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from pcvfe_drake.contexts.clustering import ClusteringParams, ContextClusterer
-from pcvfe_drake.estimation.context_estimator import ContextEstimator, LiveFitConfig
+from pcvfe_drake.estimation.context_estimator import ContextEstimator
+from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 from pcvfe_drake.estimation.sample_store import SampleStore, labels_from_frames
 from pcvfe_drake.handing.config import HandingConfig, Prior
 from pcvfe_drake.models.synthetic_drive import s_curve_drive

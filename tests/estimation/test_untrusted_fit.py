@@ -8,8 +8,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from pcvfe_drake.estimation.context_estimator import ContextEstimator, LiveFitConfig
+from pcvfe_drake.estimation.context_estimator import ContextEstimator
 from pcvfe_drake.estimation.fitting import fit_gauss_newton
+from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 from pcvfe_drake.models.synthetic_drive import s_curve_drive
 from pcvfe_drake.runs.summary import _limit_flag
 from pcvfe_drake.vehicle.params import ford_escort

@@ -7,8 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from pcvfe_drake.estimation.context_estimator import ContextEstimator, LiveFitConfig
+from pcvfe_drake.estimation.context_estimator import ContextEstimator
 from pcvfe_drake.estimation.effect_fit import identifiability
+from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 from pcvfe_drake.estimation.probe import MF_SHAPE, axle_slip_angles, wheel_peak_share
 from pcvfe_drake.models.chassis_effects import wheel_slip_offsets
 from pcvfe_drake.models.effect_model import EffectModel

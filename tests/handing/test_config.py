@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from pcvfe_drake.estimation.context_estimator import LiveFitConfig
+from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 from pcvfe_drake.estimation.probe import ProbeSettings
 from pcvfe_drake.handing.config import (
     Conservative,

@@ -6,7 +6,7 @@ import pytest
 
 from pcvfe_drake.contexts.clustering import ClusteringParams
 from pcvfe_drake.control.nmpc import NmpcConfig
-from pcvfe_drake.estimation.context_estimator import LiveFitConfig
+from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 from pcvfe_drake.estimation.ukf import UkfConfig
 from pcvfe_drake.perception.camera import CameraConfig
 from pcvfe_drake.runs.scenario import (

@@ -135,7 +135,7 @@ def test_the_check_surface_measures_the_held_model_at_another_friction(calibrati
     from dataclasses import replace
 
     from pcvfe_drake.commands.calibrate import check_surface
-    from pcvfe_drake.estimation.context_estimator import LiveFitConfig
+    from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
     from pcvfe_drake.models.effect_model import write_model_file
     from pcvfe_drake.runs.drivelog import REQUIRED_COLUMNS
 
