@@ -14,7 +14,7 @@ sequential quadratic programming in multiple-shooting form:
    the arc length s_k, the path normal n_k, heading and curvature. The lateral error
    ``e_k = n_k . (p_k - c_k)`` is then linear in the position (exact to first order), so the cost
    penalises only the cross-track component and longitudinal progress is left to speed tracking
-   against the friction-limited speed profile ``v_ref(s_k)`` (``course.speed_profile`` with the
+   against the friction-limited speed profile ``v_ref(s_k)`` (``speed_profile`` with the
    friction the controller believes).
 3. *Dynamics*: exact Jacobians ``A = df/dx``, ``B = df/du`` of the prediction model (the ST model
    with theta_hat, ``st_jacobians``, or a kinematic single-track model for the KMPC baseline),
@@ -65,11 +65,12 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from pcvfe_drake.control.course import Course, SpeedProfile, speed_profile
+from pcvfe_drake.control.course import Course
 from pcvfe_drake.control.nmpc_config import MODELS, NmpcConfig
 from pcvfe_drake.control.plan import NmpcPlan
 from pcvfe_drake.control.prediction_model import discretize, ks_jacobians
 from pcvfe_drake.control.qp_layout import QpLayout, SparsityPattern
+from pcvfe_drake.control.speed_profile import SpeedProfile, speed_profile
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import (
     BETA,

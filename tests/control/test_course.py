@@ -12,8 +12,8 @@ from pcvfe_drake.control.course import (
     course_names,
     load_course,
     load_course_spec,
-    speed_profile,
 )
+from pcvfe_drake.control.speed_profile import speed_profile
 from pcvfe_drake.vehicle.params import G_MPS2
 
 

@@ -264,7 +264,8 @@ def test_a_scenario_names_a_world_file_and_overrides_its_frictions(tmp_path):
 
 
 def test_the_speed_profile_keeps_the_steering_rate_within_the_limit():
-    from pcvfe_drake.control.course import CourseSpec, Segment, build_course, speed_profile
+    from pcvfe_drake.control.course import CourseSpec, Segment, build_course
+    from pcvfe_drake.control.speed_profile import speed_profile
 
     waves = [
         Segment("scurve", length_m=60.0, radius_m=8.0, waves=4, angle_deg=1.0),
