@@ -100,7 +100,9 @@ def course_tracking(
     None, and only non-finite states count as failures). Failures follow the project's one
     definition (``pcvfe_drake.control.failure``); ``failure_events`` lists each event with its
     time, place and reason. ``ending_failure``: the event that ended the run where no logged
-    state shows it (a ``truth_singular`` event, ``FailureEvent.to_dict()``), counted last.
+    state shows it (a ``truth_singular`` event, ``FailureEvent.to_dict()``), counted last; when
+    the last logged row had already failed, it is that failure's end (its detail added to the
+    event's), not a second failure.
     """
     t = log["t"].to_numpy(float)
     xy = log[["sx", "sy"]].to_numpy(float)
@@ -148,7 +150,13 @@ def course_tracking(
     events = failure.failure_events(t, xy, s_along, half_width, lat, course_angle, beta, finite)
     out["failure_events"] = [e.to_dict() for e in events]
     if ending_failure is not None:
-        out["failure_events"].append(dict(ending_failure))
+        if len(kinds) and kinds[-1] != "" and out["failure_events"]:
+            # The car had already failed at the last logged row (it left the course, then
+            # spun out of the model before the next row): one failure, its end named too.
+            last = out["failure_events"][-1]
+            last["detail"] = f"{last['detail']}; then {ending_failure['detail']}"
+        else:
+            out["failure_events"].append(dict(ending_failure))
     out["catastrophic_failures"] = len(out["failure_events"])
     out["failure_time_s"] = float(np.sum(sample_weights(t)[kinds != ""]))
     return out
