@@ -186,8 +186,9 @@ def hold_until_first_command(
     ``hw.state_period_s`` of wall time through ``state_publisher`` (the bridge's
     ``LcmPublisherSystem``), each stamped with the time waited, and pump ``lcm`` until
     ``heard()`` says the first actuation command arrived. Returns the simulated start time [s]:
-    the next state tick after the last held message, on the grid of the watchdog period (so the
-    vehicle's actuation check runs at the start and takes the command at once). The context's
+    the wall time waited (at least the next state tick after the last held message), rounded up
+    to the grid of the watchdog period (so the vehicle's actuation check runs at the start and
+    takes the command at once). The context's
     time is set to it; nothing is integrated before it. Raises RuntimeError after
     ``hw.first_command_timeout_s`` (wall clock)."""
     context = simulator.get_mutable_context()
@@ -205,12 +206,14 @@ def hold_until_first_command(
                 "station (`pcvfe simulate --hardware`) running on that URL?"
             )
         if waited >= held * period:
-            context.SetTime(held * period)
+            tick = int(waited // period)  # the latest state tick, also after a stall
+            context.SetTime(tick * period)
             state_publisher.ForcedPublish(publisher_context)
-            held = int(waited // period) + 1
+            held = tick + 1
         lcm.HandleSubscriptions(max(1, int(1000 * (held * period - (clock() - w0)))))
     watchdog = hw.watchdog_period_s
-    start = math.ceil(held * period / watchdog - 1e-9) * watchdog
+    now = max(held * period, clock() - w0)
+    start = math.ceil(now / watchdog - 1e-9) * watchdog
     context.SetTime(start)
     return start
 
