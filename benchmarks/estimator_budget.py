@@ -132,6 +132,9 @@ def lcm_rehearsal(args, work: Path) -> dict:
         "nmpc_fallbacks": r["nmpc_fallbacks"],
         "checks_with_fresh_state_share": r["checks_with_fresh_state_share"],
         "load_average_start": r["load_average_start"],
+        "load_average_end": r["load_average_end"],
+        "bridge_started_s": r.get("bridge_started_s"),
+        "bridge_stopped_because": r.get("bridge_stopped_because"),
     }
 
 

@@ -158,6 +158,9 @@ def rehearsal(
     hw_summary = json.loads((work / "hw" / "summary.json").read_text())
     hw_log = pd.read_csv(work / "hw" / "drive_log.csv")
     truth = pd.read_csv(work / "bridge" / "truth.csv")
+    # The bridge's clock ran while it held the car for the station's first command; the
+    # station's starts at that command.
+    truth["t"] -= bridge_report.get("started_s", 0.0)
     hw_contexts, offset = contexts_vs_truth(hw_log, truth, terrain_mu)
     streams = hw_summary["station_status"]["streams"]
     state = streams["state"]
@@ -194,6 +197,8 @@ def rehearsal(
         "rows_lost_share": rows_lost / max(rows_lost + len(hw_log), 1),
         "nmpc_fallbacks": hw_summary.get("nmpc_fallbacks"),
         "bridge_actuation": bridge_report["actuation"],
+        "bridge_started_s": bridge_report.get("started_s"),
+        "bridge_stopped_because": bridge_report.get("stopped_because"),
     }
 
 

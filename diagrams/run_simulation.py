@@ -16,6 +16,10 @@ It stops
   ``"failure"`` and ``summary["failure_events"]`` says when, where and why), or
 - at Ctrl-C or SIGTERM (``summary["interrupted"]``, ``summary["interrupt_signal"]``; an
   interrupt that OSQP catches during a solve is raised again by the NMPC), or
+- when the simulated truth can no longer be integrated (the multi-body model's singularity: a
+  wheel's ground speed <= 0, the car reverses or has spun; ``MbSingularity``): scored as the
+  catastrophic failure ``truth_singular`` (``pcvfe_drake.control.failure``), the run's last
+  entry in ``summary["failure_events"]``, ``summary["stop_reason"]`` ``"failure"``, or
 - when the simulation raises (``summary["error"]``), the drive log's disk included.
 
 On every ending it closes the drive log, stops the Meshcat recording and hands the data to
@@ -59,6 +63,7 @@ from pcvfe_drake.runs.run_folder import (
 )
 from pcvfe_drake.runs.runlog import TRUE_STATE_COLUMNS, RunLog, feature_columns
 from pcvfe_drake.runs.scenario import Scenario
+from pcvfe_drake.vehicle.mb_truth import MbSingularity
 from pcvfe_drake.vehicle.single_track import BETA, PSI, STATE_NAMES, SX, SY
 
 __all__ = [
@@ -218,6 +223,15 @@ class FailureMonitor:
             failure.failure_reason(self.course.half_width, lat[i], cae[i], x[i, BETA])
         )
         return EventStatus.ReachedTermination(self.system, "catastrophic failure")
+
+
+def truth_singular_failure(exc: MbSingularity, course: Course | None, t_s: float) -> dict:
+    """The ``failure_events`` entry of a run whose truth became singular (``exc``; its own time,
+    else ``t_s``, the simulator's)."""
+    x, y = float(exc.state[0]), float(exc.state[1])
+    s = float(np.asarray(course.project(np.array([[x, y]])).s).reshape(-1)[0]) if course else np.nan
+    t = exc.t_s if np.isfinite(exc.t_s) else t_s
+    return failure.truth_singular_event(t, x, y, s, exc.detail).to_dict()
 
 
 def _first_termination(monitors):
@@ -400,6 +414,7 @@ def run_simulation(
     received: list[str] = []
     interrupted = False
     error = None
+    ending_failure = None
     write_errors: list[str] = []
     stop_reason = "duration" if laps_goal is None else "max_duration"
     wall = 0.0
@@ -439,6 +454,9 @@ def run_simulation(
     except KeyboardInterrupt:
         interrupted = True
         stop_reason = "interrupted"
+    except MbSingularity as exc:  # the truth's own end: a scored failure, not an error
+        ending_failure = truth_singular_failure(exc, course, simulator.get_context().get_time())
+        stop_reason = "failure"
     except OSError as exc:  # the drive log's disk (RunLogWriteError names the path)
         error = f"{type(exc).__name__}: {exc}"
         stop_reason = "error"
@@ -492,6 +510,7 @@ def run_simulation(
             interrupted=interrupted,
             interrupt_signal=received[0] if interrupted and received else None,
             error=error,
+            ending_failure=ending_failure,
             stop_reason=stop_reason,
             log_errors=list(run_log.errors),
             write_errors=write_errors,

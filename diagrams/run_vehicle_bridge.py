@@ -3,13 +3,27 @@
 :func:`run_vehicle_bridge` builds ``MakeVehicleBridge`` on the scenario's bus, logs the truth
 (state, mu, terrain: what the car really did) and measures the latency from each state message
 to the actuation computed after it (``pcvfe_drake.hardware.latency``), until the duration is
-reached, the hardware station has been silent for ``idle_stop_s``, or Ctrl-C.
+reached, the hardware station has been silent for ``idle_stop_s``, the simulated truth ends
+(the multi-body model's singularity: the car reversed or spun, ``MbSingularity``), or Ctrl-C.
+
+Start: like a car on a test rig, the bridged car does not move before the controller is up.
+:func:`hold_until_first_command` publishes the car's initial state, standing still in time, at
+the state rate, and pumps the bus, until the station's first actuation command arrives
+(``hardware.first_command_timeout_s`` at most, else an error naming the channel and URL). The
+simulator then starts at that moment: its clock counts the wall time waited (the held states'
+time stamps keep rising, so the station's watchdog sees neither duplicates nor a jump back) but
+the plant is integrated only from there, with the command already received, and the duration
+counts from there. A station that boots for seconds thus finds the car as the scenario starts
+it, not braked by the vehicle's watchdog to a crawl (which the station's first commands, held
+while states arrived late, then turned into reversing).
 """
 
 from __future__ import annotations
 
 import json
+import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,6 +41,7 @@ from pcvfe_drake.diagrams.world_io import scenario_world
 from pcvfe_drake.hardware.latency import LatencyRecorder
 from pcvfe_drake.lcmtypes import lcmt_vehicle_actuation, lcmt_vehicle_state
 from pcvfe_drake.runs.scenario import Scenario
+from pcvfe_drake.vehicle.mb_truth import MbSingularity
 from pcvfe_drake.vehicle.single_track import STATE_NAMES
 
 TRUTH_PERIOD_S = 0.05
@@ -41,10 +56,15 @@ class BridgeResult:
     actuation_status: dict
     truth: pd.DataFrame
     stopped_because: str
+    started_s: float = 0.0
+    """The bridge's time [s] at which the first command came and the car started (the wall
+    time it waited, on the simulated clock); ``sim_time_s`` counts from 0, the driving from
+    here."""
 
     def to_dict(self) -> dict:
         return {
             "sim_time_s": self.sim_time_s,
+            "started_s": self.started_s,
             "wall_time_s": self.wall_time_s,
             "realtime_factor": self.sim_time_s / self.wall_time_s if self.wall_time_s else None,
             "latency": self.latency,
@@ -62,14 +82,21 @@ def run_vehicle_bridge(
     idle_stop_s: float | None = None,
     chunk_s: float = 0.5,
     progress=None,
+    lcm=None,
 ) -> BridgeResult:
-    """Run the bridge for ``duration_s`` simulated seconds at ``realtime_rate`` (default the
-    scenario's ``hardware.realtime_rate``); stop early once actuation has been received and then
-    nothing more for ``idle_stop_s`` wall seconds (the station finished). Writes
-    ``truth.csv`` and ``bridge.json`` into ``out_dir`` when given."""
+    """Hold the car until the first command (module docstring), then run the bridge for
+    ``duration_s`` simulated seconds of driving at ``realtime_rate`` (default the scenario's
+    ``hardware.realtime_rate``); stop early once actuation has been received and then nothing
+    more for ``idle_stop_s`` wall seconds (the station finished). Writes ``truth.csv`` and
+    ``bridge.json`` into ``out_dir`` when given. ``progress(t_driving_s, recorder)`` is called
+    after each chunk; ``lcm``: an already made ``DrakeLcm`` of the scenario's bus (tests share a
+    ``memq://`` one), default :func:`shared_drake_lcm`. Raises RuntimeError when no command
+    comes within ``hardware.first_command_timeout_s``."""
     hw = scenario.hardware
     bus = hw.lcm_buses[hw.bus]
-    lcm = shared_drake_lcm(DrakeLcmParams(lcm_url=bus.lcm_url, channel_suffix=bus.channel_suffix))
+    if lcm is None:
+        params = DrakeLcmParams(lcm_url=bus.lcm_url, channel_suffix=bus.channel_suffix)
+        lcm = shared_drake_lcm(params)
     buses = LcmBuses()
     buses.Add(hw.bus, lcm)
     recorder = LatencyRecorder()
@@ -101,14 +128,22 @@ def run_vehicle_bridge(
     simulator.set_target_realtime_rate(hw.realtime_rate if realtime_rate is None else realtime_rate)
     stopped = "duration"
     w0 = time.perf_counter()
+    start = 0.0
     try:
+        start = hold_until_first_command(
+            simulator,
+            diagram.GetSubsystemByName("bridge").GetSubsystemByName("state_publisher"),
+            lcm,
+            lambda: last_actuation_wall[0] is not None,
+            hw,
+        )
         simulator.Initialize()
-        t = 0.0
-        while t < duration_s - 1e-9:
-            simulator.AdvanceTo(min(t + chunk_s, duration_s))
+        t, end = start, start + duration_s
+        while t < end - 1e-9:
+            simulator.AdvanceTo(min(t + chunk_s, end))
             t = simulator.get_context().get_time()
             if progress is not None:
-                progress(t, recorder)
+                progress(t - start, recorder)
             quiet = last_actuation_wall[0]
             if idle_stop_s is not None and quiet is not None:
                 if time.perf_counter() - quiet > idle_stop_s:
@@ -116,6 +151,8 @@ def run_vehicle_bridge(
                     break
     except KeyboardInterrupt:
         stopped = "interrupted"
+    except MbSingularity as exc:  # the car reversed or spun out of the multi-body truth
+        stopped = f"truth_singular: {exc}"
     wall = time.perf_counter() - w0
     context = simulator.get_context()
     status = bridge.GetOutputPort("actuation_status").Eval(bridge.GetMyContextFromRoot(context))
@@ -127,6 +164,7 @@ def run_vehicle_bridge(
         actuation_status=status.to_dict(),
         truth=truth,
         stopped_because=stopped,
+        started_s=start,
     )
     if out_dir is not None:
         out_dir = Path(out_dir)
@@ -134,6 +172,50 @@ def run_vehicle_bridge(
         truth.to_csv(out_dir / "truth.csv", index=False)
         (out_dir / "bridge.json").write_text(json.dumps(result.to_dict(), indent=2))
     return result
+
+
+def hold_until_first_command(
+    simulator: Simulator,
+    state_publisher,
+    lcm,
+    heard: Callable[[], bool],
+    hw,
+    clock: Callable[[], float] = time.monotonic,
+) -> float:
+    """Before ``simulator`` is initialized: publish the car's initial state every
+    ``hw.state_period_s`` of wall time through ``state_publisher`` (the bridge's
+    ``LcmPublisherSystem``), each stamped with the time waited, and pump ``lcm`` until
+    ``heard()`` says the first actuation command arrived. Returns the simulated start time [s]:
+    the wall time waited (at least the next state tick after the last held message), rounded up
+    to the grid of the watchdog period (so the vehicle's actuation check runs at the start and
+    takes the command at once). The context's
+    time is set to it; nothing is integrated before it. Raises RuntimeError after
+    ``hw.first_command_timeout_s`` (wall clock)."""
+    context = simulator.get_mutable_context()
+    publisher_context = state_publisher.GetMyContextFromRoot(context)
+    period = hw.state_period_s
+    w0 = clock()
+    held = 0  # messages published so far (the next is stamped held * period)
+    while not heard():
+        waited = clock() - w0
+        if waited > hw.first_command_timeout_s:
+            url = hw.lcm_buses[hw.bus].lcm_url
+            raise RuntimeError(
+                f"vehicle bridge: no actuation command on {hw.actuation_channel} at {url} within "
+                f"{hw.first_command_timeout_s:g} s (hardware.first_command_timeout_s); is the "
+                "station (`pcvfe simulate --hardware`) running on that URL?"
+            )
+        if waited >= held * period:
+            tick = int(waited // period)  # the latest state tick, also after a stall
+            context.SetTime(tick * period)
+            state_publisher.ForcedPublish(publisher_context)
+            held = tick + 1
+        lcm.HandleSubscriptions(max(1, int(1000 * (held * period - (clock() - w0)))))
+    watchdog = hw.watchdog_period_s
+    now = max(held * period, clock() - w0)
+    start = math.ceil(now / watchdog - 1e-9) * watchdog
+    context.SetTime(start)
+    return start
 
 
 def _truth_frame(scenario: Scenario, logs: dict) -> pd.DataFrame:

@@ -13,7 +13,8 @@ from pcvfe_drake.lcmtypes import lcmt_vehicle_actuation
 from pcvfe_drake.vehicle.single_track import NU, NX, V
 
 BRAKE_BLEND_MPS = 0.5
-"""Below this speed the braking deceleration fades linearly to zero (stops without reversing)."""
+"""Below this speed any braking (a negative acceleration, commanded or the watchdog's) fades
+linearly to zero: a brake stops the car, it does not drive it backwards."""
 
 
 class ActuationReceiver(LeafSystem):
@@ -33,8 +34,12 @@ class ActuationReceiver(LeafSystem):
         message: input, abstract ``lcmt_vehicle_actuation`` (from an ``LcmSubscriberSystem``).
         state: input (7), the vehicle's state (its speed ``v`` sets the braking fade).
         actuation: output (2) ``[steer_rate rad/s, accel m/s^2]``: the newest accepted command
-            while it is younger than ``timeout_s``; otherwise ``[0, -brake_decel_mps2]``
-            (fading to 0 below 0.5 m/s): a car that loses its controller stops.
+            while it is younger than ``timeout_s``; otherwise ``[0, -brake_decel_mps2]``: a car
+            that loses its controller stops. A negative acceleration (braking) fades to 0 below
+            ``BRAKE_BLEND_MPS`` (0.5 m/s) in both cases, as a car's brakes do: a braking command
+            held at standstill (the station's fallback while its states arrive late) leaves the
+            car standing instead of reversing it, which the vehicle models would otherwise do
+            (their acceleration is signed) and the multi-body truth cannot integrate.
         status: output, abstract :class:`pcvfe_drake.hardware.watchdog.StreamStatus` named
             ``"actuation"``.
 
@@ -80,8 +85,10 @@ class ActuationReceiver(LeafSystem):
 
     def _calc_actuation(self, context: Context, output: BasicVector) -> None:
         if self.limits.condition(self._status(context), context.get_time()) == "ok":
-            output.SetFromVector(context.get_discrete_state(self._u_index).value())
-            return
-        v = float(self._state_port.Eval(context)[V])
-        fade = min(max(v / BRAKE_BLEND_MPS, 0.0), 1.0) if math.isfinite(v) else 1.0
-        output.SetFromVector([0.0, -self.brake_decel_mps2 * fade])
+            steer_rate, accel = context.get_discrete_state(self._u_index).value()
+        else:
+            steer_rate, accel = 0.0, -self.brake_decel_mps2
+        if accel < 0.0:
+            v = float(self._state_port.Eval(context)[V])
+            accel *= min(max(v / BRAKE_BLEND_MPS, 0.0), 1.0) if math.isfinite(v) else 1.0
+        output.SetFromVector([steer_rate, accel])

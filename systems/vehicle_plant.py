@@ -7,7 +7,7 @@ import math
 import numpy as np
 from pydrake.systems.framework import BasicVector, LeafSystem
 
-from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
+from pcvfe_drake.vehicle.mb_truth import MbSingularity, MbTruth, st_state
 from pcvfe_drake.vehicle.params import TRUTH_MODELS, VehicleParams, ford_escort
 from pcvfe_drake.vehicle.single_track import INPUT_NAMES, NX, STATE_NAMES, st_dynamics
 
@@ -60,6 +60,11 @@ class VehiclePlant(LeafSystem):
 
         The MB truth exists for vehicles with CommonRoad parameter sets (Ford Escort, BMW 320i,
         VW Vanagon; ``mb_vehicle`` defaults to ``params.name``).
+
+    Where the MB model ends (a wheel's ground speed <= 0 at speed: the car reverses or has spun;
+    ``pcvfe_drake.vehicle.mb_truth``) the derivatives and updates raise
+    :class:`pcvfe_drake.vehicle.mb_truth.MbSingularity` with the simulated time; the run loop
+    scores it as the catastrophic failure ``truth_singular``.
 
     Friction changes with the terrain under the car: the ST derivatives (and each MB update)
     look up the terrain at the current ``(sx, sy)``. A car that leaves a map without an
@@ -221,7 +226,10 @@ class VehiclePlant(LeafSystem):
             xdot = st_dynamics(x, u, self.params, theta)
         else:
             mu, k = self._mu_index(x)
-            xdot = self.mb.rhs(x.tolist(), u.tolist(), self._mb_parameters(mu, k))
+            try:
+                xdot = self.mb.rhs(x.tolist(), u.tolist(), self._mb_parameters(mu, k))
+            except MbSingularity as exc:
+                raise exc.at(context.get_time()) from exc
             if not np.all(np.isfinite(xdot)):
                 raise ValueError(
                     f"VehiclePlant: MB derivatives are not finite at t = {context.get_time():.4f} "
@@ -233,7 +241,10 @@ class VehiclePlant(LeafSystem):
         x = context.get_discrete_state(self._state_index).CopyToVector()
         u = self._actuation(context)
         mu, _ = self._mu_index(x)
-        x_next = self.mb.integrate(x, u, mu, self.mb_period_s, method=self.mb_method)
+        try:
+            x_next = self.mb.integrate(x, u, mu, self.mb_period_s, method=self.mb_method)
+        except MbSingularity as exc:
+            raise exc.at(context.get_time()) from exc
         discrete_state.get_mutable_vector(self._state_index).SetFromVector(x_next)
 
     # ------------------------------------------------------------------ outputs

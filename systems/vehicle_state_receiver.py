@@ -70,8 +70,10 @@ class VehicleStateReceiver(LeafSystem):
     ``pump(timeout_ms)`` (e.g. the bus's ``DrakeLcm.HandleSubscriptions``), when given, is
     called with 0 at each check before the queue is drained, so a message that arrived while
     the simulator slept to keep pace is taken at once. With ``first_message_timeout_s`` > 0 an
-    initialization event waits (wall clock, pumping) until the queue holds a message and raises
-    naming ``source`` if none comes.
+    initialization event waits (wall clock, pumping) until the queue holds a message, raises
+    naming ``source`` if none comes, and checks and hands out what came, so that the state is
+    there for the controller's first update (periodic updates at the start time all see the
+    state before any of them).
     """
 
     def __init__(
@@ -147,7 +149,9 @@ class VehicleStateReceiver(LeafSystem):
                 f"{self._first_message_timeout_s} s (hardware.first_message_timeout_s); is the "
                 "vehicle (or `pcvfe vehicle-bridge`) running on that URL?"
             )
-        return EventStatus.Succeeded()
+        # Hand it out now: the controller's first update, at the same time as the first
+        # periodic check, would otherwise see no state and brake a car it has not seen.
+        return self._check(context, state)
 
     def _check(self, context: Context, state: State) -> EventStatus:
         if self._pump is not None:

@@ -171,6 +171,7 @@ def run(args: argparse.Namespace) -> int:
     from pcvfe_drake.models.data import find_log, prepare
     from pcvfe_drake.models.effect_model import STIFFNESS_LAW, write_model_file
     from pcvfe_drake.runs.drivelog import REQUIRED_COLUMNS, read_drive_log, write_drive_log
+    from pcvfe_drake.vehicle.mb_truth import MbSingularity
     from pcvfe_drake.vehicle.params import load_vehicle
     from pcvfe_drake.workbench.calibration import calibrate
 
@@ -262,8 +263,9 @@ def run(args: argparse.Namespace) -> int:
                 seed=args.seed,
                 progress=drive_progress,
             )
-        except (ZeroDivisionError, FloatingPointError, RuntimeError) as exc:
-            # the multi-body truth cannot drive the programme there (or crawls: the bound):
+        except (MbSingularity, FloatingPointError, RuntimeError) as exc:
+            # the multi-body truth cannot drive the programme there (the car spun or reversed
+            # out of the model, or it crawls: the bound):
             # the model is written without a check (its error is extrapolated below the
             # calibration surface)
             print(

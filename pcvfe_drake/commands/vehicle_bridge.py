@@ -25,7 +25,9 @@ def register(subparsers) -> None:
         description=(
             "Run the simulated vehicle (plant and downward camera of SCENARIO) as the vehicle "
             "side of the LCM interface: it publishes the state (100 Hz) and camera frames and "
-            "applies the actuation it receives, braking when none arrives. With the default "
+            "applies the actuation it receives, braking when none arrives. Like a car on a test "
+            "rig it stands at its initial state (publishing it) until the station's first "
+            "command arrives, at most hardware.first_command_timeout_s. With the default "
             "URL (tcpq://127.0.0.1:7700) it starts a localhost LCM hub first, so nothing "
             "leaves the machine. Then run `pcvfe simulate SCENARIO --hardware` in another "
             "terminal. Prints the latency from each state message to the actuation computed "
@@ -41,7 +43,10 @@ def register(subparsers) -> None:
         help="start a localhost tcpq hub (default: when the URL is tcpq://127.0.0.1:PORT)",
     )
     parser.add_argument(
-        "--duration", type=float, default=None, help="simulated seconds (default: scenario's)"
+        "--duration",
+        type=float,
+        default=None,
+        help="simulated seconds of driving, from the first command (default: scenario's)",
     )
     parser.add_argument(
         "--idle-stop",

@@ -128,6 +128,8 @@ def simulate_closed_loop(
     friction under the vehicle (default: the vehicle's mu). ``theta_hat(t, x)`` gives the
     controller's belief (default: [true mu, C_Sf, C_Sr], i.e. the true mu is given).
     """
+    from pcvfe_drake.vehicle.mb_truth import MbSingularity  # the MB package: only when used
+
     ctrl = controller
     p = ctrl.params
     course = ctrl.course
@@ -170,7 +172,11 @@ def simulate_closed_loop(
             break
         if stop_after_laps is not None and progress >= stop_after_laps * course.length:
             break
-        x = plant.step(u, mu_true, dt_sim_s)
+        try:
+            x = plant.step(u, mu_true, dt_sim_s)
+        except MbSingularity as exc:  # the multi-body truth ends: a failure (control.failure)
+            failure = failure or f"t={t + dt_sim_s:.2f} s: truth model singular: {exc.detail}"
+            break
     s_arr = np.array(s_log)
     return ClosedLoopResult(
         t=np.array(ts),

@@ -7,7 +7,12 @@ A state of the car is a **catastrophic failure** when any of these holds:
   (3 m on the shipped courses: the car is off the track);
 * ``spin``: the side-slip angle ``|beta|`` exceeds :data:`SPIN_BETA_RAD` (30 deg), or the
   course angle (direction of travel, ``psi + beta``) deviates from the path heading by more
-  than :data:`SPIN_COURSE_ANGLE_RAD` (60 deg): the car slides sideways or has turned away.
+  than :data:`SPIN_COURSE_ANGLE_RAD` (60 deg): the car slides sideways or has turned away;
+* ``truth_singular``: the simulated truth cannot be integrated any further: the multi-body
+  model's own singularity, a wheel's ground speed at or below zero while the car moves (it
+  reverses or has spun; ``pcvfe_drake.vehicle.mb_truth``, "Where the model ends"). No logged
+  state shows it (the plant stops before the next row), so the run loop records it as the run's
+  last event (:func:`truth_singular_event`) and the run ends there.
 
 A failure *event* starts where the flag rises (``failure_events``); the run summary counts
 events, the closed loop (``pcvfe simulate`` with ``stop_on_failure``) ends at the first one and
@@ -30,14 +35,20 @@ SPIN_COURSE_ANGLE_RAD = math.radians(60.0)
 or turned away [rad]."""
 
 NON_FINITE, OFF_COURSE, SPINNING = "non_finite", "off_course", "spin"
-"""The three kinds of failure (codes stored in ``summary.json``)."""
-_TEXT = {NON_FINITE: "non-finite state", OFF_COURSE: "left the course", SPINNING: "spinning"}
+TRUTH_SINGULAR = "truth_singular"
+"""The kinds of failure (codes stored in ``summary.json``)."""
+_TEXT = {
+    NON_FINITE: "non-finite state",
+    OFF_COURSE: "left the course",
+    SPINNING: "spinning",
+    TRUTH_SINGULAR: "truth model singular",
+}
 
 
 @dataclass(frozen=True)
 class FailureEvent:
     """One catastrophic failure: when [s], where (``x_m``, ``y_m``, arc length ``s_m`` along the
-    course, or NaN) and why (``kind``: one of the three codes, ``detail``: the numbers)."""
+    course, or NaN) and why (``kind``: one of the codes, ``detail``: the numbers)."""
 
     t_s: float
     x_m: float
@@ -132,3 +143,17 @@ def failure_events(
             )
         )
     return events
+
+
+def truth_singular_event(t_s: float, x_m: float, y_m: float, s_m: float, detail: str):
+    """The failure event of a run whose truth could no longer be integrated (``truth_singular``)
+    at time ``t_s`` [s] and place (``x_m``, ``y_m``; ``s_m`` along the course, NaN without one);
+    ``detail`` says why (the wheels' ground speeds)."""
+    return FailureEvent(
+        float(t_s),
+        float(x_m),
+        float(y_m),
+        float(s_m),
+        TRUTH_SINGULAR,
+        f"{_TEXT[TRUTH_SINGULAR]}: {detail}",
+    )

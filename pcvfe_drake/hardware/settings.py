@@ -71,6 +71,12 @@ class HardwareSettings:
     first_message_timeout_s: float = 10.0
     """The station's initialization waits this long (wall clock) for the first state message
     and fails with an error naming the channel and URL if none comes (0: do not wait)."""
+    first_command_timeout_s: float = 120.0
+    """Vehicle side (bridge): the car stands at its initial state, publishing it, until the
+    station's first actuation command arrives (a test rig holds the car until the controller is
+    up: a station that boots for seconds must not find the car already braked or rolling
+    away); with none within this long (wall clock) the bridge stops with an error naming the
+    channel and URL."""
     realtime_rate: float = 1.0
     """Simulated time per wall-clock second on hardware (1: paced to wall-clock time)."""
 

@@ -194,8 +194,12 @@ class RunRecord:
     interrupted: bool = False
     interrupt_signal: str | None = None
     error: str | None = None
+    ending_failure: dict | None = None
+    """The failure that ended the run where no logged state shows it (``FailureEvent.to_dict()``
+    of a ``truth_singular`` event: the truth could not be integrated further), else None."""
     stop_reason: str = "duration"
-    """``"duration"``, ``"laps"``, ``"max_duration"``, ``"interrupted"`` or ``"error"``."""
+    """``"duration"``, ``"laps"``, ``"max_duration"``, ``"failure"``, ``"interrupted"`` or
+    ``"error"``."""
     log_errors: list[str] = field(default_factory=list)
     write_errors: list[str] = field(default_factory=list)
     """Files the loop could not write (the drive log on a full disk), ``"path: reason"``."""
@@ -217,6 +221,7 @@ def build_summary(record: RunRecord) -> dict[str, Any]:
         course=record.course,
         estimate_table=record.estimate_table,
         interrupted=record.interrupted,
+        ending_failure=record.ending_failure,
     )
     summary.update(run_facts(record, summary["sim_time_s"]))
     return summary

@@ -137,7 +137,6 @@ class RunLog:
             try:
                 self.frame_dir.mkdir(parents=True, exist_ok=True)
             except OSError as exc:  # no frames; the log itself goes on
-
                 self.errors.append(f"no camera frames: {os_error_text(exc, self.frame_dir)}")
                 self.frame_period_s = 0.0
             else:
@@ -180,7 +179,6 @@ class RunLog:
                 path, t_s=values[:, 0], state=values[:, 1 : 1 + NX], actuation=values[:, 1 + NX :]
             )
         except OSError as exc:
-
             self.write_error = f"cannot write {os_error_text(exc, path)}"
 
     def flush(self) -> None:
@@ -223,7 +221,6 @@ class RunLog:
             try:
                 writer.close()
             except OSError as exc:
-
                 self.write_error = f"cannot write {os_error_text(exc, self.path)}"
 
     def rows_since(self, start: int) -> list[list]:

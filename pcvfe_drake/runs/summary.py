@@ -11,7 +11,7 @@ dict written as ``summary.json``:
   projection of the driven path onto the course; ``mean_speed_mps``.
 - ``catastrophic_failures``: number of failure events (``pcvfe_drake.control.failure``: left
   the course by more than its half width, spinning with |beta| > 30 deg or a course-angle error
-  > 60 deg, or a non-finite state), ``failure_events`` (each with its time ``t_s``, place
+  > 60 deg, a non-finite state, or a truth that could no longer be integrated), ``failure_events`` (each with its time ``t_s``, place
   ``sx_m``, ``sy_m``, ``s_m`` (along the course), ``kind`` and ``detail``),
   ``max_abs_lateral_error_m``, ``lateral_error_rms_m``.
 - Scored on the truth: when the log has the sim-only ``true_*`` state columns, laps, speed,
@@ -91,13 +91,18 @@ def lateral_error_rows(log: pd.DataFrame, course) -> np.ndarray | None:
     return lat
 
 
-def course_tracking(log: pd.DataFrame, course) -> dict[str, Any]:
+def course_tracking(
+    log: pd.DataFrame, course, ending_failure: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
     """Lap count, lap time and catastrophic failures of the driven path against ``course``.
 
     ``course`` is a ``pcvfe_drake.control.course.Course`` (or None: lap and tracking entries are
     None, and only non-finite states count as failures). Failures follow the project's one
-    definition (``pcvfe_drake.control.failure``); ``failures`` lists each event with its time,
-    place and reason.
+    definition (``pcvfe_drake.control.failure``); ``failure_events`` lists each event with its
+    time, place and reason. ``ending_failure``: the event that ended the run where no logged
+    state shows it (a ``truth_singular`` event, ``FailureEvent.to_dict()``), counted last; when
+    the last logged row had already failed, it is that failure's end (its detail added to the
+    event's), not a second failure.
     """
     t = log["t"].to_numpy(float)
     xy = log[["sx", "sy"]].to_numpy(float)
@@ -143,8 +148,16 @@ def course_tracking(log: pd.DataFrame, course) -> dict[str, Any]:
         )
     kinds = failure.failure_kinds(half_width, lat, course_angle, beta, finite)
     events = failure.failure_events(t, xy, s_along, half_width, lat, course_angle, beta, finite)
-    out["catastrophic_failures"] = len(events)
     out["failure_events"] = [e.to_dict() for e in events]
+    if ending_failure is not None:
+        if len(kinds) and kinds[-1] != "" and out["failure_events"]:
+            # The car had already failed at the last logged row (it left the course, then
+            # spun out of the model before the next row): one failure, its end named too.
+            last = out["failure_events"][-1]
+            last["detail"] = f"{last['detail']}; then {ending_failure['detail']}"
+        else:
+            out["failure_events"].append(dict(ending_failure))
+    out["catastrophic_failures"] = len(out["failure_events"])
     out["failure_time_s"] = float(np.sum(sample_weights(t)[kinds != ""]))
     return out
 
@@ -322,8 +335,10 @@ def summarize_run(
     course=None,
     estimate_table: Sequence[Mapping[str, Any]] | None = None,
     interrupted: bool = False,
+    ending_failure: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """The run's summary dict (see the module docstring); JSON-ready (no NaN/inf)."""
+    """The run's summary dict (see the module docstring); JSON-ready (no NaN/inf).
+    ``ending_failure``: see :func:`course_tracking`."""
     missing = [c for c in REQUIRED if c not in log.columns]
     if missing:
         raise ValueError(f"run log lacks column(s) {missing}; it has {list(log.columns)}")
@@ -363,7 +378,7 @@ def summarize_run(
     if not has_truth:
         summary["ground_truth_note"] = NO_TRUTH_NOTE
     summary["scored_on_truth"] = drive_metrics.has_truth(log)
-    summary.update(course_tracking(truth, course))
+    summary.update(course_tracking(truth, course, ending_failure))
     summary["friction_utilisation"] = drive_metrics.friction_utilisation(truth)
     summary["mu_error_after_entry"] = drive_metrics.mu_error_after_settling(log, excluded_terrains)
     first_fit = {
@@ -450,6 +465,24 @@ def _settle_row(entry: Mapping[str, Any] | None) -> str:
     return text + ")"
 
 
+def _failures_row(summary: Mapping[str, Any]) -> str:
+    """The count of catastrophic failures and, for each, its time and reason."""
+    events = summary.get("failure_events") or []
+    count = summary.get("catastrophic_failures")
+    if count is None:
+        return "-"
+    if not events:
+        return str(count)
+    shown = "; ".join(
+        f"t={e['t_s']:.1f} s {e.get('detail') or e.get('kind')}"
+        if e.get("t_s") is not None
+        else str(e.get("detail") or e.get("kind"))
+        for e in events[:3]
+    )
+    more = f"; {len(events) - 3} more" if len(events) > 3 else ""
+    return f"{count} ({shown}{more})"
+
+
 def _station_faults(status: Mapping[str, Any]) -> str:
     """``"no faults"`` or the rejections and timeouts per stream of a ``station_status`` dict."""
     parts = []
@@ -502,7 +535,7 @@ def summary_table(summary: Mapping[str, Any]) -> str:
             "lateral error rms / max",
             f"{fmt(s.get('lateral_error_rms_m'))} / {fmt(s.get('max_abs_lateral_error_m'), ' m')}",
         ),
-        ("catastrophic failures", fmt(s.get("catastrophic_failures"))),
+        ("catastrophic failures", _failures_row(s)),
         ("contexts discovered", fmt(s.get("contexts_discovered"))),
         ("true terrains visited", ", ".join(s.get("true_terrains_visited", [])) or "-"),
         ("ARI (online ids)", fmt(s.get("ari"))),

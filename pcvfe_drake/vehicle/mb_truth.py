@@ -34,6 +34,17 @@ spin) is wrapped here with three additions:
   :meth:`MbTruth.rhs` evaluates the package at ``max(omega, 0)`` instead, which spins such a
   wheel up again.
 
+* **Where the model ends.** The package divides by each wheel's ground speed (the speed of the
+  wheel centre along the wheel's heading, ``u_w``) for the longitudinal slip
+  ``1 - R_w omega / u_w`` whenever ``|v_x| >= 0.1`` m/s, after setting a negative ``u_w`` to 0
+  ("negative wheel spin forbidden"): the model is defined for a car rolling forward on all four
+  wheels. A car that reverses (``v_x <= -0.1`` m/s) or spins so far that a wheel moves backwards
+  or sideways over the ground (``u_w <= 0``) has left it, and no integrator can go on.
+  :meth:`MbTruth.rhs` raises :class:`MbSingularity` there (the package's ``ZeroDivisionError``
+  with the wheels' ground speeds named); the run loop scores it as the catastrophic failure
+  ``truth_singular`` (``pcvfe_drake.control.failure``). The speeds are not clamped: a car in that
+  state has already failed, and a clamp would invent tire forces the model does not define.
+
 The package's model switches to kinematic equations below ``|v_x| = 0.1`` m/s and its wheel
 slip becomes very stiff at low speed (eigenvalues ~ -47000 1/s at 0.1 m/s), so driving from rest
 is slow to integrate (about real time); the model is meant for driving at speed.
@@ -58,6 +69,11 @@ VX, VY = 3, 10
 """Indices of the body-frame longitudinal and lateral velocity [m/s] in the MB state."""
 WHEEL_SPEEDS = slice(23, 27)
 """Indices of the four wheel angular speeds [rad/s] in the MB state."""
+
+WHEELS = ("front left", "front right", "rear left", "rear right")
+"""The wheels in the package's order (wheel speeds ``x[23:27]``)."""
+KINEMATIC_BELOW_MPS = 0.1
+"""Below this ``|v_x|`` [m/s] the package uses kinematic equations (no slip, no division)."""
 
 FRICTION_SCALINGS = ("peak_and_stiffness", "peak", "lateral_peak")
 """Tire friction mappings (module docstring): what a terrain's mu changes in the MB tire."""
@@ -94,6 +110,63 @@ def commonroad_parameters(vehicle: str = "ford_escort"):
             f"choose one of {sorted(MB_VEHICLES)}"
         )
     return MB_VEHICLES[vehicle]()
+
+
+class MbSingularity(ArithmeticError):
+    """The multi-body truth cannot be integrated: a wheel's ground speed is <= 0 while
+    ``|v_x| >= 0.1`` m/s (the car reverses or has spun; module docstring, "Where the model
+    ends"). ``state`` is the MB state (29,) where it happened, ``detail`` the numbers, ``t_s`` the
+    simulated time when the caller knows it (NaN otherwise)."""
+
+    def __init__(self, detail: str, state, t_s: float = math.nan) -> None:
+        super().__init__(detail)
+        self.detail = detail
+        self.state = np.array(state, dtype=float)
+        self.t_s = float(t_s)
+
+    def __reduce__(self):  # pickled whole (a calibration drive raises it in a child process)
+        return (MbSingularity, (self.detail, self.state, self.t_s))
+
+    def at(self, t_s: float) -> MbSingularity:
+        """The same singularity with its simulated time [s] filled in."""
+        return MbSingularity(self.detail, self.state, t_s)
+
+    def __str__(self) -> str:
+        when = f" at t = {self.t_s:.3f} s" if math.isfinite(self.t_s) else ""
+        return f"multi-body truth singular{when}: {self.detail}"
+
+
+def wheel_ground_speeds(x, p) -> np.ndarray:
+    """The four wheels' ground speeds ``u_w`` [m/s] (``WHEELS`` order) of an MB state ``x``
+    under parameters ``p``, before the package sets negative ones to 0 (its own formulas)."""
+    x = np.asarray(x, dtype=float)
+    cos_d, sin_d = math.cos(x[2]), math.sin(x[2])
+    lateral_front = (x[VY] + p.a * x[5]) * sin_d
+    return np.array(
+        [
+            (x[VX] + 0.5 * p.T_f * x[5]) * cos_d + lateral_front,
+            (x[VX] - 0.5 * p.T_f * x[5]) * cos_d + lateral_front,
+            x[VX] + 0.5 * p.T_r * x[5],
+            x[VX] - 0.5 * p.T_r * x[5],
+        ]
+    )
+
+
+def singularity_detail(x, p) -> str:
+    """Why the model is singular at MB state ``x``: the wheels whose ground speed is <= 0 and the
+    car's ``v_x`` and yaw rate ("" where it is not singular)."""
+    x = np.asarray(x, dtype=float)
+    if abs(x[VX]) < KINEMATIC_BELOW_MPS:
+        return ""
+    u_w = wheel_ground_speeds(x, p)
+    stopped = [f"{WHEELS[i]} {u_w[i]:.3f} m/s" for i in np.flatnonzero(u_w <= 0.0)]
+    if not stopped:
+        return ""
+    why = "reversing" if x[VX] < 0 else "spun"
+    return (
+        f"wheel ground speed <= 0 ({', '.join(stopped)}) at v_x {x[VX]:.3f} m/s, yaw rate "
+        f"{x[5]:.3f} rad/s: the car is {why}, outside the model"
+    )
 
 
 def _check_mu(mu: float) -> float:
@@ -166,7 +239,8 @@ class MbTruth:
     @staticmethod
     def rhs(x: list, u: list, p) -> np.ndarray:
         """Unchecked fast path: derivative for a state list (modified in place), an input list
-        and a parameter set from :meth:`parameters_for_mu` (the caller has validated them)."""
+        and a parameter set from :meth:`parameters_for_mu` (the caller has validated them).
+        Raises :class:`MbSingularity` where the model ends (module docstring)."""
         # Wheel speeds are evaluated at max(omega, 0). The package itself zeroes the derivative
         # of a negative wheel speed, which lets a wheel that an integrator stage pushed below 0
         # stay there, locked, for ever (seen from rest with Drake's RK3 and with LSODA); at 0 the
@@ -174,7 +248,11 @@ class MbTruth:
         for i in range(23, 27):
             if x[i] < 0.0:
                 x[i] = 0.0
-        return np.array(vehicle_dynamics_mb(x, u, p), dtype=float)
+        try:
+            return np.array(vehicle_dynamics_mb(x, u, p), dtype=float)
+        except ZeroDivisionError as exc:
+            detail = singularity_detail(x, p) or f"the package divided by zero ({exc})"
+            raise MbSingularity(detail, x) from exc
 
     def integrate(
         self,

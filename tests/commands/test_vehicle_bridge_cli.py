@@ -76,6 +76,10 @@ def test_pipeline_drives_the_bridged_car_in_another_process(tmp_path):
     assert report["actuation"]["accepted"] >= 20  # the pipeline's commands reached the car
     assert report["latency"]["n"] > 0 and report["latency"]["median_ms"] < 500
     truth = pd.read_csv(tmp_path / "bridge" / "truth.csv")
+    # The bridge held the car while the station booted: it starts at the scenario's 3 m/s when
+    # the first command comes, not braked to a crawl by its watchdog.
+    assert report["started_s"] > 0 and truth["t"].iloc[0] >= report["started_s"]
+    assert truth["v"].iloc[0] > 2.8
     # The car the station saw is the car the bridge simulated.
     last = log.iloc[-1]
     near = truth.iloc[(truth["t"] - truth["t"].iloc[-1]).abs().argsort()[:1]]

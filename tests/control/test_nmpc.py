@@ -303,3 +303,17 @@ def test_multibody_truth_plant_drives_the_closed_loop(course, params):
     res = simulate_closed_loop(ctrl, x0, 1.0, mu_at=lambda xy: 0.6, truth=plant)
     assert res.failure == "" and res.metrics(course)["fallbacks"] == 0
     assert res.x[-1, V] > 4.0 and np.max(np.abs(res.lateral_error)) < 0.3
+
+
+def test_the_closed_loop_ends_on_the_multibody_truths_singularity(course, params, monkeypatch):
+    """Braking held past standstill reverses the car out of the multi-body model: the Drake-free
+    closed loop ends with that failure named, as the diagram's run loop does."""
+    from pcvfe_drake.control.closed_loop import MbTruthPlant
+
+    ctrl = NmpcController(course, params, dataclasses.replace(CFG, horizon=10))
+    monkeypatch.setattr(ctrl, "update", lambda x, theta: np.array([0.0, -params.a_max]))
+    ctrl.last_diagnostics = None
+    x0 = offset_start(course, params, s_m=20.0, speed=0.5)
+    res = simulate_closed_loop(ctrl, x0, 2.0, truth=MbTruthPlant(), stop_on_failure=False)
+    assert "truth model singular" in res.failure and "reversing" in res.failure
+    assert res.t[-1] < 1.0

@@ -12,6 +12,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.lcm import LcmBuses
 
 from pcvfe_drake.control.course import initial_state
+from pcvfe_drake.diagrams.run_vehicle_bridge import run_vehicle_bridge
 from pcvfe_drake.diagrams.station import (
     SIM_ONLY_OUTPUTS,
     STATION_INPUTS,
@@ -185,3 +186,86 @@ def test_building_many_stations_on_one_url_does_not_leak_sockets():
             gc.collect()
             counts.append(open_fds())
         assert counts[-1] == counts[0], counts
+
+
+def station_with_nmpc(scenario, buses):
+    params = load_vehicle(scenario.vehicle)
+    builder = DiagramBuilder()
+    station = builder.AddNamedSystem(
+        "station", MakeVehicleStation(scenario, hardware=True, lcm_buses=buses)
+    )
+    nmpc = builder.AddNamedSystem(
+        "nmpc",
+        Nmpc(scenario_course(scenario), params, scenario.nmpc_config(), fixed_theta=params.theta),
+    )
+    builder.Connect(station.GetOutputPort("state"), nmpc.GetInputPort("state"))
+    builder.Connect(nmpc.GetOutputPort("actuation"), station.GetInputPort("actuation"))
+    return builder.Build(), nmpc
+
+
+def test_the_stations_first_command_follows_the_first_state_not_a_fallback():
+    """The station waits for the first state at initialization and hands it out there, so the
+    NMPC's update at t = 0 plans from it instead of braking a car it has not seen (a standing
+    car braked that way reverses)."""
+    scenario = memq_scenario()
+    scenario.hardware.first_message_timeout_s = 1.0
+    lcm, buses = shared_buses()
+    diagram, nmpc = station_with_nmpc(scenario, buses)
+    commands = []
+    lcm.Subscribe(
+        scenario.hardware.actuation_channel,
+        lambda data: commands.append(lcmt_vehicle_actuation.decode(data)),
+    )
+    x = initial_state(scenario_course(scenario), load_vehicle(scenario.vehicle), 0.0)
+    msg = lcmt_vehicle_state()
+    msg.utime, msg.state, msg.valid = 0, list(map(float, x)), True
+    lcm.Publish(scenario.hardware.state_channel, msg.encode())
+    simulator = Simulator(diagram)
+    simulator.Initialize()
+    simulator.AdvanceTo(0.01)
+    diag = nmpc.GetOutputPort("diagnostics").Eval(
+        nmpc.GetMyContextFromRoot(simulator.get_context())
+    )
+    assert diag.mode == "qp" and diag.fallback_count == 0
+    assert commands and commands[0].accel >= 0.0 and commands[0].state_utime == 0
+
+
+def test_the_bridged_car_stands_until_the_first_command_then_drives():
+    """``run_vehicle_bridge`` publishes the standing car's state, its time stamps rising, and
+    integrates nothing until a command comes; then the car drives from its initial state."""
+    scenario = memq_scenario()
+    lcm = DrakeLcm("memq://")
+    held = []
+
+    def station(data):  # answers the third state message with its first command
+        held.append(lcmt_vehicle_state.decode(data))
+        if len(held) == 3:
+            cmd = lcmt_vehicle_actuation()
+            cmd.utime, cmd.state_utime = held[-1].utime, held[-1].utime
+            cmd.steer_rate, cmd.accel = 0.0, 0.5
+            lcm.Publish(scenario.hardware.actuation_channel, cmd.encode())
+
+    lcm.Subscribe(scenario.hardware.state_channel, station)
+    result = run_vehicle_bridge(scenario, duration_s=0.2, realtime_rate=1.0, lcm=lcm)
+    first = held[:3]
+    utimes = [m.utime for m in first]  # on the state ticks, rising: no duplicates
+    assert utimes[0] == 0 and all(u % 10_000 == 0 for u in utimes)
+    assert all(b > a for a, b in zip(utimes, utimes[1:], strict=False))
+    assert all(m.state == first[0].state for m in first)  # the car stood still
+    assert result.started_s > utimes[-1] * 1e-6 and result.stopped_because == "duration"
+    assert first[0].state[3] == pytest.approx(3.0)  # held at the scenario's start speed
+    truth = result.truth
+    assert result.started_s <= truth["t"].iloc[0] < result.started_s + 0.05
+    assert result.sim_time_s == pytest.approx(result.started_s + 0.2)  # 0.2 s of driving
+    assert result.actuation_status["accepted"] == 1
+    # Accelerating at the command's 0.5 m/s^2 from 3 m/s at the start: nothing moved before it,
+    # and the watchdog never braked.
+    driven = truth["t"].to_numpy() - result.started_s
+    np.testing.assert_allclose(truth["v"], 3.0 + 0.5 * driven, atol=0.01)
+
+
+def test_a_bridge_that_hears_no_command_stops_with_an_error_naming_the_field():
+    scenario = memq_scenario()
+    scenario.hardware.first_command_timeout_s = 0.1
+    with pytest.raises(RuntimeError, match=r"PCVFE_ACTUATION at memq://.*first_command_timeout_s"):
+        run_vehicle_bridge(scenario, duration_s=1.0, lcm=DrakeLcm("memq://"))

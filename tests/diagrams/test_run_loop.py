@@ -17,6 +17,7 @@ from pcvfe_drake.diagrams.run_simulation import RunFolder, run_simulation
 from pcvfe_drake.diagrams.scenario_io import load_scenario
 from pcvfe_drake.diagrams.world_io import scenario_course
 from pcvfe_drake.runs.drivelog import read_drive_log
+from pcvfe_drake.runs.summary import summary_table
 
 
 def short(duration_s=None, laps=None):
@@ -189,3 +190,30 @@ def test_an_interrupt_while_the_outputs_are_written_is_held_back(tmp_path, monke
     assert result.held_signals == ["SIGTERM"]
     assert json.loads(folder.summary.read_text())["stop_reason"] == "duration"
     assert result.figures["fig5_mu_over_time"]
+
+
+def test_a_car_braked_into_reverse_on_the_multibody_truth_is_a_scored_failure(
+    tmp_path, monkeypatch
+):
+    """The multi-body truth cannot be integrated once a wheel's ground speed is <= 0 (the car
+    reverses): the run ends as the catastrophic failure ``truth_singular``, not as an error."""
+    scenario = load_scenario("paper_sim_mb").with_run_length(duration_s=5.0)
+    scenario.estimator = "oracle"
+    scenario.initial_speed_mps = 0.5
+    real = NmpcController.step
+
+    def full_brake(self, x, theta, memory):
+        _, memory, diagnostics = real(self, x, theta, memory)
+        return np.array([0.0, -self.params.a_max]), memory, diagnostics
+
+    monkeypatch.setattr(NmpcController, "step", full_brake)
+    folder = RunFolder(tmp_path / "run")
+    result = run_simulation(scenario, folder, progress=False, debug_layers=False)
+    s = result.summary
+    assert "error" not in s and s["stop_reason"] == "failure"
+    assert s["catastrophic_failures"] == len(s["failure_events"]) >= 1
+    last = s["failure_events"][-1]
+    assert last["kind"] == "truth_singular" and "reversing" in last["detail"]
+    assert 0.0 < last["t_s"] < 2.0 and last["sx_m"] is not None
+    assert json.loads(folder.summary.read_text())["failure_events"][-1] == last
+    assert "truth model singular" in summary_table(s)

@@ -292,3 +292,20 @@ def test_transition_entries_time_the_id_the_first_fit_and_the_lateral_error(cour
     # The planted path follows the course: the lateral error is ~0 on every visit.
     assert all(e["max_abs_lateral_error_m"] < 0.05 for e in entries.values())
     json.dumps(s, allow_nan=False)
+
+
+def test_a_truth_that_ended_the_run_is_its_last_failure_or_the_end_of_the_one_going_on(course):
+    """The multi-body truth's singularity ends a run where no logged row shows it: counted as
+    a failure of its own after a clean last row, as the end of the failure going on otherwise."""
+    log = planted_log(course, laps=0.2)
+    ending = {"t_s": 35.63, "sx_m": 1.0, "sy_m": 2.0, "s_m": 3.0, "kind": "truth_singular",
+              "detail": "truth model singular: wheel ground speed <= 0 (rear left -0.1 m/s)"}  # fmt: skip
+    s = summarize(log, course, ending_failure=ending)
+    assert s["catastrophic_failures"] == 1 and s["failure_events"] == [ending]
+    assert "t=35.6 s truth model singular" in summary_table(s)
+    off = log.copy()
+    off.loc[off["t"] >= off["t"].iloc[-1] - 0.45, "sy"] += 5.0  # off the course at the end
+    s = summarize(off, course, ending_failure=ending)
+    assert s["catastrophic_failures"] == 1
+    (event,) = s["failure_events"]
+    assert event["kind"] == "off_course" and event["detail"].endswith("; then " + ending["detail"])

@@ -14,7 +14,7 @@ from vehiclemodels.vehicle_dynamics_mb import vehicle_dynamics_mb
 
 from pcvfe_drake.diagrams.world_io import world_terrain_map
 from pcvfe_drake.systems.vehicle_plant import VehiclePlant
-from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
+from pcvfe_drake.vehicle.mb_truth import MbSingularity, MbTruth, st_state
 from pcvfe_drake.vehicle.params import ford_escort, roboracer
 from pcvfe_drake.vehicle.single_track import rollout, st_dynamics
 
@@ -186,3 +186,23 @@ def test_set_initial_state(terrain_map):
     plant.set_initial_state(context, x_st)
     np.testing.assert_allclose(plant.get_state_output_port().Eval(context), x_st, atol=1e-12)
     assert plant.get_true_mu_output_port().Eval(context)[0] == 0.8
+
+
+@pytest.mark.parametrize("integration", ["continuous", "discrete"])
+def test_the_mb_truth_reversing_raises_its_singularity_with_the_time(integration):
+    """A car reversing at -0.5 m/s is outside the multi-body model (a wheel's ground speed
+    <= 0): the plant says so with the simulated time, for the run loop to score."""
+    plant = VehiclePlant(
+        truth="mb", x0=[1.0, 2.0, 0.0, -0.5, 0.0, 0.0, 0.0], mb_integration=integration
+    )
+    ctx = plant.CreateDefaultContext()
+    ctx.SetTime(3.25)
+    plant.get_actuation_input_port().FixValue(ctx, [0.0, 0.0])
+    with pytest.raises(MbSingularity, match="reversing") as caught:
+        if integration == "continuous":
+            plant.EvalTimeDerivatives(ctx)
+        else:
+            Simulator(plant, ctx).AdvanceTo(3.3)
+    assert caught.value.t_s == pytest.approx(3.25)  # a discrete update at its start
+    assert "t = 3.2" in str(caught.value)
+    np.testing.assert_allclose(caught.value.state[:2], [1.0, 2.0])

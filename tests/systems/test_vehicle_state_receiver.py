@@ -180,3 +180,24 @@ def test_without_holding_a_stall_gives_the_newest_state_and_no_false_timeout():
     assert seen[0] == 110_000 and set(seen) == {110_000}
     s = rig.status()
     assert s.timeouts == 0 and s.superseded == 5 and s.rejected_count() == 0
+
+
+def test_the_first_message_waited_for_is_handed_out_at_initialization():
+    """The controller's first update runs at t = 0 beside the receiver's first check and sees
+    the state from before it: the initialization that waited for the message hands it out."""
+    queue = MessageQueue()
+    rx = VehicleStateReceiver(
+        queue=queue, period_s=0.01, timeout_s=0.05, max_delay_s=0.03, first_message_timeout_s=1.0
+    )
+    queue.push(message(0).encode())
+    sim = Simulator(rx)
+    sim.Initialize()
+    ctx = sim.get_context()
+    np.testing.assert_array_equal(rx.GetOutputPort("state").Eval(ctx), X)
+    assert rx.GetOutputPort("status").Eval(ctx).accepted == 1
+    empty = VehicleStateReceiver(
+        queue=MessageQueue(), period_s=0.01, timeout_s=0.05, max_delay_s=0.03,
+        first_message_timeout_s=0.05, source="PCVFE_STATE at memq://",
+    )  # fmt: skip
+    with pytest.raises(RuntimeError, match="no state message on PCVFE_STATE at memq://"):
+        Simulator(empty).Initialize()

@@ -11,7 +11,14 @@ from vehiclemodels.init_mb import init_mb
 from vehiclemodels.parameters_vehicle1 import parameters_vehicle1
 from vehiclemodels.vehicle_dynamics_mb import vehicle_dynamics_mb
 
-from pcvfe_drake.vehicle.mb_truth import NX_MB, MbTruth, st_state
+from pcvfe_drake.vehicle.mb_truth import (
+    NX_MB,
+    MbSingularity,
+    MbTruth,
+    singularity_detail,
+    st_state,
+    wheel_ground_speeds,
+)
 from pcvfe_drake.vehicle.params import ford_escort
 from pcvfe_drake.vehicle.single_track import rollout
 
@@ -138,3 +145,35 @@ def test_bad_input_is_named(mb):
         mb.initial_state([0.0, 1.0])
     with pytest.raises(ValueError, match="method"):
         mb.integrate(x, [0.0, 0.0], 0.5, 0.1, method="euler")
+
+
+def test_a_wheel_at_zero_ground_speed_is_the_named_singularity_not_a_zero_division(mb):
+    """The package divides by each wheel's ground speed above 0.1 m/s; where one is <= 0 (a
+    reversing or spun car) the model ends, and MbTruth says so with the wheels' numbers."""
+    x = mb.initial_state([0.0, 0.0, 0.0, 5.0, 0.0, 0.0, 0.0])
+    p = mb.parameters_for_mu(1.0)
+    assert singularity_detail(x, p) == ""
+    spun = x.copy()
+    spun[5] = 2.5 * 5.0 / p.T_r  # yaw rate: the inner rear wheel moves backwards over ground
+    u_w = wheel_ground_speeds(spun, p)
+    assert u_w[2] > 0 and u_w[3] < 0
+    with pytest.raises(MbSingularity, match="rear right") as caught:
+        mb.derivatives(spun, [0.0, 0.0], 1.0)
+    assert isinstance(caught.value, ArithmeticError) and "spun" in str(caught.value)
+    np.testing.assert_allclose(caught.value.state[:2], spun[:2])
+    reversing = mb.initial_state([0.0, 0.0, 0.0, -0.5, 0.0, 0.0, 0.0])
+    with pytest.raises(MbSingularity, match="reversing"):
+        mb.derivatives(reversing, [0.0, 0.0], 1.0)
+    # In the package's kinematic regime (|v_x| < 0.1 m/s) nothing is divided: no singularity.
+    creeping = mb.initial_state([0.0, 0.0, 0.0, -0.05, 0.0, 0.0, 0.0])
+    assert singularity_detail(creeping, p) == ""
+    assert np.all(np.isfinite(mb.derivatives(creeping, [0.0, 0.0], 1.0)))
+
+
+def test_full_braking_from_a_crawl_ends_in_the_singularity(mb):
+    """Braking held past standstill reverses the car (the input is an acceleration), and the
+    integration stops with MbSingularity within a fraction of a second."""
+    x = mb.initial_state([0.0, 0.0, 0.0, 0.5, 0.0, 0.0, 0.0])
+    with pytest.raises(MbSingularity, match="reversing"):
+        for _ in range(50):  # 0.5 s
+            x = mb.integrate(x, [0.0, -5.0], 1.0, 0.01, method="rk4")
