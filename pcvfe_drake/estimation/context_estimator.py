@@ -259,7 +259,30 @@ class ContextEstimator:
                     slot.changes += count
                     if slot.fit_info is not None:  # not an append: every window re-evaluated
                         slot.fit_info = slot.fit_info.forget_windows()
+        self._follow_renamings(old, new)
         return {k: v for k, v in gained.items() if v}
+
+    def _follow_renamings(self, old: np.ndarray, new: np.ndarray) -> None:
+        """A context the re-clustering renamed passes its fit and its handing to the new id: no
+        sample keeps the old id and most of them now carry one other id that has no fit of its
+        own. These are the same data under another name, not a new terrain, so the new id is
+        not explored from the floor again; its next refit starts from the fit it took over."""
+        for ident in np.unique(old[old >= 0]).tolist():
+            of_old = old == ident
+            if (new == ident).any():
+                continue
+            to, counts = np.unique(new[of_old], return_counts=True)
+            heir = int(to[counts.argmax()])
+            mine, theirs = self._slots.get(ident), self._slots.get(heir)
+            if heir < 0 or 2 * int(counts.max()) <= int(of_old.sum()):
+                continue
+            if mine is None or not mine.estimate.fitted:
+                continue
+            if theirs is not None and theirs.estimate.fitted:
+                continue  # a merge into a fitted context: its own fit and handing stand
+            slot = self._slot(heir)
+            slot.estimate = replace(mine.estimate, context_id=heir)
+            self.handing.renamed(ident, heir)
 
     @property
     def current_context(self) -> int:

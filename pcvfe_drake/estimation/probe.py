@@ -26,10 +26,10 @@ sign of it. The estimate takes over as soon as the fit is identifiable
 * **bounded** by ``(mu_lower_bound + max_excess) / use_fraction`` (the planner is never asked for
   more than ``max_excess`` above the friction demonstrated), the prior mu and a ceiling set by a
   back-off;
-* **back off** on a sign of saturation (:func:`saturated`: a slip angle on either axle over
-  ``SLIP_FRACTION`` of a magic-formula tyre's peak slip at the handed mu; or the level's bend
-  ratio above ``bend_limit``): two steps down, never below the start, and one step below the
-  level that saturated becomes the ceiling.
+* **back off** on a sign of saturation (:func:`saturated`: a slip angle, a 0.2 s mean, on either
+  axle over ``SLIP_FRACTION`` of a magic-formula tyre's peak slip at the handed mu; or the
+  level's bend ratio above ``bend_limit``): two steps down, never below the start, and one step
+  below the level that saturated becomes the ceiling.
 
 Evidence is judged relative to the level tried: a sample counts toward a bend ratio when its
 force is at least ``EVIDENCE_FRACTION`` of the planner's demand at that level
@@ -65,9 +65,10 @@ DEFAULT_PROBE_USE_FRACTION = 0.64
 MIN_PROBE_MU = 0.05
 """Smallest mu a back-off hands (keeps the speed profile defined)."""
 MIN_SLIP_LIMIT_RAD = 0.01
-"""Smallest slip limit of the saturation test [rad]: the 90th percentile of the slip angles'
-measurement noise alone (INS side slip 0.005 rad, yaw rate 0.01 rad/s: ~0.009 rad); a limit
-below it would call every low level saturated and ratchet the probe down."""
+"""Smallest slip limit of the saturation test [rad]: the 90th percentile of one sample's
+slip-angle noise (INS side slip 0.005 rad, yaw rate 0.01 rad/s: ~0.009 rad). The test reads
+the slips' moving mean (:data:`SLIP_SMOOTH_S`), whose noise is well below it; the floor stays
+so that no level is judged by a limit finer than what one sample resolves."""
 MF_SHAPE = 1.35
 """Magic-formula shape factor of the tyre the saturation test assumes (``peak_tyre``'s C)."""
 MIN_SPEED_MPS = 2.0
@@ -177,10 +178,18 @@ def axle_slip_angles(states: np.ndarray, lf: float, lr: float) -> tuple[np.ndarr
     return alpha_f, alpha_r
 
 
-WHEEL_SHARE_SMOOTH_S = 0.2
-"""Width [s] of the moving mean over the wheel slips in :func:`wheel_peak_share` (averages the
-INS side-slip and yaw-rate noise, 0.005 rad and 0.01 rad/s, which a steep low-friction curve
-would otherwise read as use)."""
+SLIP_SMOOTH_S = 0.2
+"""Width [s] of the moving mean over slip angles read from measured states (:func:`saturated`,
+:func:`wheel_peak_share`): it averages the INS side-slip and yaw-rate noise (0.005 rad and
+0.01 rad/s per sample), which at a low level is as large as the slip limit itself and would
+read as saturation or as use, and keeps a tyre's saturation, which lasts most of a bend."""
+
+
+def slip_smoothing_width(t: np.ndarray) -> int:
+    """Samples in :data:`SLIP_SMOOTH_S` at the median spacing of the times ``t`` [s] (>= 1)."""
+    tt = np.asarray(t, dtype=float)
+    dt = float(np.median(np.diff(tt))) if tt.size > 1 else 0.0
+    return max(1, int(round(SLIP_SMOOTH_S / dt))) if dt > 0 else 1
 
 
 def wheel_peak_share(
@@ -199,7 +208,7 @@ def wheel_peak_share(
     small-slip stiffness ``stiffness_per_rad`` per axle (``mu * C_S``, per load), each wheel of
     an axle at its own slip for the track ``track_m`` [m] (``track_slip``'s
     ``wheel_slip_offsets``; 0: the single-track slip). Past its peak slip a wheel counts as at
-    the peak (share 1). The slips are a moving mean over ``WHEEL_SHARE_SMOOTH_S``. NaN with
+    the peak (share 1). The slips are a moving mean over ``SLIP_SMOOTH_S``. NaN with
     fewer than 20 samples.
 
     The car's lateral acceleration says how much friction the car used, on average over its
@@ -214,8 +223,7 @@ def wheel_peak_share(
     if fast.sum() < 20 or not (math.isfinite(mu) and mu > 0):
         return float("nan")
     x, tt = x[fast], tt[fast]
-    dt = float(np.median(np.diff(tt)))
-    width = max(1, int(round(WHEEL_SHARE_SMOOTH_S / dt))) if dt > 0 else 1
+    width = slip_smoothing_width(tt)
     kernel = np.ones(width) / width
     stiffness = np.broadcast_to(np.asarray(stiffness_per_rad, dtype=float), (2,))
     track = np.full(x.shape[0], float(track_m))
@@ -350,27 +358,38 @@ def peak_slip_rad(mu: float, stiffness_per_rad, shape: float = MF_SHAPE):
 
 
 def saturated(
-    states: np.ndarray, lf: float, lr: float, max_slip_rad, quantile: float = 0.9
+    t: np.ndarray,
+    states: np.ndarray,
+    lf: float,
+    lr: float,
+    max_slip_rad,
+    quantile: float = 0.9,
 ) -> bool:
-    """A sign of saturation in the measured states: the ``quantile`` of ``|alpha_f|`` or
-    ``|alpha_r|`` over the samples at >= 2 m/s exceeds ``max_slip_rad`` (one number, or one
-    per axle: front, rear; never below ``MIN_SLIP_LIMIT_RAD``, the noise). A large rear slip is
-    side slip (the rear lets go); a large front slip is a yaw rate short of what the steering
-    asks (the front lets go). The quantile (not the largest value) keeps one noisy sample from
-    triggering it. Fewer than 10 usable samples: False."""
+    """A sign of saturation in the measured states (``t`` [s], ``states`` (N, 7)): the
+    ``quantile`` of ``|alpha_f|`` or ``|alpha_r|``, each a moving mean over ``SLIP_SMOOTH_S``
+    of the samples at >= 2 m/s, exceeds ``max_slip_rad`` (one number, or one per axle: front,
+    rear; never below ``MIN_SLIP_LIMIT_RAD``). A large rear slip is side slip (the rear lets
+    go); a large front slip is a yaw rate short of what the steering asks (the front lets go).
+    The moving mean keeps the INS noise from reading as saturation at a low level, where the
+    limit is no larger than one sample's noise; the quantile (not the largest value) keeps one
+    wild sample from triggering it. Fewer than 10 usable samples (after the mean): False."""
     x = np.asarray(states, dtype=float)
-    if x.ndim != 2 or x.shape[0] == 0:
+    tt = np.asarray(t, dtype=float)
+    if x.ndim != 2 or x.shape[0] == 0 or tt.shape != (x.shape[0],):
         return False
     use = x[:, V] >= MIN_SPEED_MPS
-    if use.sum() < 10:
+    width = slip_smoothing_width(tt[use])
+    if use.sum() - width + 1 < 10:
         return False
-    af, ar = axle_slip_angles(x[use], lf, lr)
-    limit_f, limit_r = np.maximum(
+    kernel = np.ones(width) / width
+    limits = np.maximum(
         np.broadcast_to(np.asarray(max_slip_rad, dtype=float), (2,)), MIN_SLIP_LIMIT_RAD
     )
-    return bool(
-        np.quantile(np.abs(af), quantile) > limit_f or np.quantile(np.abs(ar), quantile) > limit_r
-    )
+    for alpha, limit in zip(axle_slip_angles(x[use], lf, lr), limits, strict=True):
+        mean = np.convolve(alpha, kernel, mode="valid")  # no padding: the newest samples count
+        if np.quantile(np.abs(mean), quantile) > limit:
+            return True
+    return False
 
 
 def probe_base(lower_bound: float, floor_mu: float, prior_mu: float) -> float:
@@ -519,13 +538,13 @@ def probe_update(
     also gets the bend ratio of all the context's data, driven at the stated floor; ``fit_mu``:
     the tight fit's peak the level rises to (NaN: none)."""
     use = settings.use_fraction
-    _, recent = since(t_now - WINDOW_S)
+    t_recent, recent = since(t_now - WINDOW_S)
     level = state.last_step_s if state.started else t_now - settings.hold_s
     t_level, s_level = since(level)
     stiffness = handed[0] * handed[1:]  # mu * C_S per axle: the fit's small-slip stiffness
     judged = max(handed[0], drove_mu) if math.isfinite(drove_mu) else handed[0]
     limit = SLIP_FRACTION * peak_slip_rad(judged, stiffness)
-    is_saturated = saturated(recent, vehicle.lf, vehicle.lr, limit)
+    is_saturated = saturated(t_recent, recent, vehicle.lf, vehicle.lr, limit)
     if is_saturated and judged > handed[0]:
         base = probe_base(lower_bound, settings.floor_mu, prior_mu)
         return probe_after_fit(state, t_now, judged, base, settings.step_rel)
@@ -577,7 +596,7 @@ def unknown_probe_update(
     floor, use = settings.floor_mu, settings.use_fraction
     if not state.started:
         return ProbeState(mu=floor, last_step_s=t_now)
-    _, recent = since(t_now - WINDOW_S)
+    t_recent, recent = since(t_now - WINDOW_S)
     t_level, s_level = since(state.last_step_s)
     force = evidence_force(use, state.mu)
     bend = level_bend(t_level, s_level, vehicle, stiffness_per_rad, force, use * state.mu)
@@ -588,7 +607,7 @@ def unknown_probe_update(
         lower_bound=used,
         floor_mu=floor,
         prior_mu=prior_mu,
-        is_saturated=saturated(recent, vehicle.lf, vehicle.lr, limit),
+        is_saturated=saturated(t_recent, recent, vehicle.lf, vehicle.lr, limit),
         use_fraction=use,
         bend=bend,
         **_step_settings(settings),

@@ -186,6 +186,17 @@ class Handing:
 
     # --- exploration --------------------------------------------------------------------------
 
+    def renamed(self, old: int, new: int) -> None:
+        """The re-clustering gave context ``old``'s data the id ``new``: ``new`` takes ``old``'s
+        handing state (its probe's level, ceiling and steps; an identified spell), unless it
+        has explored on its own."""
+        mine, theirs = self.contexts.get(old), self.contexts.get(new)
+        if mine is None or (theirs is not None and theirs.probe.started):
+            return
+        self.contexts[new] = copy.copy(mine)
+        if self.last_fitted == old:
+            self.last_fitted = new
+
     def adopt_exploration(self, other: Handing) -> None:
         """Take the exploration state (the probes, the unknown phase's probe and what it
         carries) of ``other``, a copy that ran a refit off the control path; the visit tracker

@@ -14,6 +14,7 @@ from pcvfe_drake.estimation.probe import (
     ProbeSettings,
     ProbeState,
     axle_slip_angles,
+    peak_slip_rad,
     probe_step,
     saturated,
 )
@@ -32,6 +33,11 @@ def probing(floor_stated: bool = False, probe: Probe = SMALL_STEPS, **cfg) -> Li
     unknown = StatedFloor() if floor_stated else Conservative()
     handing = HandingConfig(unknown=unknown, unidentified=probe, confirm_rise_s=0.0)
     return LiveFitConfig(handing=handing, **cfg)
+
+
+def _times(x, dt=0.01):
+    """Sample times [s] of the states ``x`` at the fitter's rate."""
+    return np.arange(len(x)) * dt
 
 
 def _probe(est, ident=0):
@@ -113,20 +119,51 @@ def test_saturation_signs_from_slip_angles():
     x[:, 6] = vp.lr / L * 0.05
     af, ar = axle_slip_angles(x, vp.lf, vp.lr)
     assert np.all(np.abs(af) < 2e-3) and np.all(np.abs(ar) < 2e-3)
-    assert not saturated(x, vp.lf, vp.lr, 0.035)
+    assert not saturated(_times(x), x, vp.lf, vp.lr, 0.035)
     slide = x.copy()
     slide[:, 6] -= 0.08  # the rear lets go: side slip
-    assert saturated(slide, vp.lf, vp.lr, 0.035)
+    assert saturated(_times(slide), slide, vp.lf, vp.lr, 0.035)
     push = x.copy()
     push[:, 5] *= 0.3  # the front lets go: yaw rate far short of the steering's
     push[:, 6] = vp.lr * push[:, 5] / 8.0  # rear at zero slip
-    assert saturated(push, vp.lf, vp.lr, 0.035)
+    assert saturated(_times(push), push, vp.lf, vp.lr, 0.035)
     slow = slide.copy()
     slow[:, 3] = 1.0  # below 2 m/s: not judged
-    assert not saturated(slow, vp.lf, vp.lr, 0.035)
+    assert not saturated(_times(slow), slow, vp.lf, vp.lr, 0.035)
     one = x.copy()
     one[-1, 6] -= 0.3  # a single wild sample does not count
-    assert not saturated(one, vp.lf, vp.lr, 0.035)
+    assert not saturated(_times(one), one, vp.lf, vp.lr, 0.035)
+
+
+def test_saturation_reads_the_slips_through_the_ins_noise():
+    # a low level on a grippy terrain: the car corners at 0.12 g on a tyre far from its peak;
+    # one sample's INS noise (side slip 0.005 rad, yaw rate 0.01 rad/s) is as large as the
+    # limit at a 0.19 level, the slips' 0.2 s mean is not
+    vp = ford_escort()
+    rng = np.random.default_rng(3)
+    n, v, k = 100, 4.6, 21.9
+    limit = 0.5 * peak_slip_rad(0.19, k)
+    x = np.zeros((n, 7))
+    x[:, 3] = v
+    x[:, 5] = 0.12 * 9.81 / v
+    x[:, 2] = (vp.lf + vp.lr) * x[:, 5] / v  # a neutral car: both axles at the same slip
+    x[:, 6] = vp.lr * x[:, 5] / v - 0.12 / k  # that slip: the linear tyre's at 0.12 g
+    assert np.allclose(axle_slip_angles(x, vp.lf, vp.lr), 0.12 / k, rtol=0.1)
+    noisy = x.copy()
+    noisy[:, 6] += rng.normal(0.0, 0.005, n)
+    noisy[:, 5] += rng.normal(0.0, 0.01, n)
+    af, ar = axle_slip_angles(noisy, vp.lf, vp.lr)
+    raw = max(np.quantile(np.abs(af), 0.9), np.quantile(np.abs(ar), 0.9))
+    assert raw > limit  # one sample at a time this would read as saturation
+    assert not saturated(_times(noisy), noisy, vp.lf, vp.lr, limit)
+    # the same noise on a tyre past its peak: the rear slides at twice the limit
+    slide = noisy.copy()
+    slide[:, 6] -= 2 * limit
+    assert saturated(_times(slide), slide, vp.lf, vp.lr, limit)
+    # a slide in the window's newest 0.3 s is read (the mean is not padded at the end)
+    late = noisy.copy()
+    late[-30:, 6] -= 4 * limit
+    assert saturated(_times(late), late, vp.lf, vp.lr, limit)
 
 
 def _first_fit(est, mu: float, mu_lower_bound: float):
@@ -251,8 +288,8 @@ def test_peak_slip_is_the_peak_tyres_and_limits_are_per_axle():
     x = np.zeros((30, 7))
     x[:, 3] = 8.0
     x[:, 6] = -0.03  # rear slip 0.03 rad, front 0.03 rad
-    assert saturated(x, vp.lf, vp.lr, (0.05, 0.02))
-    assert not saturated(x, vp.lf, vp.lr, (0.05, 0.04))
+    assert saturated(_times(x), x, vp.lf, vp.lr, (0.05, 0.02))
+    assert not saturated(_times(x), x, vp.lf, vp.lr, (0.05, 0.04))
 
 
 def test_back_offs_never_go_below_the_start_nor_judge_noise():
@@ -269,9 +306,9 @@ def test_back_offs_never_go_below_the_start_nor_judge_noise():
     x = np.zeros((100, 7))
     x[:, 3] = 5.0
     x[:, 6] = rng.normal(0.0, 0.005, 100)  # INS side-slip noise only
-    assert not saturated(x, vp.lf, vp.lr, 0.002)
+    assert not saturated(_times(x), x, vp.lf, vp.lr, 0.002)
     x[:, 6] += 2 * MIN_SLIP_LIMIT_RAD
-    assert saturated(x, vp.lf, vp.lr, 0.002)
+    assert saturated(_times(x), x, vp.lf, vp.lr, 0.002)
 
 
 def _mf_slalom(peak, amplitude_rad, seconds=6.0, v=6.0, noise=False, seed=0):
@@ -513,8 +550,8 @@ def test_estimator_reads_the_bend_ratio_of_the_current_level():
     assert mu == pytest.approx(0.38 / 0.64 / 1.21)
     from pcvfe_drake.estimation.probe import peak_slip_rad
 
-    _, x, k = _mf_slalom(0.34, 0.2, seconds=2.0)  # the slip-angle test alone would not have
-    assert not saturated(x, params.lf, params.lr, 0.5 * peak_slip_rad(0.38 / 0.64, k))
+    t, x, k = _mf_slalom(0.34, 0.2, seconds=2.0)  # the slip-angle test alone would not have
+    assert not saturated(t, x, params.lf, params.lr, 0.5 * peak_slip_rad(0.38 / 0.64, k))
     assert est.table().get(0).probe.backoffs == 1
 
 

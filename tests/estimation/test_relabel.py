@@ -10,8 +10,10 @@ import pytest
 from pcvfe_drake.contexts.clustering import ClusteringParams, ContextClusterer
 from pcvfe_drake.estimation.context_estimator import ContextEstimator
 from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
+from pcvfe_drake.estimation.probe import ProbeState
 from pcvfe_drake.estimation.sample_store import SampleStore, labels_from_frames
-from pcvfe_drake.handing.config import HandingConfig, Prior
+from pcvfe_drake.handing.config import HandingConfig, Prior, Probe
+from pcvfe_drake.handing.context_state import ContextHanding
 from pcvfe_drake.models.synthetic_drive import s_curve_drive
 from pcvfe_drake.vehicle.params import ford_escort
 
@@ -166,6 +168,34 @@ def test_a_context_that_grows_by_relabelling_is_refitted_and_one_that_shrinks_to
     assert abs(e2.mu - 0.45) < 0.01 and abs(e5.mu - 0.8) < 0.01
     assert e2.samples == 300 and e5.samples == 500
     assert e5.first_fit_s == 9.0 and e2.first_fit_s == 8.0 and e2.fits == 2
+
+
+def test_a_renamed_context_passes_its_fit_and_its_exploration_to_the_new_id(params):
+    # one terrain (mu 0.8) fitted as context 5 and explored up to 0.55; a re-clustering then
+    # names the same frames 7 (the paper's centroid matching gave the grown cluster a fresh id)
+    t, S, U = s_curve_drive(params, [0.8], duration_s=8.0)
+    cfg = LiveFitConfig(handing=HandingConfig(unknown=Prior(), unidentified=Probe()))
+    est = ContextEstimator(params, cfg)
+    for k in range(t.size):
+        est.add_sample(float(t[k]), S[0][k], U[0][k], [5])
+    est.refit(8.0)
+    fit5 = est.table().get(5)
+    assert fit5.fitted
+    est.handing.contexts[5] = ContextHanding(probe=ProbeState(mu=0.55, last_step_s=7.0, steps=3))
+    before = est.theta_for(5)
+    frames_t = np.round(np.arange(0.0, 8.0, 0.1), 6)
+    assert est.relabel(frames_t, np.full(frames_t.size, 7), 0.1, version=1) == {5: -801, 7: 801}
+    fit7 = est.table().get(7)
+    assert fit7.fitted and fit7.mu == fit5.mu and fit7.first_fit_s == fit5.first_fit_s
+    assert fit7.samples == 801 and est.table().get(5).samples == 0
+    assert est.handing.probe_of(7) == est.handing.probe_of(5)
+    np.testing.assert_array_equal(est.theta_for(7), before)  # not the unknown value again
+    assert 7 in est.pending()  # refitted on its data, from the fit it took over
+    # a split is no renaming: a context that keeps samples keeps its own state, and an id
+    # that has a fit of its own keeps it
+    frames_l = np.where(frames_t < 4.0 - 1e-9, 7, 9)
+    est.relabel(frames_t, frames_l, 0.1, version=2)
+    assert not est.table().get(9).fitted and est.handing.probe_of(9) == ProbeState()
 
 
 def test_memory_stays_bounded_and_the_current_id_still_drives_the_controller(params):
