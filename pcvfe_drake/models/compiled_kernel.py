@@ -9,9 +9,10 @@ compiled function on its own file only: a callee in another file could change wi
 caller being compiled again.
 
 An effect is known by its code (its position in :data:`KERNEL_EFFECTS`); a model's effects
-arrive as ``order``, their codes in the model's order, so that hooks several effects share
-compose in the numpy code's order (sums and products in another order would differ in the
-last bits). ``col[code]`` is the effect's first column in a row's parameters ``q``, ``off[code]``
+arrive as ``chains``: per group of hooks (:data:`CHAINS`) the codes of the effects that have
+them, in the model's order (-1 ends a row), so that hooks several effects share compose in
+the numpy code's order (sums and products in another order would differ in the last bits).
+``col[code]`` is the effect's first column in a row's parameters ``q``, ``off[code]``
 the index of its first own state in ``z`` (-1: none).
 """
 
@@ -49,6 +50,18 @@ KERNEL_EFFECTS = (
 (PEAK, TRACK, ROLL, FORCE_STEER, AXLE, DRAG, ROLLING, GRADE, POWER, INERTIA, BRUSH,
  F_SPEED, F_LOAD, CAMBER, STEER_LAG, SUSP) = range(len(KERNEL_EFFECTS))  # fmt: skip
 
+CHAINS = {
+    "accel": ("motor_power_limit", "rotating_inertia"),
+    "longitudinal": ("drag", "rolling_resistance", "grade"),
+    "axle": ("friction_speed", "friction_load", "axle_stiffness", "peak_tyre", "tire_saturation"),
+    "tire_offsets": ("roll_camber", "wheel_camber"),
+    "wheel_slips": ("track_slip", "wheel_camber"),
+}
+"""The kernel's groups of hooks (the rows of ``chains``) and the effects in each: accel
+hooks, longitudinal hooks, the axle's friction, stiffness and tyre law, tire_offsets hooks,
+wheel_slips hooks."""
+ACCEL, LONG, FRICTION, OFFSETS, SLIPS = range(len(CHAINS))
+
 N_CONSTANTS = 28
 """Length of the constants vector ``vv`` (:func:`pcvfe_drake.models.compiled_rollout.constants`):
 the vehicle's 15 fields, then the model's and the effects' constants."""
@@ -56,12 +69,18 @@ LOGE2 = 0.6931471805599453
 """log(2), as numpy's ``logaddexp`` adds it for equal arguments."""
 
 
-def _jit(fn):
+def _jit(fn=None, inline="never"):
     """Compiled with numba (IEEE arithmetic: no fast-math, numpy's error model), cached on
-    disk; the plain function without numba (then never called: the plan is None)."""
+    disk; the plain function without numba (then never called: the plan is None).
+    ``inline="always"`` inlines it into its callers in numba's own IR: a call that passes
+    arrays costs their reference counts, and LLVM does not inline a function this large."""
+    if fn is None:
+        return lambda f: _jit(f, inline)
     if numba is None:
         return fn
-    return numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=False)(fn)
+    return numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=False, inline=inline)(
+        fn
+    )
 
 
 @_jit
@@ -129,13 +148,13 @@ def _brush_law(alpha, d_alpha, c_alpha, d_c_alpha, f_max, d_f_max):
 
 
 @_jit
-def _law(code, alpha, d_alpha, c_alpha, d_c_alpha, tyre, shape):
-    """The axle's law at slip ``alpha``: the tyre effect's (``code``; ``tyre`` its peak and
-    stiffness with derivatives), or the linear law (code -1)."""
+def _law(code, alpha, d_alpha, c_alpha, d_c_alpha, t0, t1, t2, t3, shape):
+    """The axle's law at slip ``alpha``: the tyre effect's (``code``; ``t0``-``t3`` its peak
+    and stiffness with their derivatives), or the linear law (code -1)."""
     if code == PEAK:
-        return _peak_law(alpha, d_alpha, tyre[0], tyre[1], tyre[2], tyre[3], shape)
+        return _peak_law(alpha, d_alpha, t0, t1, t2, t3, shape)
     if code == BRUSH:
-        return _brush_law(alpha, d_alpha, c_alpha, d_c_alpha, tyre[0], tyre[1])
+        return _brush_law(alpha, d_alpha, c_alpha, d_c_alpha, t0, t1)
     return c_alpha * alpha, d_c_alpha * alpha + c_alpha * d_alpha
 
 
@@ -149,26 +168,29 @@ def _camber_signs(a_roll, d_roll, a_x, d_x, k_x, width):
     return left, right, d_left, d_right
 
 
-@_jit
-def _axle_force(front, fz, dfz, alpha, d_alpha, c_s, mu, dmu, z, dz, vv, q, order, col, off, sh):
+@_jit(inline="always")
+def _axle_force(front, fz, dfz, alpha, d_alpha, c_s, mu, dmu, z, dz, vv, q, chains, col, off, sh):
     """One axle's lateral force [N] and its derivative along mu (model.rhs steps 7 and 8 with
     the effects' hooks; ``sh``: what the axles share, values then derivatives)."""
     m, g, lf, lr, mu_nom = vv[11], vv[12], vv[8], vv[9], vv[14]
     v, r, dv, dr = z[3], z[5], dz[3], dz[5]
     a_long, d_long = sh[7], sh[17]
-    wheelbase = lf + lr
-    fz_static = m * g * lr / wheelbase if front else m * g * lf / wheelbase
     lever = lf if front else -lr
     # 7. friction factors and the cornering stiffness
     scale, d_scale, hooked = 1.0, 0.0, False
     tyre_code = -1
-    for code in order:
+    for j in range(chains.shape[1]):
+        code = chains[FRICTION, j]
+        if code < 0:
+            break
         if code == F_SPEED or code == F_LOAD:
             k = q[col[code]]
             if code == F_SPEED:
                 raw = 1.0 - k * (v - vv[20])
                 d_raw = -k * dv
             else:
+                wheelbase = lf + lr
+                fz_static = m * g * lr / wheelbase if front else m * g * lf / wheelbase
                 rel = fz / max(fz_static, 1.0) - 1.0
                 raw = 1.0 - k * rel
                 d_raw = -k * (dfz / max(fz_static, 1.0))
@@ -185,28 +207,31 @@ def _axle_force(front, fz, dfz, alpha, d_alpha, c_s, mu, dmu, z, dz, vv, q, orde
     d_mu_a = dmu * scale + mu * d_scale if hooked else dmu
     c_alpha = mu_a * c_s * fz
     d_c_alpha = d_mu_a * c_s * fz + mu_a * c_s * dfz
-    tyre = sh[18:]  # the tyre law's peak and stiffness with derivatives (scratch)
+    t0 = t1 = t2 = t3 = 0.0  # the tyre law's peak and stiffness with derivatives
     if tyre_code == PEAK:
         mu_p = _maximum(mu, 1e-6)
         d_mu_p = dmu if mu >= 1e-6 else 0.0
         load = _maximum(fz, 1.0)
         d_load = dfz if fz >= 1.0 else 0.0
-        tyre[0] = mu_p * scale * load
-        tyre[1] = (d_mu_p * scale + mu_p * d_scale) * load + mu_p * scale * d_load
+        t0 = mu_p * scale * load
+        t1 = (d_mu_p * scale + mu_p * d_scale) * load + mu_p * scale * d_load
         exponent = 1.0 - q[col[PEAK]]
         ratio = mu_nom / mu_p
-        tyre[2] = c_alpha * ratio**exponent
-        tyre[3] = d_c_alpha * ratio**exponent
+        t2 = c_alpha * ratio**exponent
+        t3 = d_c_alpha * ratio**exponent
         if exponent != 0.0:
-            tyre[3] += c_alpha * exponent * ratio ** (exponent - 1.0) * (-ratio * d_mu_p / mu_p)
+            t3 += c_alpha * exponent * ratio ** (exponent - 1.0) * (-ratio * d_mu_p / mu_p)
     elif tyre_code == BRUSH:
         load = _maximum(fz, 1.0)
         d_load = dfz if fz >= 1.0 else 0.0
-        tyre[0] = q[col[BRUSH]] * scale * load
-        tyre[1] = q[col[BRUSH]] * (d_scale * load + scale * d_load)
+        t0 = q[col[BRUSH]] * scale * load
+        t1 = q[col[BRUSH]] * (d_scale * load + scale * d_load)
     # 8. tire_offsets hooks (slip shift, side force), then wheel_slips hooks
     has_side, side, d_side = False, 0.0, 0.0
-    for code in order:
+    for j in range(chains.shape[1]):
+        code = chains[OFFSETS, j]
+        if code < 0:
+            break
         if code == ROLL:
             alpha = alpha + sh[0]
             d_alpha = d_alpha + sh[10]
@@ -226,7 +251,10 @@ def _axle_force(front, fz, dfz, alpha, d_alpha, c_s, mu, dmu, z, dz, vv, q, orde
             side, d_side, has_side = out, d_out, True
     n_spread = 0
     s_l = s_r = share = d_l = d_r = d_share = 0.0
-    for code in order:
+    for j in range(chains.shape[1]):
+        code = chains[SLIPS, j]
+        if code < 0:
+            break
         if code == TRACK:
             w = sh[3] + lever * r
             dw = sh[13] + lever * dr
@@ -253,10 +281,11 @@ def _axle_force(front, fz, dfz, alpha, d_alpha, c_s, mu, dmu, z, dz, vv, q, orde
         n_spread += 1
     shape = vv[16]
     if n_spread == 0:
-        fy, dfy = _law(tyre_code, alpha, d_alpha, c_alpha, d_c_alpha, tyre, shape)
+        fy, dfy = _law(tyre_code, alpha, d_alpha, c_alpha, d_c_alpha, t0, t1, t2, t3, shape)
     else:
-        f_l, df_l = _law(tyre_code, alpha + s_l, d_alpha + d_l, c_alpha, d_c_alpha, tyre, shape)
-        f_r, df_r = _law(tyre_code, alpha + s_r, d_alpha + d_r, c_alpha, d_c_alpha, tyre, shape)
+        a_l, da_l, a_r, da_r = alpha + s_l, d_alpha + d_l, alpha + s_r, d_alpha + d_r
+        f_l, df_l = _law(tyre_code, a_l, da_l, c_alpha, d_c_alpha, t0, t1, t2, t3, shape)
+        f_r, df_r = _law(tyre_code, a_r, da_r, c_alpha, d_c_alpha, t0, t1, t2, t3, shape)
         fy = share * f_l + (1.0 - share) * f_r
         dfy = d_share * (f_l - f_r) + share * df_l + (1.0 - share) * df_r
     if has_side:
@@ -264,11 +293,11 @@ def _axle_force(front, fz, dfz, alpha, d_alpha, c_s, mu, dmu, z, dz, vv, q, orde
     return fy, dfy
 
 
-@_jit
-def _rhs(z, dz, u0, u1, vv, mu, dmu, c_sf, c_sr, q, order, col, off, sh, out, dout):
-    """One evaluation of the right-hand side for one row into ``out`` (nz,), and its
-    derivative along mu into ``dout`` for a state whose derivative along mu is ``dz`` and a mu
-    whose is ``dmu``; ``sh`` (22,) is scratch for what the axles share, values then
+@_jit(inline="always")
+def _rhs(z, dz, u0, u1, vv, mu, dmu, c_sf, c_sr, q, chains, col, off, sh, K, D, st):
+    """One evaluation of the right-hand side for one row into ``K[st]`` (nz,), and its
+    derivative along mu into ``D[st]`` for a state whose derivative along mu is ``dz`` and a mu
+    whose is ``dmu``; ``sh`` (20,) is scratch for what the axles share, values then
     derivatives."""
     delta_min, delta_max, ddot_min, ddot_max = vv[0], vv[1], vv[2], vv[3]
     v_switch, a_max, v_min, v_max = vv[4], vv[5], vv[6], vv[7]
@@ -290,7 +319,10 @@ def _rhs(z, dz, u0, u1, vv, mu, dmu, c_sf, c_sr, q, order, col, off, sh, out, do
         d_acc = 0.0
     # 2.-5. accel hooks, the wheel angle, longitudinal hooks, load transfer
     delta_w, d_delta_w = delta, d_delta
-    for code in order:
+    for j in range(chains.shape[1]):
+        code = chains[ACCEL, j]
+        if code < 0:
+            break
         if code == POWER:
             v_p = _maximum(v, vv[25])
             d_v_p = dv if v >= vv[25] else 0.0
@@ -303,10 +335,13 @@ def _rhs(z, dz, u0, u1, vv, mu, dmu, c_sf, c_sr, q, order, col, off, sh, out, do
         elif code == INERTIA:
             d_acc = d_acc * m / (m + q[col[code]])
             acc = acc * m / (m + q[col[code]])
-        elif code == STEER_LAG:
-            delta_w, d_delta_w = z[off[code]], dz[off[code]]
+    if off[STEER_LAG] >= 0:
+        delta_w, d_delta_w = z[off[STEER_LAG]], dz[off[STEER_LAG]]
     a_long, d_long = acc, d_acc
-    for code in order:
+    for j in range(chains.shape[1]):
+        code = chains[LONG, j]
+        if code < 0:
+            break
         if code == DRAG:
             a_long = a_long + -0.5 * vv[19] * q[col[code]] * v * abs(v) / m
             d_long = d_long + -0.5 * vv[19] * q[col[code]] * 2.0 * abs(v) * dv / m
@@ -368,10 +403,17 @@ def _rhs(z, dz, u0, u1, vv, mu, dmu, c_sf, c_sr, q, order, col, off, sh, out, do
         sh[14] = d_uu + d_half if uu + half >= floor else 0.1 * d_uu
         sh[15] = d_uu - d_half if uu - half >= floor else 0.1 * d_uu
         sh[16] = -0.5 * d_shift
-    fyf, d_fyf = _axle_force(True, fzf, d_fzf, alpha_f, d_alpha_f, c_sf, mu, dmu, z, dz, vv, q,
-                             order, col, off, sh)  # fmt: skip
-    fyr, d_fyr = _axle_force(False, fzr, -d_fzf, alpha_r, d_alpha_r, c_sr, mu, dmu, z, dz, vv, q,
-                             order, col, off, sh)  # fmt: skip
+    fyf = d_fyf = fyr = d_fyr = 0.0
+    for axle in range(2):  # one call site: the axle's code is inlined once
+        front = axle == 0
+        fz, dfz = (fzf, d_fzf) if front else (fzr, -d_fzf)
+        alpha, d_alpha = (alpha_f, d_alpha_f) if front else (alpha_r, d_alpha_r)
+        fy, dfy = _axle_force(front, fz, dfz, alpha, d_alpha, c_sf if front else c_sr, mu, dmu,
+                              z, dz, vv, q, chains, col, off, sh)  # fmt: skip
+        if front:
+            fyf, d_fyf = fy, dfy
+        else:
+            fyr, d_fyr = fy, dfy
     # 9. body forces: wheel_force_steer
     a_x, d_x = a_long, d_long
     if col[FORCE_STEER] >= 0:
@@ -387,38 +429,38 @@ def _rhs(z, dz, u0, u1, vv, mu, dmu, c_sf, c_sr, q, order, col, off, sh, out, do
         a_x = a_x + da
     lateral = fyf + fyr
     course = psi + beta
-    out[0] = v * math.cos(course)
-    out[1] = v * math.sin(course)
-    out[2] = steer
-    out[3] = a_x
-    out[4] = r
-    out[5] = (lf * fyf - lr * fyr) / i_z
-    out[6] = lateral / (m * vd) - r
+    K[st, 0] = v * math.cos(course)
+    K[st, 1] = v * math.sin(course)
+    K[st, 2] = steer
+    K[st, 3] = a_x
+    K[st, 4] = r
+    K[st, 5] = (lf * fyf - lr * fyr) / i_z
+    K[st, 6] = lateral / (m * vd) - r
     d_course = d_psi + d_beta
-    dout[0] = dv * math.cos(course) - v * math.sin(course) * d_course
-    dout[1] = dv * math.sin(course) + v * math.cos(course) * d_course
-    dout[2] = 0.0
-    dout[3] = d_x
-    dout[4] = dr
-    dout[5] = (lf * d_fyf - lr * d_fyr) / i_z
-    dout[6] = ((d_fyf + d_fyr) * m * vd - lateral * m * d_vd) / (m * vd) ** 2 - dr
+    D[st, 0] = dv * math.cos(course) - v * math.sin(course) * d_course
+    D[st, 1] = dv * math.sin(course) + v * math.cos(course) * d_course
+    D[st, 2] = 0.0
+    D[st, 3] = d_x
+    D[st, 4] = dr
+    D[st, 5] = (lf * d_fyf - lr * d_fyr) / i_z
+    D[st, 6] = ((d_fyf + d_fyr) * m * vd - lateral * m * d_vd) / (m * vd) ** 2 - dr
     # 10. the effects' own states
     if off[STEER_LAG] >= 0:  # advanced exactly by the RK4 loop (_lag_at)
-        out[off[STEER_LAG]] = 0.0
-        dout[off[STEER_LAG]] = 0.0
+        K[st, off[STEER_LAG]] = 0.0
+        D[st, off[STEER_LAG]] = 0.0
     if off[SUSP] >= 0:
         s = off[SUSP]
         tau = _maximum(q[col[SUSP]], vv[26])
         zeta = q[col[SUSP] + 1]
-        out[s] = z[s + 1]
-        out[s + 1] = (a_long - z[s]) / tau**2 - 2.0 * zeta * z[s + 1] / tau
-        dout[s] = dz[s + 1]
-        dout[s + 1] = (d_long - dz[s]) / tau**2 - 2.0 * zeta * dz[s + 1] / tau
+        K[st, s] = z[s + 1]
+        K[st, s + 1] = (a_long - z[s]) / tau**2 - 2.0 * zeta * z[s + 1] / tau
+        D[st, s] = dz[s + 1]
+        D[st, s + 1] = (d_long - dz[s]) / tau**2 - 2.0 * zeta * dz[s + 1] / tau
     if off[CAMBER] >= 0:
         s = off[CAMBER]
         tau = _maximum(q[col[CAMBER] + 4], vv[27])
-        out[s] = (lateral / m - z[s]) / tau
-        dout[s] = ((d_fyf + d_fyr) / m - dz[s]) / tau
+        K[st, s] = (lateral / m - z[s]) / tau
+        D[st, s] = ((d_fyf + d_fyr) / m - dz[s]) / tau
 
 
 @_jit
@@ -439,27 +481,17 @@ def _lag_at(s0, ds0, start, d_start, stage, d_stage, offset, tau):
 
 
 @_jit
-def _stage(z, dz, step, k, dk, zs, dzs, lag, tau):
-    """An RK4 stage's state ``z + step k`` into ``zs``, its derivative into ``dzs``;
-    steering_lag's state (index ``lag``, -1: none) at the stage's time."""
-    for j in range(z.size):
-        zs[j] = z[j] + step * k[j]
-        dzs[j] = dz[j] + step * dk[j]
-    if lag >= 0:
-        zs[lag], dzs[lag] = _lag_at(z[lag], dz[lag], z[2], dz[2], zs[2], dzs[2], step, tau)
-
-
-@_jit
-def rollout_rows(Z, S, U, substeps, h, vv, mu, dmu, c_sf, c_sr, params, order, col, off):
+def rollout_rows(Z, S, U, substeps, h, vv, mu, dmu, c_sf, c_sr, params, chains, col, off):
     """RK4 as WorkbenchModel.simulate's loop, one row after the other; with ``S`` (N,
     horizon + 1, 7) the ST states' derivatives along mu (``S[:, 0]`` given; ``dmu`` (N,) the
     rows' derivatives of mu: 1 for the differentiated rows), the same RK4 step differentiated
-    (the derivative of the discrete rollout, as finite differences of it would approximate)."""
+    (the derivative of the discrete rollout, as finite differences of it would approximate).
+    The right-hand side has one call site (the stages in a loop), so that it is inlined once:
+    compiled once, and no call passes arrays."""
     n, steps, nz = U.shape[0], U.shape[1], Z.shape[2]
     z, zs, dz, dzs = np.empty(nz), np.empty(nz), np.zeros(nz), np.zeros(nz)
-    k1, k2, k3, k4 = np.empty(nz), np.empty(nz), np.empty(nz), np.empty(nz)
-    d1, d2, d3, d4 = np.zeros(nz), np.zeros(nz), np.zeros(nz), np.zeros(nz)
-    sh = np.zeros(22)
+    K, D = np.zeros((4, nz)), np.zeros((4, nz))  # the stages' rates and their derivatives
+    sh = np.zeros(20)
     half = 0.5 * h
     sixth = h / 6.0
     tangent = S.shape[0] == n
@@ -474,22 +506,21 @@ def rollout_rows(Z, S, U, substeps, h, vv, mu, dmu, c_sf, c_sr, params, order, c
         for k in range(steps):
             u0, u1 = U[i, k, 0], U[i, k, 1]
             for _ in range(substeps):
-                _rhs(z, dz, u0, u1, vv, mu_i, dmu_i, c_sf_i, c_sr_i, q, order, col, off, sh,
-                     k1, d1)  # fmt: skip
-                _stage(z, dz, half, k1, d1, zs, dzs, lag, tau)
-                _rhs(zs, dzs, u0, u1, vv, mu_i, dmu_i, c_sf_i, c_sr_i, q, order, col, off, sh,
-                     k2, d2)  # fmt: skip
-                _stage(z, dz, half, k2, d2, zs, dzs, lag, tau)
-                _rhs(zs, dzs, u0, u1, vv, mu_i, dmu_i, c_sf_i, c_sr_i, q, order, col, off, sh,
-                     k3, d3)  # fmt: skip
-                _stage(z, dz, h, k3, d3, zs, dzs, lag, tau)
-                _rhs(zs, dzs, u0, u1, vv, mu_i, dmu_i, c_sf_i, c_sr_i, q, order, col, off, sh,
-                     k4, d4)  # fmt: skip
+                for st in range(4):
+                    step = 0.0 if st == 0 else (h if st == 3 else half)
+                    for j in range(nz):
+                        zs[j] = z[j] + step * K[st - 1, j] if st else z[j]
+                        dzs[j] = dz[j] + step * D[st - 1, j] if st else dz[j]
+                    if lag >= 0 and st:  # the lag's state at the stage's time, exactly
+                        zs[lag], dzs[lag] = _lag_at(z[lag], dz[lag], z[2], dz[2], zs[2], dzs[2],
+                                                    step, tau)  # fmt: skip
+                    _rhs(zs, dzs, u0, u1, vv, mu_i, dmu_i, c_sf_i, c_sr_i, q, chains, col, off,
+                         sh, K, D, st)  # fmt: skip
                 if lag >= 0:  # the step's start, for the lag's exact advance
                     s0, ds0, start, d_start = z[lag], dz[lag], z[2], dz[2]
                 for j in range(nz):
-                    z[j] = z[j] + sixth * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
-                    dz[j] = dz[j] + sixth * (d1[j] + 2.0 * d2[j] + 2.0 * d3[j] + d4[j])
+                    z[j] = z[j] + sixth * (K[0, j] + 2.0 * K[1, j] + 2.0 * K[2, j] + K[3, j])
+                    dz[j] = dz[j] + sixth * (D[0, j] + 2.0 * D[1, j] + 2.0 * D[2, j] + D[3, j])
                 if lag >= 0:
                     z[lag], dz[lag] = _lag_at(s0, ds0, start, d_start, z[2], dz[2], h, tau)
             for j in range(nz):

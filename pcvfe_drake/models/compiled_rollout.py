@@ -32,7 +32,13 @@ from __future__ import annotations
 import numpy as np
 
 from pcvfe_drake.models import chassis_effects, effects, tyre_effects
-from pcvfe_drake.models.compiled_kernel import KERNEL_EFFECTS, N_CONSTANTS, numba, rollout_rows
+from pcvfe_drake.models.compiled_kernel import (
+    CHAINS,
+    KERNEL_EFFECTS,
+    N_CONSTANTS,
+    numba,
+    rollout_rows,
+)
 
 COMPILED_EFFECTS = KERNEL_EFFECTS
 """Effects the compiled rollout evaluates (their registered classes exactly)."""
@@ -90,7 +96,11 @@ def compiled_effect_plan(model_effects) -> dict | None:
         ):
             return None
         state += e.n_states
-    return {"order": np.array(order, dtype=np.int64), "col": col, "off": off, "names": names}
+    chains = np.full((len(CHAINS), max(len(order), 1)), -1, dtype=np.int64)
+    for row, members in enumerate(CHAINS.values()):
+        codes = [c for c in order if KERNEL_EFFECTS[c] in members]
+        chains[row, : len(codes)] = codes
+    return {"chains": chains, "col": col, "off": off, "names": names}
 
 
 def load(model, plan: dict) -> None:
@@ -151,7 +161,7 @@ def rollout(Z, U, substeps: int, h: float, model, base: dict, eff: dict, plan: d
         np.ascontiguousarray(base["C_Sf"], dtype=float),
         np.ascontiguousarray(base["C_Sr"], dtype=float),
         params.astype(float, copy=False),
-        plan["order"],
+        plan["chains"],
         plan["col"],
         plan["off"],
     )
