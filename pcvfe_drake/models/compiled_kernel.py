@@ -124,52 +124,61 @@ def _d_atan2(w, dw, u, du):
 
 
 @_jit
-def _peak_law(alpha, d_alpha, peak, d_peak, stiff, d_stiff, shape):
-    """peak_tyre's magic formula at slip ``alpha`` and its derivative."""
+def _peak_law(alpha, d_alpha, peak, d_peak, stiff, d_stiff, shape, tg):
+    """peak_tyre's magic formula at slip ``alpha`` and its derivative (``tg``: else 0)."""
     shape_peak = shape * peak
     x = stiff * alpha / shape_peak
     angle = shape * math.atan(x)
-    dx = (d_stiff * alpha + stiff * d_alpha) / shape_peak - x * d_peak / peak
     force = peak * math.sin(angle)
+    if not tg:
+        return force, 0.0
+    dx = (d_stiff * alpha + stiff * d_alpha) / shape_peak - x * d_peak / peak
     return force, d_peak * math.sin(angle) + peak * math.cos(angle) * shape * dx / (1 + x * x)
 
 
 @_jit
-def _brush_law(alpha, d_alpha, c_alpha, d_c_alpha, f_max, d_f_max):
-    """tire_saturation's brush law at slip ``alpha`` (peak ``f_max``) and its derivative."""
+def _brush_law(alpha, d_alpha, c_alpha, d_c_alpha, f_max, d_f_max, tg):
+    """tire_saturation's brush law at slip ``alpha`` (peak ``f_max``) and its derivative
+    (``tg``: else 0)."""
     z = c_alpha * alpha / (3.0 * f_max)
-    dz = (d_c_alpha * alpha + c_alpha * d_alpha) / (3.0 * f_max) - z * d_f_max / f_max
     za = _minimum(abs(z), 1.0)
     zs = _sign(z) * za
     bracket = zs - zs * za + zs**3.0 / 3.0
+    if not tg:
+        return 3.0 * f_max * bracket, 0.0
+    dz = (d_c_alpha * alpha + c_alpha * d_alpha) / (3.0 * f_max) - z * d_f_max / f_max
     d_zs = dz if abs(z) < 1.0 else 0.0
     d_bracket = (1.0 - 2.0 * za + zs * zs) * d_zs
     return 3.0 * f_max * bracket, 3.0 * d_f_max * bracket + 3.0 * f_max * d_bracket
 
 
 @_jit
-def _law(code, alpha, d_alpha, c_alpha, d_c_alpha, t0, t1, t2, t3, shape):
+def _law(code, alpha, d_alpha, c_alpha, d_c_alpha, t0, t1, t2, t3, shape, tg):
     """The axle's law at slip ``alpha``: the tyre effect's (``code``; ``t0``-``t3`` its peak
     and stiffness with their derivatives), or the linear law (code -1)."""
     if code == PEAK:
-        return _peak_law(alpha, d_alpha, t0, t1, t2, t3, shape)
+        return _peak_law(alpha, d_alpha, t0, t1, t2, t3, shape, tg)
     if code == BRUSH:
-        return _brush_law(alpha, d_alpha, c_alpha, d_c_alpha, t0, t1)
+        return _brush_law(alpha, d_alpha, c_alpha, d_c_alpha, t0, t1, tg)
     return c_alpha * alpha, d_c_alpha * alpha + c_alpha * d_alpha
 
 
 @_jit
-def _camber_signs(a_roll, d_roll, a_x, d_x, k_x, width):
-    """wheel_camber's smooth signs (left, right) and their derivatives."""
+def _camber_signs(a_roll, d_roll, a_x, d_x, k_x, width, tg):
+    """wheel_camber's smooth signs (left, right) and their derivatives (``tg``: else 0)."""
     left = math.tanh((a_roll + k_x * a_x) / width)
     right = math.tanh((a_roll - k_x * a_x) / width)
+    if not tg:
+        return left, right, 0.0, 0.0
     d_left = (1.0 - left * left) * (d_roll + k_x * d_x) / width
     d_right = (1.0 - right * right) * (d_roll - k_x * d_x) / width
     return left, right, d_left, d_right
 
 
 @_jit(inline="always")
-def _axle_force(front, fz, dfz, alpha, d_alpha, c_s, mu, dmu, z, dz, vv, q, chains, col, off, sh):
+def _axle_force(
+    front, fz, dfz, alpha, d_alpha, c_s, mu, dmu, z, dz, vv, q, chains, col, off, sh, tg
+):
     """One axle's lateral force [N] and its derivative along mu (model.rhs steps 7 and 8 with
     the effects' hooks; ``sh``: what the axles share, values then derivatives)."""
     m, g, lf, lr, mu_nom = vv[11], vv[12], vv[8], vv[9], vv[14]
@@ -219,7 +228,7 @@ def _axle_force(front, fz, dfz, alpha, d_alpha, c_s, mu, dmu, z, dz, vv, q, chai
         ratio = mu_nom / mu_p
         t2 = c_alpha * ratio**exponent
         t3 = d_c_alpha * ratio**exponent
-        if exponent != 0.0:
+        if tg and exponent != 0.0:
             t3 += c_alpha * exponent * ratio ** (exponent - 1.0) * (-ratio * d_mu_p / mu_p)
     elif tyre_code == BRUSH:
         load = _maximum(fz, 1.0)
@@ -239,7 +248,7 @@ def _axle_force(front, fz, dfz, alpha, d_alpha, c_s, mu, dmu, z, dz, vv, q, chai
         elif code == CAMBER:
             k_x = q[col[CAMBER] + 2] if front else q[col[CAMBER] + 3]
             s = off[CAMBER]
-            left, right, dl, dr_ = _camber_signs(z[s], dz[s], a_long, d_long, k_x, vv[22])
+            left, right, dl, dr_ = _camber_signs(z[s], dz[s], a_long, d_long, k_x, vv[22], tg)
             f0 = q[col[CAMBER]]
             out = fz * f0 * 0.5 * (left + right)
             d_out = dfz * f0 * 0.5 * (left + right) + fz * f0 * 0.5 * (dl + dr_)
@@ -259,16 +268,18 @@ def _axle_force(front, fz, dfz, alpha, d_alpha, c_s, mu, dmu, z, dz, vv, q, chai
             w = sh[3] + lever * r
             dw = sh[13] + lever * dr
             centre = math.atan2(w, sh[2])
-            d_centre = _d_atan2(w, dw, sh[2], sh[12])
             o_l = centre - math.atan2(w, sh[4])
             o_r = centre - math.atan2(w, sh[5])
-            do_l = d_centre - _d_atan2(w, dw, sh[4], sh[14])
-            do_r = d_centre - _d_atan2(w, dw, sh[5], sh[15])
+            do_l = do_r = 0.0
+            if tg:
+                d_centre = _d_atan2(w, dw, sh[2], sh[12])
+                do_l = d_centre - _d_atan2(w, dw, sh[4], sh[14])
+                do_r = d_centre - _d_atan2(w, dw, sh[5], sh[15])
             o_s, do_s = sh[6], sh[16]
         elif code == CAMBER:
             k_x = q[col[CAMBER] + 2] if front else q[col[CAMBER] + 3]
             s = off[CAMBER]
-            left, right, dl, dr_ = _camber_signs(z[s], dz[s], a_long, d_long, k_x, vv[22])
+            left, right, dl, dr_ = _camber_signs(z[s], dz[s], a_long, d_long, k_x, vv[22], tg)
             s0 = q[col[CAMBER] + 1]
             o_l, o_r, do_l, do_r, o_s, do_s = s0 * left, s0 * right, s0 * dl, s0 * dr_, 0.5, 0.0
         else:
@@ -281,11 +292,11 @@ def _axle_force(front, fz, dfz, alpha, d_alpha, c_s, mu, dmu, z, dz, vv, q, chai
         n_spread += 1
     shape = vv[16]
     if n_spread == 0:
-        fy, dfy = _law(tyre_code, alpha, d_alpha, c_alpha, d_c_alpha, t0, t1, t2, t3, shape)
+        fy, dfy = _law(tyre_code, alpha, d_alpha, c_alpha, d_c_alpha, t0, t1, t2, t3, shape, tg)
     else:
         a_l, da_l, a_r, da_r = alpha + s_l, d_alpha + d_l, alpha + s_r, d_alpha + d_r
-        f_l, df_l = _law(tyre_code, a_l, da_l, c_alpha, d_c_alpha, t0, t1, t2, t3, shape)
-        f_r, df_r = _law(tyre_code, a_r, da_r, c_alpha, d_c_alpha, t0, t1, t2, t3, shape)
+        f_l, df_l = _law(tyre_code, a_l, da_l, c_alpha, d_c_alpha, t0, t1, t2, t3, shape, tg)
+        f_r, df_r = _law(tyre_code, a_r, da_r, c_alpha, d_c_alpha, t0, t1, t2, t3, shape, tg)
         fy = share * f_l + (1.0 - share) * f_r
         dfy = d_share * (f_l - f_r) + share * df_l + (1.0 - share) * df_r
     if has_side:
@@ -294,11 +305,11 @@ def _axle_force(front, fz, dfz, alpha, d_alpha, c_s, mu, dmu, z, dz, vv, q, chai
 
 
 @_jit(inline="always")
-def _rhs(z, dz, u0, u1, vv, mu, dmu, c_sf, c_sr, q, chains, col, off, sh, K, D, st):
+def _rhs(z, dz, u0, u1, vv, mu, dmu, c_sf, c_sr, q, chains, col, off, sh, K, D, st, tg):
     """One evaluation of the right-hand side for one row into ``K[st]`` (nz,), and its
     derivative along mu into ``D[st]`` for a state whose derivative along mu is ``dz`` and a mu
-    whose is ``dmu``; ``sh`` (20,) is scratch for what the axles share, values then
-    derivatives."""
+    whose is ``dmu`` (``tg``: else the derivatives are left out, 0); ``sh`` (20,) is scratch
+    for what the axles share, values then derivatives."""
     delta_min, delta_max, ddot_min, ddot_max = vv[0], vv[1], vv[2], vv[3]
     v_switch, a_max, v_min, v_max = vv[4], vv[5], vv[6], vv[7]
     lf, lr, hcg, m, g, i_z = vv[8], vv[9], vv[10], vv[11], vv[12], vv[13]
@@ -330,7 +341,8 @@ def _rhs(z, dz, u0, u1, vv, mu, dmu, c_sf, c_sr, q, chains, col, off, sh, K, D, 
             d_limit = -limit * d_v_p / v_p
             if acc > 0:
                 y = (acc - limit) / vv[24]
-                d_acc = d_acc - (d_acc - d_limit) / (1.0 + math.exp(-y))
+                if tg:
+                    d_acc = d_acc - (d_acc - d_limit) / (1.0 + math.exp(-y))
                 acc = acc - vv[24] * _logaddexp0(y)
         elif code == INERTIA:
             d_acc = d_acc * m / (m + q[col[code]])
@@ -352,7 +364,8 @@ def _rhs(z, dz, u0, u1, vv, mu, dmu, c_sf, c_sr, q, chains, col, off, sh, K, D, 
         elif code == GRADE:
             gx, gy = q[col[code]], q[col[code] + 1]
             a_long = a_long + -g * (gx * math.cos(psi) + gy * math.sin(psi))
-            d_long = d_long + -g * (-gx * math.sin(psi) + gy * math.cos(psi)) * d_psi
+            if tg:
+                d_long = d_long + -g * (-gx * math.sin(psi) + gy * math.cos(psi)) * d_psi
     a_load, d_load = a_long, d_long
     if off[SUSP] >= 0:
         w = _minimum(_maximum(q[col[SUSP]] / vv[26], 0.0), 1.0)
@@ -389,7 +402,9 @@ def _rhs(z, dz, u0, u1, vv, mu, dmu, c_sf, c_sr, q, chains, col, off, sh, K, D, 
         d_shift = q[q0 + 1] * (dv * r + v * dr) / g if -max_shift < raw < max_shift else 0.0
         along = v * math.cos(beta)
         uu = _maximum(along, 0.5)
-        d_uu = dv * math.cos(beta) - v * math.sin(beta) * d_beta if along >= 0.5 else 0.0
+        d_uu = 0.0
+        if tg and along >= 0.5:
+            d_uu = dv * math.cos(beta) - v * math.sin(beta) * d_beta
         half = 0.5 * q[q0] * r
         d_half = 0.5 * q[q0] * dr
         floor = 0.1 * uu
@@ -399,7 +414,7 @@ def _rhs(z, dz, u0, u1, vv, mu, dmu, c_sf, c_sr, q, chains, col, off, sh, K, D, 
         sh[5] = _maximum(uu - half, floor)
         sh[6] = 0.5 * (1.0 - shift)
         sh[12] = d_uu
-        sh[13] = dv * math.sin(beta) + v * math.cos(beta) * d_beta
+        sh[13] = dv * math.sin(beta) + v * math.cos(beta) * d_beta if tg else 0.0
         sh[14] = d_uu + d_half if uu + half >= floor else 0.1 * d_uu
         sh[15] = d_uu - d_half if uu - half >= floor else 0.1 * d_uu
         sh[16] = -0.5 * d_shift
@@ -409,7 +424,7 @@ def _rhs(z, dz, u0, u1, vv, mu, dmu, c_sf, c_sr, q, chains, col, off, sh, K, D, 
         fz, dfz = (fzf, d_fzf) if front else (fzr, -d_fzf)
         alpha, d_alpha = (alpha_f, d_alpha_f) if front else (alpha_r, d_alpha_r)
         fy, dfy = _axle_force(front, fz, dfz, alpha, d_alpha, c_sf if front else c_sr, mu, dmu,
-                              z, dz, vv, q, chains, col, off, sh)  # fmt: skip
+                              z, dz, vv, q, chains, col, off, sh, tg)  # fmt: skip
         if front:
             fyf, d_fyf = fy, dfy
         else:
@@ -421,7 +436,7 @@ def _rhs(z, dz, u0, u1, vv, mu, dmu, c_sf, c_sr, q, chains, col, off, sh, K, D, 
         share = q[q0] if acc > 0 else q[q0 + 1]
         fxf = m * acc * share
         sin_d = math.sin(delta_w)
-        d_sin = math.cos(delta_w) * d_delta_w
+        d_sin = math.cos(delta_w) * d_delta_w if tg else 0.0
         da = -q[q0 + 2] * fyf * sin_d / m
         d_x = d_x - q[q0 + 2] * (d_fyf * sin_d + fyf * d_sin) / m
         d_fyf = d_fyf + m * d_acc * share * sin_d + fxf * d_sin
@@ -436,9 +451,10 @@ def _rhs(z, dz, u0, u1, vv, mu, dmu, c_sf, c_sr, q, chains, col, off, sh, K, D, 
     K[st, 4] = r
     K[st, 5] = (lf * fyf - lr * fyr) / i_z
     K[st, 6] = lateral / (m * vd) - r
-    d_course = d_psi + d_beta
-    D[st, 0] = dv * math.cos(course) - v * math.sin(course) * d_course
-    D[st, 1] = dv * math.sin(course) + v * math.cos(course) * d_course
+    if tg:
+        d_course = d_psi + d_beta
+        D[st, 0] = dv * math.cos(course) - v * math.sin(course) * d_course
+        D[st, 1] = dv * math.sin(course) + v * math.cos(course) * d_course
     D[st, 2] = 0.0
     D[st, 3] = d_x
     D[st, 4] = dr
@@ -515,7 +531,7 @@ def rollout_rows(Z, S, U, substeps, h, vv, mu, dmu, c_sf, c_sr, params, chains, 
                         zs[lag], dzs[lag] = _lag_at(z[lag], dz[lag], z[2], dz[2], zs[2], dzs[2],
                                                     step, tau)  # fmt: skip
                     _rhs(zs, dzs, u0, u1, vv, mu_i, dmu_i, c_sf_i, c_sr_i, q, chains, col, off,
-                         sh, K, D, st)  # fmt: skip
+                         sh, K, D, st, tangent)  # fmt: skip
                 if lag >= 0:  # the step's start, for the lag's exact advance
                     s0, ds0, start, d_start = z[lag], dz[lag], z[2], dz[2]
                 for j in range(nz):
