@@ -48,6 +48,13 @@ if TYPE_CHECKING:
 
 RHO_AIR_KGPM3 = 1.225
 """Air density used by the drag effect [kg/m^3] (sea level, 15 degC)."""
+SIGN_WIDTH_MPS = 0.2
+"""Width of ``rolling_resistance``'s smooth sign ``tanh(v / width)`` [m/s] (differentiable at
+standstill)."""
+POWER_WIDTH_MPS2 = 0.05
+"""Width of ``motor_power_limit``'s smooth minimum [m/s^2] (keeps the fit differentiable)."""
+POWER_V_MIN_MPS = 0.5
+"""Speed below which ``motor_power_limit`` evaluates its limit at this speed [m/s]."""
 
 
 @dataclass(frozen=True)
@@ -309,7 +316,7 @@ class Effect:
         }
 
 
-def _smooth_sign(v, width: float = 0.2):
+def _smooth_sign(v, width: float = SIGN_WIDTH_MPS):
     return np.tanh(np.asarray(v) / width)
 
 
@@ -497,10 +504,9 @@ class MotorPowerLimit(Effect):
     starts = ((30.0,), (60.0,), (150.0,))
 
     def accel(self, accel, ctx, p):
-        v = np.maximum(ctx.x[:, 3], 0.5)
+        v = np.maximum(ctx.x[:, 3], POWER_V_MIN_MPS)
         limit = 1000.0 * p["P_max"] / (ctx.vehicle.m * v)
-        # smooth minimum (width 0.05 m/s^2) keeps the fit differentiable
-        width = 0.05
+        width = POWER_WIDTH_MPS2  # a smooth minimum
         d = accel - limit
         return np.where(accel > 0, accel - width * np.logaddexp(0.0, d / width), accel)
 

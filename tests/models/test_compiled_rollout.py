@@ -10,6 +10,7 @@ import pytest
 
 from pcvfe_drake.models.compiled_rollout import COMPILED_EFFECTS, compiled_effect_plan
 from pcvfe_drake.models.data import DriveData
+from pcvfe_drake.models.effects import Effect, SteeringLag
 from pcvfe_drake.models.model import WorkbenchModel
 from pcvfe_drake.models.tyre_effects import PeakTyre
 from pcvfe_drake.vehicle.params import ford_escort
@@ -18,6 +19,8 @@ pytest.importorskip("numba")
 
 VP = ford_escort()
 HORIZON = 40
+SHIPPED = ("peak_tyre", "track_slip", "roll_camber", "wheel_force_steer", "axle_stiffness")
+"""The effects of the shipped vehicle models (the context fitter's model)."""
 
 
 def _drive(n: int = 400, seed: int = 0) -> DriveData:
@@ -51,7 +54,22 @@ def _both(model: WorkbenchModel, theta, data, starts):
 
 
 SUBSETS = [()] + [(e,) for e in COMPILED_EFFECTS] + [tuple(COMPILED_EFFECTS)]
-SUBSETS += [c for c in combinations(COMPILED_EFFECTS, 3)][:4]
+SUBSETS += [c for c in combinations(SHIPPED, 3)][:4]
+# effects that share a hook compose in the model's order (both orders of each pair), and the
+# library's diagnoses put a candidate beside those already selected
+SUBSETS += [
+    ("motor_power_limit", "rotating_inertia"),
+    ("rotating_inertia", "motor_power_limit"),
+    ("grade", "rolling_resistance", "drag"),
+    ("friction_load", "friction_speed", "tire_saturation"),
+    ("friction_speed", "friction_load", "peak_tyre"),
+    ("tire_saturation", "peak_tyre"),
+    ("peak_tyre", "tire_saturation", "axle_stiffness"),
+    ("wheel_camber", "roll_camber", "track_slip", "peak_tyre"),
+    ("track_slip", "wheel_camber", "tire_saturation", "friction_load"),
+    ("steering_lag", "suspension_lag", "wheel_force_steer", "grade"),
+    ("suspension_lag", "wheel_camber", "steering_lag", "input_delay", "gyro_bias"),
+]
 
 
 @pytest.mark.parametrize("effects", SUBSETS, ids=lambda s: "+".join(s) or "baseline")
@@ -71,12 +89,28 @@ def test_compiled_rollout_equals_the_numpy_rollout(effects):
     np.testing.assert_allclose(compiled, reference, rtol=1e-11, atol=1e-12)
 
 
+def test_effects_at_their_null_values():
+    """Each effect at its null value (a lag of exactly 0: the lag's other branch) gives the
+    numpy rollout's numbers, and the baseline's where the effect's null is exactly none."""
+    data = _drive(seed=7)
+    starts = np.arange(0, data.n - HORIZON - 1, 31)
+    model = WorkbenchModel(VP, list(COMPILED_EFFECTS))
+    theta = np.array([p.null if p.effect else p.initial for p in model.params])
+    compiled, reference = _both(model, theta, data, starts)
+    np.testing.assert_allclose(compiled, reference, rtol=1e-11, atol=1e-12)
+    lags = WorkbenchModel(VP, ["steering_lag", "suspension_lag"])
+    baseline = WorkbenchModel(VP, [])
+    theta = np.array([p.null if p.effect else p.initial for p in lags.params])
+    Z = lags.simulate(theta, data, starts, HORIZON)
+    assert np.array_equal(Z[:, :, :7], baseline.simulate(theta[:1], data, starts, HORIZON))
+
+
 def test_the_shipped_model_over_a_refit_s_rows_and_a_diverged_row():
     """The calibrated vehicle model as the context fitter rolls it out: nominal and
     finite-difference rows of mu; a row started from a non-finite state stays non-finite in
     both (a diverged rollout is caught by the fit)."""
     data = _drive(seed=2)
-    model = WorkbenchModel(VP, list(COMPILED_EFFECTS))
+    model = WorkbenchModel(VP, list(SHIPPED))
     starts = np.array([10, 60, 150, 300])
     theta = np.tile(model.initial_theta(), (starts.size * 3, 1))
     theta[:, 0] = np.repeat([0.6, 0.6 + 1e-4, 0.6 - 1e-4], starts.size)
@@ -110,9 +144,35 @@ class FlatterPeakTyre(PeakTyre):
     shape = 1.2
 
 
+class SlowerLag(SteeringLag):
+    """A subclass of a compiled effect with its own states (it may change any hook)."""
+
+
+class OwnState(Effect):
+    """A user's effect with an own state (a first-order decay)."""
+
+    name = "own_state"
+    state_names = ("s",)
+
+    def state_rates(self, ctx, delta_cmd, p):
+        return -ctx.states
+
+    def initial_states(self, data, starts, p):
+        return np.ones((len(starts), 1))
+
+
+class OtherTyre(Effect):
+    """A user's tyre law."""
+
+    name = "other_tyre"
+
+    def tire(self, alpha, fz, c_alpha, p, ctx=None):
+        return 0.9 * c_alpha * alpha
+
+
 @pytest.mark.parametrize(
     "effects",
-    [["peak_tyre", "suspension_lag"], ["steering_lag"], ["tire_saturation"], [FlatterPeakTyre()]],
+    [["peak_tyre", OwnState()], [SlowerLag()], [OtherTyre()], [FlatterPeakTyre()]],
     ids=["own_states", "lag_state", "other_tyre", "subclass"],
 )
 def test_other_effects_are_rolled_out_by_numpy(effects):
@@ -138,7 +198,18 @@ def test_a_subclass_with_another_constant_is_not_mistaken_for_the_shipped_effect
     assert not np.allclose(a, b)
 
 
-@pytest.mark.parametrize("effects", [(), ("peak_tyre",), tuple(COMPILED_EFFECTS)])
+@pytest.mark.parametrize(
+    "effects",
+    [
+        (),
+        ("peak_tyre",),
+        tuple(SHIPPED),
+        tuple(COMPILED_EFFECTS),
+        ("tire_saturation", "friction_speed", "friction_load", "motor_power_limit"),
+        ("peak_tyre", "wheel_camber", "suspension_lag", "steering_lag", "grade"),
+    ],
+    ids=["baseline", "peak_tyre", "shipped", "all", "brush_friction", "own_states"],
+)
 def test_the_exact_mu_sensitivity_is_the_limit_of_central_differences(effects):
     """The tangent carried through the compiled RK4 steps against central differences of the
     rollout at two steps: their gap is their truncation error, which falls with the square of
@@ -185,6 +256,6 @@ def test_a_fit_of_mu_alone_uses_the_exact_sensitivity():
 def test_the_compiled_rollout_releases_the_gil():
     """The LCM station refits in a worker thread beside the loop's thread: the compiled rollout
     (most of a refit's arithmetic) must not hold the GIL, or the loop would wait for it."""
-    from pcvfe_drake.models import compiled_rollout
+    from pcvfe_drake.models import compiled_kernel
 
-    assert compiled_rollout._rollout_rows.targetoptions.get("nogil") is True
+    assert compiled_kernel.rollout_rows.targetoptions.get("nogil") is True
