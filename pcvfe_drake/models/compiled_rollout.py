@@ -68,13 +68,14 @@ _VEHICLE_FIELDS = (
 )
 
 
-def compiled_effect_plan(model_effects) -> dict | None:
-    """How the kernel rolls out a model with these effects (in the model's order), or None
-    when its right-hand side needs the numpy code: numba is missing, or an effect that changes
-    the right-hand side (its hooks, own states) is not one of :data:`COMPILED_EFFECTS`'
-    classes exactly (a subclass may change any hook or constant). The plan holds the
-    effects' codes in the model's order (hooks several effects share compose in it), each
-    effect's first parameter column and first own state (-1: none)."""
+def compiled_effect_plan(model_effects, vehicle) -> dict | None:
+    """How the kernel rolls out a model with these effects (in the model's order) on this
+    ``vehicle`` (``VehicleParams``), or None when its right-hand side needs the numpy code:
+    numba is missing, or an effect that changes the right-hand side (its hooks, own states) is
+    not one of :data:`COMPILED_EFFECTS`' classes exactly (a subclass may change any hook or
+    constant). The plan holds the effects' codes in the model's order (hooks several effects
+    share compose in it), each effect's first parameter column and first own state (-1: none),
+    and the kernel's constants vector (:func:`constants`), all fixed for the model."""
     if numba is None:
         return None
     hooks = (*effects.RHS_HOOKS, "state_rates", "states_at")
@@ -100,7 +101,13 @@ def compiled_effect_plan(model_effects) -> dict | None:
     for row, members in enumerate(CHAINS.values()):
         codes = [c for c in order if KERNEL_EFFECTS[c] in members]
         chains[row, : len(codes)] = codes
-    return {"chains": chains, "col": col, "off": off, "names": names}
+    return {
+        "chains": chains,
+        "col": col,
+        "off": off,
+        "names": names,
+        "constants": constants(vehicle, model_effects),
+    }
 
 
 def load(model, plan: dict) -> None:
@@ -111,7 +118,7 @@ def load(model, plan: dict) -> None:
     base, eff = model._unpack(theta, np.zeros(1, dtype=int))
     Z = np.zeros((1, 2, model.nz))
     Z[0, 0, 3] = 5.0
-    rollout(Z, np.zeros((1, 1, 2)), 1, 0.01, model, base, eff, plan)
+    rollout(Z, np.zeros((1, 1, 2)), 1, 0.01, base, eff, plan)
 
 
 def constants(vp, model_effects) -> np.ndarray:
@@ -139,7 +146,7 @@ def constants(vp, model_effects) -> np.ndarray:
     return out
 
 
-def rollout(Z, U, substeps: int, h: float, model, base: dict, eff: dict, plan: dict, S=None):
+def rollout(Z, U, substeps: int, h: float, base: dict, eff: dict, plan: dict, S=None):
     """Fill ``Z[:, 1:]`` (N, horizon + 1, nz) from ``Z[:, 0]`` under inputs ``U`` (N,
     horizon, 2): RK4 with ``substeps`` steps of ``h`` seconds per sample step, as
     :meth:`WorkbenchModel.simulate`'s loop; ``base`` and ``eff`` as its ``_unpack``. With
@@ -155,7 +162,7 @@ def rollout(Z, U, substeps: int, h: float, model, base: dict, eff: dict, plan: d
         np.ascontiguousarray(U, dtype=float),
         int(substeps),
         float(h),
-        constants(model.vehicle, model.effects),
+        plan["constants"],
         np.ascontiguousarray(base["mu"], dtype=float),
         np.zeros(n) if S is None else np.ones(n),
         np.ascontiguousarray(base["C_Sf"], dtype=float),

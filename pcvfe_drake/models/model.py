@@ -432,7 +432,7 @@ class WorkbenchModel:
         if plan is not None:
             from pcvfe_drake.models.compiled_rollout import rollout
 
-            rollout(Z, U, substeps, h, self, base, eff, plan, S=sensitivity)
+            rollout(Z, U, substeps, h, base, eff, plan, S=sensitivity)
             return self._measured(Z, eff)
         if sensitivity is not None:
             raise ValueError("WorkbenchModel.simulate: a sensitivity needs the compiled rollout")
@@ -491,7 +491,7 @@ class WorkbenchModel:
         if self._plan is False:
             from pcvfe_drake.models.compiled_rollout import compiled_effect_plan
 
-            self._plan = compiled_effect_plan(self.effects)
+            self._plan = compiled_effect_plan(self.effects, self.vehicle)
         return self._plan
 
     def _measured(self, Z: np.ndarray, eff: dict) -> np.ndarray:

@@ -177,7 +177,7 @@ class OtherTyre(Effect):
 )
 def test_other_effects_are_rolled_out_by_numpy(effects):
     model = WorkbenchModel(VP, effects)
-    assert compiled_effect_plan(model.effects) is None
+    assert compiled_effect_plan(model.effects, model.vehicle) is None
     data = _drive(seed=3)
     starts = np.array([5, 100])
     Z = model.simulate(model.initial_theta(), data, starts, HORIZON)
