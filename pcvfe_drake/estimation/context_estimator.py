@@ -259,15 +259,16 @@ class ContextEstimator:
                     slot.changes += count
                     if slot.fit_info is not None:  # not an append: every window re-evaluated
                         slot.fit_info = slot.fit_info.forget_windows()
-        self._follow_renamings(old, new)
+        self._follow_renamings(old, new, moved)
         return {k: v for k, v in gained.items() if v}
 
-    def _follow_renamings(self, old: np.ndarray, new: np.ndarray) -> None:
+    def _follow_renamings(self, old: np.ndarray, new: np.ndarray, moved: np.ndarray) -> None:
         """A context the re-clustering renamed passes its fit and its handing to the new id: no
         sample keeps the old id and most of them now carry one other id that has no fit of its
         own. These are the same data under another name, not a new terrain, so the new id is
-        not explored from the floor again; its next refit starts from the fit it took over."""
-        for ident in np.unique(old[old >= 0]).tolist():
+        not explored from the floor again; its next refit starts from the fit it took over.
+        ``moved``: the samples whose label changed (only their old ids can have been renamed)."""
+        for ident in np.unique(old[moved & (old >= 0)]).tolist():
             of_old = old == ident
             if (new == ident).any():
                 continue
