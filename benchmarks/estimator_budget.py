@@ -143,6 +143,9 @@ def lcm_rehearsal(args, work: Path) -> dict:
         "load_average_start": r["load_average_start"],
         "load_average_end": r["load_average_end"],
         "bridge_started_s": r.get("bridge_started_s"),
+        "bridge_pace": r.get("bridge_pace"),
+        "station_realtime_factor": r.get("realtime_factor"),
+        "max_lag_s": r.get("max_lag_s"),
         "bridge_stopped_because": r.get("bridge_stopped_because"),
     }
 

@@ -213,8 +213,18 @@ def rehearsal(
         "refits_after_first": sum(max(f - 1, 0) for f in fits),
         "bridge_actuation": bridge_report["actuation"],
         "bridge_started_s": bridge_report.get("started_s"),
+        # Simulated s per wall s while the car drove (the hold before the first command ran
+        # on the wall clock): below 1, the car's states came later than the station expected.
+        "bridge_pace": bridge_pace(bridge_report),
         "bridge_stopped_because": bridge_report.get("stopped_because"),
     }
+
+
+def bridge_pace(report: dict) -> float | None:
+    """The bridge's simulated seconds per wall second after the station's first command."""
+    start = report.get("started_s") or 0.0
+    wall = report["wall_time_s"] - start
+    return (report["sim_time_s"] - start) / wall if wall > 0 else None
 
 
 def brief(name: str, r: dict) -> str:
