@@ -25,8 +25,12 @@ package folder laid out as installed: ``DIR/pcvfe_drake`` with ``systems``, ``di
 so a change to the station is measured before and after under the same load; ``--hold``
 rehearses with each given ``hardware.playout_hold_s``.
 
+``--priority N`` runs both loops at the real-time priority N (``vehicle-bridge --priority``,
+``hardware.control_priority``); the JSON reports it, and the fits the station's estimator made
+(``refits_after_first``: whether refits ran beside the loop).
+
 Usage: python benchmarks/hardware_rehearsal.py [--duration S | --laps N] [--rate R] [--quick]
-       [--no-baseline] [--before-tree DIR] [--hold S ...] [--repeats N]
+       [--no-baseline] [--before-tree DIR] [--hold S ...] [--repeats N] [--priority N]
 Last stdout line: one JSON object.
 """
 
@@ -103,6 +107,7 @@ def rehearsal(
     ``hardware.playout_hold_s`` (None: the scenario's)."""
     work.mkdir(parents=True, exist_ok=True)
     url = f"tcpq://127.0.0.1:{free_port()}"
+    priority = getattr(args, "priority", 0)
     bridge_duration = (args.duration if not args.laps else scenario.max_duration_s) + 60.0
     load0 = os.getloadavg()[0]
     bridge = subprocess.Popen(
@@ -120,6 +125,8 @@ def rehearsal(
             str(args.rate),
             "--out",
             str(work / "bridge"),
+            "--priority",
+            str(priority),
         ),
         stdout=subprocess.PIPE,
         text=True,
@@ -128,7 +135,9 @@ def rehearsal(
     )
     override = work / "rate.yaml"
     hold = "" if hold_s is None else f"  playout_hold_s: {hold_s}\n"
-    override.write_text(f"hardware:\n  realtime_rate: {args.rate}\n{hold}")
+    override.write_text(
+        f"hardware:\n  realtime_rate: {args.rate}\n  control_priority: {priority}\n{hold}"
+    )
     try:
         subprocess.run(
             pcvfe(
@@ -170,7 +179,10 @@ def rehearsal(
     # with the newest-only subscriber, every one handed out with the queue (``released``).
     fresh = state.get("released", state["accepted"])
     rows_lost = hw_summary.get("rows_skipped_state_not_finite") or 0
+    # Whether the estimator refitted beside the loop: a context's fits after its first.
+    fits = [e.get("fits") or 0 for e in hw_summary.get("mu_estimates") or []]
     return {
+        "priority": priority,
         "load_average_start": load0,
         "load_average_end": os.getloadavg()[0],
         "sim_time_s": hw_summary["sim_time_s"],
@@ -196,10 +208,23 @@ def rehearsal(
         "rows_lost": rows_lost,
         "rows_lost_share": rows_lost / max(rows_lost + len(hw_log), 1),
         "nmpc_fallbacks": hw_summary.get("nmpc_fallbacks"),
+        "contexts_fitted": sum(f > 0 for f in fits),
+        "fits": sum(fits),
+        "refits_after_first": sum(max(f - 1, 0) for f in fits),
         "bridge_actuation": bridge_report["actuation"],
         "bridge_started_s": bridge_report.get("started_s"),
+        # Simulated s per wall s while the car drove (the hold before the first command ran
+        # on the wall clock): below 1, the car's states came later than the station expected.
+        "bridge_pace": bridge_pace(bridge_report),
         "bridge_stopped_because": bridge_report.get("stopped_because"),
     }
+
+
+def bridge_pace(report: dict) -> float | None:
+    """The bridge's simulated seconds per wall second after the station's first command."""
+    start = report.get("started_s") or 0.0
+    wall = report["wall_time_s"] - start
+    return (report["sim_time_s"] - start) / wall if wall > 0 else None
 
 
 def brief(name: str, r: dict) -> str:
@@ -226,6 +251,13 @@ def main() -> int:
         "--before-tree", default=None, help="also rehearse with the code of this package folder"
     )
     parser.add_argument("--repeats", type=int, default=1, help="rehearsals per variant")
+    parser.add_argument(
+        "--priority",
+        type=int,
+        default=0,
+        help="SCHED_FIFO priority of the bridge's and the station's loops (1-99; 0: off; "
+        "hardware.control_priority, vehicle-bridge --priority)",
+    )
     parser.add_argument(
         "--hold",
         type=float,
@@ -295,6 +327,7 @@ def main() -> int:
         "benchmark": "hardware_rehearsal",
         "scenario": args.scenario,
         "rate": args.rate,
+        "priority": args.priority,
         "load_average_start": load0,
         "load_average_end": os.getloadavg()[0],
         "all_in_one": None

@@ -34,7 +34,7 @@ import dataclasses
 import signal
 import threading
 import time
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +55,7 @@ from pcvfe_drake.diagrams.debug_layers import LAYERS
 from pcvfe_drake.diagrams.meshcat_controls import MeshcatControls
 from pcvfe_drake.diagrams.release import release_diagram
 from pcvfe_drake.diagrams.simulation import MakeSimulation, course_xy
+from pcvfe_drake.hardware import scheduling
 from pcvfe_drake.runs.run_folder import (
     RunFolder,
     RunRecord,
@@ -282,6 +283,7 @@ def _estimate_table(diagram, context) -> list[dict]:
             "samples": int(e.samples),
             "status": e.status,
             "first_fit_s": float(e.first_fit_s),
+            "fits": int(e.fits),
             "mu_lower_bound": float(e.mu_lower_bound),
             "near_limit": bool(e.near_limit),
             "identifiable": bool(e.identifiable),
@@ -339,6 +341,7 @@ def run_simulation(
     controls: bool = True,
     station: Diagram | None = None,
     realtime_rate: float | None = None,
+    control_priority: int = 0,
 ) -> SimulationResult:
     """Simulate ``scenario``; write drive log, playback, summary and figures into ``folder``.
 
@@ -355,7 +358,11 @@ def run_simulation(
 
     ``station``: another station for ``MakeSimulation`` (the LCM station, a replay station);
     ``realtime_rate``: pace simulated time to this many times wall-clock time (the LCM station
-    runs at ``scenario.hardware.realtime_rate``; None: the scenario's simulator settings).
+    runs at ``scenario.hardware.realtime_rate``; None: the scenario's simulator settings);
+    ``control_priority``: the ``SCHED_FIFO`` priority of the calling thread while the loop runs
+    (``hardware.control_priority``, :mod:`pcvfe_drake.hardware.scheduling`; 0: unchanged),
+    restored before the outputs are written; raises ``SchedulingError`` before the loop where
+    the OS refuses it.
     """
     writing = folder is not None and write_outputs
     if writing:
@@ -421,6 +428,12 @@ def run_simulation(
     cpu = 0.0
     lap_display = LapProgress(course) if bar is not None else None
     rows_shown = 0
+    # Raised for the loop only (Initialize's wait for the first message included): the outputs
+    # written afterwards are best-effort work. Refused: the error comes before the loop.
+    loop_priority = ExitStack()
+    loop_priority.enter_context(
+        scheduling.control_priority(control_priority, "hardware.control_priority")
+    )
     try:
         with _signals("raise", received):
             simulator.Initialize()
@@ -463,6 +476,8 @@ def run_simulation(
     except (RuntimeError, ValueError, ArithmeticError) as exc:
         error = f"{type(exc).__name__}: {exc}"
         stop_reason = "error"
+    finally:
+        loop_priority.close()
     with _signals("defer", received):
         if bar is not None:
             bar.close()

@@ -15,6 +15,7 @@ from pcvfe_drake.contexts.cluster_table import FrameLabels
 from pcvfe_drake.estimation.context_estimator import ContextEstimator, EstimateTable
 from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 from pcvfe_drake.estimation.probe import DEFAULT_PROBE_USE_FRACTION
+from pcvfe_drake.hardware.scheduling import normal_scheduling
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import NTHETA, NU, NX
 
@@ -112,8 +113,15 @@ class ContextFitter(LeafSystem):
             )
         self._latency_s = float(latency_s)
         # The worker and its job in flight live outside the Context: a thread's future cannot be
-        # copied into Drake state. Only a loop paced to the wall clock uses them.
-        self._worker = ThreadPoolExecutor(max_workers=1) if refit_worker else None
+        # copied into Drake state. Only a loop paced to the wall clock uses them. The worker
+        # thread is started by the loop's thread and may inherit its real-time policy
+        # (hardware.control_priority, or a loop started under chrt): it sets itself back to
+        # ordinary scheduling, so a refit never preempts the loop.
+        self._worker = (
+            ThreadPoolExecutor(max_workers=1, initializer=normal_scheduling)
+            if refit_worker
+            else None
+        )
         self._job = None
         base = LiveFitConfig() if config is None else config
         fields = {k: v for k, v in config_overrides.items() if v is not None}

@@ -80,7 +80,8 @@ def register(subparsers) -> None:
         action="store_true",
         help=(
             "drive the car over LCM (the hardware station; rehearse with `pcvfe vehicle-bridge`) "
-            "instead of simulating it; paced to wall-clock time"
+            "instead of simulating it; paced to wall-clock time; the loop's thread runs at "
+            "the real-time priority hardware.control_priority when it is set"
         ),
     )
     parser.add_argument(
@@ -125,6 +126,10 @@ def run(args: argparse.Namespace) -> int:
     if args.estimator is not None:
         scenario = dataclasses.replace(scenario, estimator=args.estimator)
     scenario.validate(f"scenario {args.scenario!r}")  # with the command line's changes
+    if args.hardware:  # a refused real-time priority stops here, before anything is written
+        from pcvfe_drake.hardware.scheduling import check_control_priority
+
+        check_control_priority(scenario.hardware.control_priority, "hardware.control_priority")
     tag = scenario.name
     if scenario.estimator != "pcvfe":
         tag += f"-{scenario.estimator}"
@@ -145,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
         meshcat = StartLocalMeshcat()
         print(f"Meshcat: {meshcat.web_url()} (localhost only)")
 
-    station, realtime_rate = None, None
+    station, realtime_rate, priority = None, None, 0
     if args.hardware:
         from pcvfe_drake.commands.vehicle_bridge import with_lcm_url
         from pcvfe_drake.diagrams.station import MakeVehicleStation
@@ -156,6 +161,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"hardware station on {hw.lcm_buses[hw.bus].lcm_url}")
         station = MakeVehicleStation(scenario, meshcat, hardware=True)
         realtime_rate = hw.realtime_rate
+        priority = hw.control_priority
+        if priority:
+            print(f"control loop at SCHED_FIFO priority {priority} (hardware.control_priority)")
     elif args.lcm_url is not None:
         raise ValueError("--lcm-url needs --hardware")
 
@@ -168,6 +176,7 @@ def run(args: argparse.Namespace) -> int:
         chunk_s=CHUNK_S,
         station=station,
         realtime_rate=realtime_rate,
+        control_priority=priority,
     )
     from pcvfe_drake.runs.summary import summary_table
 

@@ -58,8 +58,31 @@ def register(subparsers) -> None:
         "--realtime-rate", type=float, default=None, help="pace (default: the scenario's, 1.0)"
     )
     parser.add_argument("--out", type=Path, default=None, help="folder for truth.csv, bridge.json")
+    parser.add_argument(
+        "--priority",
+        type=_priority_arg,
+        default=0,
+        metavar="N",
+        help="run the bridge's loop at Linux SCHED_FIFO priority N (1-99; default 0: ordinary "
+        "scheduling; the local hub it starts inherits it): in a rehearsal the bridge stands in "
+        "for the car's own hardware, which the station computer's load never slows down. Needs "
+        "root, CAP_SYS_NICE or an rtprio limit (docs/hardware.md)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
     parser.set_defaults(func=run)
+
+
+def _priority_arg(text: str) -> int:
+    from pcvfe_drake.hardware.scheduling import priority_problem
+
+    try:
+        value = int(text)
+    except ValueError:
+        value = text
+    problem = priority_problem(value, "--priority")
+    if problem:
+        raise argparse.ArgumentTypeError(problem.removeprefix("--priority="))
+    return value
 
 
 def with_lcm_url(scenario, url: str | None):
@@ -88,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
     from pcvfe_drake.diagrams.run_vehicle_bridge import run_vehicle_bridge
     from pcvfe_drake.diagrams.scenario_io import load_scenario
     from pcvfe_drake.hardware.latency import format_latency
+    from pcvfe_drake.hardware.scheduling import control_priority
     from pcvfe_drake.hardware.tcpq_hub import HubProcess, hub_listening
 
     scenario = with_lcm_url(load_scenario(args.scenario), args.lcm_url)
@@ -100,34 +124,37 @@ def run(args: argparse.Namespace) -> int:
     want_hub = args.hub if args.hub is not None else port is not None
     if want_hub and port is None:
         raise ValueError(f"--hub needs a tcpq://127.0.0.1:PORT URL, not {url!r}")
-    hub, note = None, ""
-    if want_hub and hub_listening(port):
-        note = " (the local hub already running there)"
-    elif want_hub:
-        # Detached, ending by itself once its last client left: a station still connected when
-        # the bridge ends must not lose its hub (the LCM C library aborts the station then).
-        hub = HubProcess(port, idle_exit_s=HUB_IDLE_EXIT_S, detach=True)
-        note = " (local hub)"
-    try:
-        print(f"vehicle bridge: {scenario.name} on {url}{note}")
-        print(f"  state -> {hw.state_channel}, camera -> {hw.image_channel}, "
-              f"actuation <- {hw.actuation_channel}")  # fmt: skip
+    # Raised before the hub starts, so that the hub (the network, in a rehearsal) inherits it;
+    # a refused priority stops here, before anything runs.
+    with control_priority(args.priority, "--priority", children_inherit=True):
+        hub, note = None, ""
+        if want_hub and hub_listening(port):
+            note = " (the local hub already running there)"
+        elif want_hub:
+            # Detached, ending by itself once its last client left: a station still connected when
+            # the bridge ends must not lose its hub (the LCM C library aborts the station then).
+            hub = HubProcess(port, idle_exit_s=HUB_IDLE_EXIT_S, detach=True)
+            note = " (local hub)"
+        try:
+            print(f"vehicle bridge: {scenario.name} on {url}{note}")
+            print(f"  state -> {hw.state_channel}, camera -> {hw.image_channel}, "
+                  f"actuation <- {hw.actuation_channel}")  # fmt: skip
 
-        def progress(t, recorder):
-            if not args.quiet and abs(t - round(t / 5.0) * 5.0) < 1e-6:
-                print(f"  t={t:6.1f} s  {format_latency(recorder.summary())}", flush=True)
+            def progress(t, recorder):
+                if not args.quiet and abs(t - round(t / 5.0) * 5.0) < 1e-6:
+                    print(f"  t={t:6.1f} s  {format_latency(recorder.summary())}", flush=True)
 
-        result = run_vehicle_bridge(
-            scenario,
-            duration_s=duration,
-            out_dir=args.out,
-            realtime_rate=args.realtime_rate,
-            idle_stop_s=args.idle_stop,
-            progress=progress,
-        )
-    finally:
-        if hub is not None:
-            hub.release()
+            result = run_vehicle_bridge(
+                scenario,
+                duration_s=duration,
+                out_dir=args.out,
+                realtime_rate=args.realtime_rate,
+                idle_stop_s=args.idle_stop,
+                progress=progress,
+            )
+        finally:
+            if hub is not None:
+                hub.release()
     print(format_latency(result.latency))
     print(json.dumps(result.to_dict()))
     return 130 if result.stopped_because == "interrupted" else 0

@@ -10,6 +10,8 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 
+from pcvfe_drake.hardware.scheduling import priority_problem
+
 LOCAL_HUB_URL = "tcpq://127.0.0.1:7700"
 """Default LCM URL: the localhost ``tcpq`` hub that ``pcvfe vehicle-bridge`` starts (no network
 traffic leaves the machine). A real car on a LAN would use a ``udpm://`` URL instead."""
@@ -79,6 +81,12 @@ class HardwareSettings:
     channel and URL."""
     realtime_rate: float = 1.0
     """Simulated time per wall-clock second on hardware (1: paced to wall-clock time)."""
+    control_priority: int = 0
+    """Linux ``SCHED_FIFO`` priority (1-99; 0: off, ordinary scheduling) of the thread that runs
+    the station's loop (receivers, NMPC, publishing) in ``pcvfe simulate --hardware``: a control
+    loop must not wait for a core behind best-effort work on the same computer. The refit
+    worker stays at ordinary priority, so a refit never preempts the loop. Needs root,
+    CAP_SYS_NICE or an rtprio limit (docs/hardware.md); refused otherwise, at start-up."""
 
 
 def hardware_problems(settings: HardwareSettings) -> list[str]:
@@ -107,6 +115,9 @@ def hardware_problems(settings: HardwareSettings) -> list[str]:
         )
     if len(set(channels)) != len(channels):
         problems.append(f"hardware channels {channels}: must be three different names")
+    priority = priority_problem(settings.control_priority, "hardware.control_priority")
+    if priority:
+        problems.append(priority)
     for f in dataclasses.fields(HardwareSettings):
         value = getattr(settings, f.name)
         if f.type is not float:

@@ -199,7 +199,8 @@ def mu_estimates(
     did; ``ContextEstimate.mu_interval_95``), else ``mu_hat +- 1.96 std``.
     Identifiability (from the table, ``ContextEstimate``): ``mu_lower_bound`` (the friction the
     data used), ``near_limit``, ``identifiable``, ``untrusted`` (why the fit-quality checks
-    distrust the fit), and ``model_params`` of an effect model.
+    distrust the fit), ``model_params`` of an effect model, and ``fits`` (the successful fits so
+    far: the first and every refit; shows whether refits ran, e.g. beside the LCM loop).
     """
     t = log["t"].to_numpy(float)
     w = sample_weights(t)
@@ -242,6 +243,7 @@ def mu_estimates(
                 "handing": entry.get("handing"),
                 "model_params": entry.get("model_params") or None,
                 "sample_to_estimate_s": _delays(entry.get("sample_to_estimate_s")),
+                "fits": entry.get("fits"),
             }
         else:
             est = handed

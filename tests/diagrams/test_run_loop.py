@@ -217,3 +217,45 @@ def test_a_car_braked_into_reverse_on_the_multibody_truth_is_a_scored_failure(
     assert 0.0 < last["t_s"] < 2.0 and last["sx_m"] is not None
     assert json.loads(folder.summary.read_text())["failure_events"][-1] == last
     assert "truth model singular" in summary_table(s)
+
+
+def _fifo_permitted() -> bool:
+    from pcvfe_drake.hardware.scheduling import SchedulingError, check_control_priority
+
+    try:
+        check_control_priority(1, "hardware.control_priority")
+    except SchedulingError:
+        return False
+    return True
+
+
+@pytest.mark.skipif(
+    not _fifo_permitted(), reason="SCHED_FIFO not permitted here (no root, CAP_SYS_NICE, rtprio)"
+)
+def test_the_control_priority_holds_for_the_loop_thread_only_while_it_runs(tmp_path, monkeypatch):
+    """``control_priority`` raises the thread that runs the loop (the NMPC's updates run on it at
+    SCHED_FIFO) and drops it before the outputs are written (best-effort work)."""
+    import threading
+
+    def policy():
+        flag = os.SCHED_RESET_ON_FORK
+        return os.sched_getscheduler(0) & ~flag, os.sched_getparam(0).sched_priority
+
+    seen = {"nmpc": set(), "outputs": None}
+    real_step, real_write = NmpcController.step, run_module.write_run_outputs
+
+    def step(self, x, theta, memory):
+        seen["nmpc"].add((threading.get_native_id(), *policy()))
+        return real_step(self, x, theta, memory)
+
+    def write_run_outputs(*args, **kwargs):
+        seen["outputs"] = policy()
+        return real_write(*args, **kwargs)
+
+    monkeypatch.setattr(NmpcController, "step", step)
+    monkeypatch.setattr(run_module, "write_run_outputs", write_run_outputs)
+    before = policy()
+    folder = RunFolder(tmp_path / "run")
+    run_simulation(short(duration_s=0.5), folder, progress=False, control_priority=4)
+    assert seen["nmpc"] == {(threading.get_native_id(), os.SCHED_FIFO, 4)}
+    assert seen["outputs"] == before == policy()

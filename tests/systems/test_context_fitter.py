@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import sys
+import threading
 import time
 
 import numpy as np
@@ -14,6 +17,11 @@ from pydrake.trajectories import PiecewisePolynomial
 from pcvfe_drake.contexts.cluster_table import FrameLabels
 from pcvfe_drake.estimation.context_estimator import EstimateTable
 from pcvfe_drake.handing.config import HandingConfig
+from pcvfe_drake.hardware.scheduling import (
+    SchedulingError,
+    check_control_priority,
+    control_priority,
+)
 from pcvfe_drake.models.synthetic_drive import s_curve_drive
 from pcvfe_drake.systems.context_fitter import ContextFitter
 from pcvfe_drake.vehicle.params import ford_escort
@@ -211,3 +219,48 @@ def test_refit_worker_publishes_the_same_fit_without_holding_up_the_updates(para
         results[worker] = entry
     assert results[True].mu == pytest.approx(results[False].mu, abs=1e-12)
     assert results[True].data_end_s == pytest.approx(results[False].data_end_s)
+
+
+def _thread_ids() -> set[int]:
+    return {int(tid) for tid in os.listdir("/proc/self/task")}
+
+
+def _fifo_permitted() -> bool:
+    try:
+        check_control_priority(1, "hardware.control_priority")
+    except SchedulingError:
+        return False
+    return True
+
+
+@pytest.mark.skipif(
+    not sys.platform.startswith("linux") or not _fifo_permitted(),
+    reason="SCHED_FIFO not permitted here (no root, CAP_SYS_NICE or rtprio limit)",
+)
+def test_the_refit_worker_runs_at_ordinary_priority_beside_a_real_time_loop(params):
+    """The loop's thread at SCHED_FIFO starts the worker, which inherits that policy where the
+    loop was raised without SCHED_RESET_ON_FORK (``children_inherit``, as ``chrt`` would): the
+    worker drops it, so a refit cannot preempt the loop."""
+    t, S, U = s_curve_drive(params, [0.45], duration_s=3.0)
+    before = _thread_ids()
+    fitter = ContextFitter(params, period_s=1.0, latency_s=0.1, refit_worker=True)
+    context = fitter.CreateDefaultContext()
+    simulator = Simulator(fitter, context)
+    entry, k, policies = None, 0, {}
+    with control_priority(3, "hardware.control_priority", children_inherit=True):
+        while entry is None or not entry.fitted:
+            fitter.GetInputPort("state").FixValue(context, S[0][k])
+            fitter.GetInputPort("actuation").FixValue(context, U[0][k])
+            fitter.GetInputPort("context_id").FixValue(context, [2.0])
+            simulator.AdvanceTo(context.get_time() + 0.01)
+            if context.get_time() > 1.1:
+                time.sleep(0.002)
+            entry = fitter.GetOutputPort("estimate_table").Eval(context).get(2)
+            k = min(k + 1, t.size - 1)
+            assert context.get_time() < 30.0
+        loop = threading.get_native_id()
+        policies = {tid: os.sched_getscheduler(tid) for tid in _thread_ids() - before}
+        loop_policy = os.sched_getscheduler(0) & ~os.SCHED_RESET_ON_FORK
+    assert loop_policy == os.SCHED_FIFO and loop not in policies
+    assert policies, "the refit ran in no new thread"
+    assert set(policies.values()) == {os.SCHED_OTHER}, policies
