@@ -34,9 +34,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from pcvfe_drake.models.effects import RHO_AIR_KGPM3
 from pcvfe_drake.vehicle.measurement_noise import SURVEY_INS_NOISE, MeasurementNoise
 from pcvfe_drake.vehicle.params import VehicleParams, load_vehicle
+from pcvfe_drake.workbench import synth_kernel
 
 
 @dataclass(frozen=True)
@@ -254,162 +254,44 @@ def driver_commands(
     return steer, acc
 
 
-def _constrain(vp: VehicleParams, delta, v, steer, acc):
-    steer = np.clip(steer, vp.delta_dot_min, vp.delta_dot_max)
-    steer = np.where(
-        ((delta <= vp.delta_min) & (steer <= 0)) | ((delta >= vp.delta_max) & (steer >= 0)),
-        0.0,
-        steer,
-    )
-    upper = np.where(v > vp.v_switch, vp.a_max * vp.v_switch / np.maximum(v, 1e-6), vp.a_max)
-    acc = np.clip(acc, -vp.a_max, upper)
-    acc = np.where(((v <= vp.v_min) & (acc <= 0)) | ((v >= vp.v_max) & (acc >= 0)), 0.0, acc)
-    return steer, acc
-
-
-def _brush(alpha, fz, c_alpha, mu_peak):
-    """Lateral brush-tire force; linear when mu_peak is infinite."""
-    if not np.any(np.isfinite(mu_peak)):
-        return c_alpha * alpha
-    f_max = mu_peak * fz
-    slip_sat = 3.0 * f_max / c_alpha
-    a = np.abs(alpha)
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        return _brush_inside(alpha, a, c_alpha, f_max, slip_sat, mu_peak)
-
-
-def _brush_inside(alpha, a, c_alpha, f_max, slip_sat, mu_peak):
-    inside = (
-        c_alpha * alpha
-        - c_alpha**2 * alpha * a / (3.0 * f_max)
-        + c_alpha**3 * alpha**3 / (27.0 * f_max**2)
-    )
-    out = np.where(a < slip_sat, inside, f_max * np.sign(alpha))
-    return np.where(np.isfinite(mu_peak), out, c_alpha * alpha)
-
-
-def _magic(alpha, fz, stiffness, peak_mu, shape):
-    """Lateral magic-formula force (curvature 0); linear where the peak is infinite."""
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        d = peak_mu * fz
-        out = d * np.sin(shape * np.arctan(stiffness * alpha / (shape * d)))
-    return np.where(np.isfinite(peak_mu), out, stiffness * alpha)
-
-
 def _truth_rates(vp, tr, s, steer_cmd, acc_cmd):
-    """Truth plant derivative; s = (B, 11) [sx, sy, delta, v, psi, r, beta, delta_w, q, q',
-    a_roll] (q: the acceleration the axle loads follow through the pitch mode; rows without a
-    pitch mode use a_x itself; a_roll: the lagged lateral acceleration the wheels' cambers
-    follow; s may stop after 8 or 10 columns: no pitch mode, no wheel camber)."""
-    delta, v, psi, r, beta, delta_w = s[:, 2], s[:, 3], s[:, 4], s[:, 5], s[:, 6], s[:, 7]
-    pitch_tau = tr.get("pitch_tau", np.zeros(s.shape[0]))
-    pitched = pitch_tau > 0
-    steer, acc = _constrain(vp, delta, v, steer_cmd, acc_cmd)
-    vs = np.maximum(v, 0.1)
-    power_cap = 1000.0 * tr["p_max_kw"] / (vp.m * np.maximum(v, 0.5))
-    acc = np.where(acc > 0, np.minimum(acc, power_cap), acc)
-    acc = acc * vp.m / (vp.m + tr["m_rot"])
-    wheel = np.where(tr["steer_tau"] > 0, delta_w, delta)
-    wheelbase = vp.lf + vp.lr
-    drag_force = 0.5 * RHO_AIR_KGPM3 * tr["CdA"] * v * np.abs(v)
-    resist = vp.m * vp.g * (tr["c_rr"] * np.tanh(v / 0.2))
-    slope = vp.m * vp.g * (tr["gx"] * np.cos(psi) + tr["gy"] * np.sin(psi))
-    # the load moves with the car's real longitudinal acceleration (resistances included)
-    a_x = acc - (drag_force + resist + slope) / vp.m
-    fzf0 = vp.m * vp.g * vp.lr / wheelbase
-    fzr0 = vp.m * vp.g * vp.lf / wheelbase
-    a_pitch = a_x  # what drives the pitch mode (the instant transfer's acceleration)
-    a_load = np.where(pitched, s[:, 8], a_x) if s.shape[1] > 8 else a_x
-    fzf = fzf0 - vp.m * a_load * vp.h / wheelbase
-    fzr = fzr0 + vp.m * a_load * vp.h / wheelbase
-    # roll camber: the tyres see a shifted slip and get a side force per unit load
-    a_lat = v * r
-    turn = np.tanh(a_lat / 0.5)
-    zeros = np.zeros(s.shape[0])
-    cam_shift = tr.get("cam_s0", zeros) * turn
-    cam_side = tr.get("cam_f0", zeros) * turn + tr.get("cam_f1", zeros) * a_lat / vp.g
-    alpha_f = wheel - beta - vp.lf * r / vs + cam_shift
-    alpha_r = -beta + vp.lr * r / vs + cam_shift
-    mu_v = tr["mu"] * (1.0 - tr["mu_speed_slope"] * (v - 15.0))
-    mu_f = mu_v * (1.0 - tr["mu_load_sens"] * (fzf / fzf0 - 1.0))
-    mu_r = mu_v * (1.0 - tr["mu_load_sens"] * (fzr / fzr0 - 1.0))
-    peak_f = tr["mu_peak"] * mu_f / tr["mu"]
-    peak_r = tr["mu_peak"] * mu_r / tr["mu"]
-    csf = vp.C_Sf * tr["k_f"]
-    csr = vp.C_Sr * tr["k_r"]
-
-    def forces(a_f, a_r):
-        fyf = _brush(a_f, fzf, mu_f * csf * fzf, peak_f)
-        fyr = _brush(a_r, fzr, mu_r * csr * fzr, peak_r)
-        if np.any(np.isfinite(tr["mf_peak"])):
-            with np.errstate(invalid="ignore", divide="ignore"):
-                follow = (tr["mf_peak"] / tr["mu"]) ** tr["mf_exp"]
-            follow = np.where(np.isfinite(tr["mf_peak"]), follow, 1.0)
-            peak = tr["mf_peak"] / tr["mu"]
-            mf_f = _magic(a_f, fzf, follow * mu_f * csf * fzf, peak * mu_f, tr["mf_shape"])
-            mf_r = _magic(a_r, fzr, follow * mu_r * csr * fzr, peak * mu_r, tr["mf_shape"])
-            fyf = np.where(np.isfinite(tr["mf_peak"]), mf_f, fyf)
-            fyr = np.where(np.isfinite(tr["mf_peak"]), mf_r, fyr)
-        return fyf, fyr
-
-    track_f, track_r = tr.get("track_f", zeros), tr.get("track_r", zeros)
-    # each wheel's camber sign from the lagged lateral and the longitudinal acceleration
-    a_roll = s[:, 10] if s.shape[1] > 10 else zeros
-    wcam_f0, wcam_s0 = tr.get("wcam_f0", zeros), tr.get("wcam_s0", zeros)
-    wheel_signs = []
-    for k_x in (tr.get("wcam_kf", zeros), tr.get("wcam_kr", zeros)):
-        wheel_signs.append(
-            (np.tanh((a_roll + k_x * a_x) / 0.1), np.tanh((a_roll - k_x * a_x) / 0.1))
-        )
-    cambered = np.any(wcam_f0 != 0) or np.any(wcam_s0 != 0)
-    if np.any(track_f > 0) or np.any(track_r > 0) or cambered:
-        # two wheels per axle, t apart: each at its own slip, the outer one more loaded
-        u_x = np.maximum(v * np.cos(beta), 0.5)
-        left, right = [], []
-        for (lever, t_w), (s_left, s_right) in zip(
-            ((vp.lf, track_f), (-vp.lr, track_r)), wheel_signs, strict=True
-        ):
-            w = v * np.sin(beta) + lever * r
-            h = 0.5 * t_w * r
-            left.append(np.arctan(w * h / (u_x * (u_x + h) + w * w)) + wcam_s0 * s_left)
-            right.append(np.arctan(-w * h / (u_x * (u_x - h) + w * w)) + wcam_s0 * s_right)
-        out_share = np.clip(tr.get("track_k_lt", zeros) * a_lat / vp.g, -0.9, 0.9)
-        inner_left = 0.5 * (1.0 - out_share)  # a left bend: the left wheel inside
-        fl = forces(alpha_f + left[0], alpha_r + left[1])
-        fr = forces(alpha_f + right[0], alpha_r + right[1])
-        fyf = inner_left * fl[0] + (1.0 - inner_left) * fr[0]
-        fyr = inner_left * fl[1] + (1.0 - inner_left) * fr[1]
-    else:
-        fyf, fyr = forces(alpha_f, alpha_r)
-    fyf = fyf + (cam_side + 0.5 * wcam_f0 * (wheel_signs[0][0] + wheel_signs[0][1])) * fzf
-    fyr = fyr + (cam_side + 0.5 * wcam_f0 * (wheel_signs[1][0] + wheel_signs[1][1])) * fzr
-    sin_w = np.sin(wheel)
-    fxf = vp.m * acc * np.where(acc > 0, tr["ff_drive"], tr["ff_brake"])
-    a_x = a_x - tr["ff_drag"] * fyf * sin_w / vp.m
-    fyf = fyf + fxf * sin_w
+    """Truth plant derivative (B, columns of s); s = (B, 11) [sx, sy, delta, v, psi, r, beta,
+    delta_w, q, q', a_roll] (q: the acceleration the axle loads follow through the pitch mode;
+    rows without a pitch mode use a_x itself; a_roll: the lagged lateral acceleration the
+    wheels' cambers follow; s may stop after 8 or 10 columns: no pitch mode, no wheel camber);
+    ``tr`` the truths' columns by name (:func:`truth_columns`; a column left out takes its
+    null value). The physics: the compiled kernel (``synth_kernel.rates``), one row each."""
+    s = np.ascontiguousarray(s, dtype=float)
     out = np.empty_like(s)
-    out[:, 0] = v * np.cos(psi + beta)
-    out[:, 1] = v * np.sin(psi + beta)
-    out[:, 2] = steer
-    out[:, 3] = a_x
-    out[:, 4] = r
-    out[:, 5] = (vp.lf * fyf - vp.lr * fyr) / vp.I_z
-    out[:, 6] = (fyf + fyr) / (vp.m * vs) - r
-    out[:, 7] = np.where(
-        tr["steer_tau"] > 0, (delta - delta_w) / np.maximum(tr["steer_tau"], 1e-6), 0
-    )
-    if s.shape[1] > 8:
-        # the pitch mode, driven by the acceleration the loads follow without it
-        tau = np.maximum(pitch_tau, 1e-6)
-        zeta = tr.get("pitch_zeta", np.ones(s.shape[0]))
-        q, q_rate = s[:, 8], s[:, 9]
-        out[:, 8] = np.where(pitched, q_rate, 0.0)
-        out[:, 9] = np.where(pitched, (a_pitch - q) / tau**2 - 2.0 * zeta * q_rate / tau, 0.0)
-    if s.shape[1] > 10:
-        # the roll's lag of the lateral acceleration the axles' forces give
-        tau = np.maximum(tr.get("wcam_tau", np.full(s.shape[0], 0.08)), 1e-6)
-        out[:, 10] = ((fyf + fyr) / vp.m - a_roll) / tau
+    n = s.shape[0]
+    steer = np.broadcast_to(np.asarray(steer_cmd, dtype=float), (n,)).copy()
+    acc = np.broadcast_to(np.asarray(acc_cmd, dtype=float), (n,)).copy()
+    synth_kernel.rates_rows(s, steer, acc, truth_matrix(tr, n), vehicle_vector(vp), out)
     return out
+
+
+def truth_matrix(tr: dict[str, np.ndarray], n: int) -> np.ndarray:
+    """The columns ``tr`` (by name) as the kernel's (n, columns) matrix, in the order of
+    ``synth_kernel.TRUTH_COLUMNS``; a column left out takes its null value."""
+    unknown = set(tr) - {name for name, _ in synth_kernel.TRUTH_COLUMNS}
+    if unknown:
+        raise KeyError(f"not truth columns: {sorted(unknown)}")
+    if "mu" not in tr:
+        raise KeyError("the truth columns must give mu")
+    return np.ascontiguousarray(
+        np.stack(
+            [
+                np.broadcast_to(np.asarray(tr.get(name, null), dtype=float), (n,))
+                for name, null in synth_kernel.TRUTH_COLUMNS
+            ],
+            axis=1,
+        )
+    )
+
+
+def vehicle_vector(vp: VehicleParams) -> np.ndarray:
+    """The vehicle's parameters the kernel reads (``synth_kernel.VEHICLE_FIELDS``)."""
+    return np.array([float(getattr(vp, name)) for name in synth_kernel.VEHICLE_FIELDS])
 
 
 def truth_columns(vp: VehicleParams, truths: list[Truth]) -> dict[str, np.ndarray]:
@@ -471,9 +353,9 @@ def simulate_truths(
 
     The commands are computed at the log rate by the speed controller and steering tracker
     from each plant's true state and held until the next sample; the plant is integrated with
-    RK4 at ``substeps`` steps per sample. Noise seeds differ per log (``seed + 1 + i``, or
-    ``noise_seeds[i]``: a log keeps its noise when simulated in another batch, and a batch
-    costs about what one log does, the integration's cost being numpy's per-call overhead).
+    RK4 at ``substeps`` steps per sample (the compiled ``synth_kernel.advance``; each truth is
+    its own plant, so a log is the same in any batch). Noise seeds differ per log
+    (``seed + 1 + i``, or ``noise_seeds[i]``: a log keeps its noise in another batch).
     ``v_ref_factor`` scales the program's speed targets (``design_excitation``).
     """
     if noise_seeds is not None and len(noise_seeds) != len(truths):
@@ -486,33 +368,20 @@ def simulate_truths(
     n = ex.v_ref.size
     b = len(truths)
 
-    tr = truth_columns(vp, truths)
+    q = truth_matrix(truth_columns(vp, truths), b)
+    vv = vehicle_vector(vp)
     delay = np.array([t.accel_delay for t in truths], dtype=float)
     s = np.zeros((b, 11))
     s[:, 3] = v0_mps
     states = np.empty((n, b, 7))
     steer_log = np.empty((n, b))
     acc_log = np.empty((n, b))
-    h = dt / substeps
     for k in range(n):
         states[k] = s[:, :7]
         steer_log[k], acc_log[k] = driver_commands(vp, ex, k, s[:, :7])
         if k == n - 1:
             break
-        for j in range(substeps):
-            t0 = k * dt + j * h
-
-            def cmd_at(tau, k=k):
-                idx = np.floor((tau - delay) / dt + 1e-9).astype(int)
-                idx = np.clip(idx, 0, k)
-                return acc_log[idx, np.arange(b)]
-
-            st = steer_log[k]
-            k1 = _truth_rates(vp, tr, s, st, cmd_at(t0))
-            k2 = _truth_rates(vp, tr, s + 0.5 * h * k1, st, cmd_at(t0 + 0.5 * h))
-            k3 = _truth_rates(vp, tr, s + 0.5 * h * k2, st, cmd_at(t0 + 0.5 * h))
-            k4 = _truth_rates(vp, tr, s + h * k3, st, cmd_at(t0 + h))
-            s = s + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        synth_kernel.advance(s, q, vv, steer_log[k], acc_log, delay, k, dt, substeps)
         if not np.all(np.isfinite(s)):
             raise RuntimeError(f"truth simulation diverged at t={k * dt:.2f} s")
     seeds = [seed + 1 + i for i in range(b)] if noise_seeds is None else list(noise_seeds)
