@@ -11,7 +11,9 @@ sign of it. The estimate takes over as soon as the fit is identifiable
 
 * **start** at ``max(mu_lower_bound, floor_mu)``; with a stated floor the first step is taken on
   the data the context already has: before its id the car drove the new terrain at the floor
-  and those samples joined the context when it was named (paper eq. 5d relabelling);
+  and those samples joined the context when it was named (paper eq. 5d relabelling); with a
+  stated floor the probe also starts once the context's visit is confirmed, before its first
+  fit (``Handing.probes_before_fit``: the evidence below reads the tyres, not a fit);
 * **before the id**, with a stated floor, the unknown value itself is probed, one step above
   the floor at most (:func:`unknown_probe_update`), and the level is carried into the context
   that ends the phase where most of its data belong to it (:func:`carried_probe`);
