@@ -660,6 +660,47 @@ def test_probe_takes_its_first_step_at_the_id_on_the_data_driven_at_the_floor():
     assert later.mu == pytest.approx(0.3) and later.steps == 0
 
 
+def test_a_probe_starting_at_the_level_already_driven_counts_it_from_then():
+    """A probe whose start level is the one the context's data were driven at (the stated floor)
+    holds it from the context's first sample, not from its own start, so the bends driven
+    there are its level's evidence; a start above that level is a new level, held from now."""
+    rules = {**RULES, "max_excess": 0.12, **FAST, "fast_step_rel": 0.4}
+
+    def start(lb, since_s):
+        return probe_step(
+            ProbeState(),
+            10.0,
+            lower_bound=lb,
+            floor_mu=0.3,
+            prior_mu=1.05,
+            is_saturated=False,
+            start_bend=float("nan"),  # no bend yet when it starts
+            start_mu=0.3,
+            start_since_s=since_s,
+            **rules,
+        )
+
+    def then(state, t_now):  # the level's data now hold a linear bend
+        return probe_step(
+            state,
+            t_now,
+            lower_bound=0.2,
+            floor_mu=0.3,
+            prior_mu=1.05,
+            is_saturated=False,
+            bend=1.0,
+            **rules,
+        )
+
+    driven = start(0.2, 6.0)
+    assert driven.mu == pytest.approx(0.3) and driven.last_step_s == 6.0
+    assert then(driven, 11.0).mu == pytest.approx(0.42)  # 5 s at the floor: a step at once
+    fresh = start(0.2, float("nan"))
+    assert fresh.last_step_s == 10.0 and then(fresh, 11.0) is fresh  # held from now
+    above = start(0.35, 6.0)  # the data used more than the floor: the start is a new level
+    assert above.mu == pytest.approx(0.35) and above.last_step_s == 10.0
+
+
 def test_estimator_starts_the_probe_on_the_bends_driven_before_the_id():
     params = ford_escort()
 
