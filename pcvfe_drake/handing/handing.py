@@ -306,9 +306,10 @@ class Handing:
 
     def _update_unknown_probe(self, t_now: float, fits: Mapping, store) -> bool:
         """One step of the unknown phase's probe while the controller gets the unknown value
-        (no fitted context visited, or a switch not confirmed yet); at the
-        phase's end it is kept in ``carried`` for the context that ended it. Returns whether
-        the phase goes on."""
+        (no context visited, or a switch not confirmed yet; a confirmed context without a fit
+        ends the phase too where it is explored before its fit: :meth:`probes_before_fit`);
+        at the phase's end it is kept in ``carried`` for the context that ended it. Returns
+        whether the phase goes on."""
         ident = self.visit.visit()
         estimate = fits.get(ident)
         known = self.probes_before_fit() or (estimate is not None and estimate.fitted)
