@@ -231,7 +231,7 @@ class Handing:
         sample store."""
         if not self.config.probing:
             return
-        phase = self.config.floor_stated and self._update_unknown_probe(t_now, fits, store)
+        phase = self.config.floor_stated and self._update_unknown_probe(t_now, store)
         ident = self.visit.current
         estimate = fits.get(ident)
         carried, self.carried = self.carried, ProbeState()
@@ -304,16 +304,14 @@ class Handing:
         """``ident`` is a context whose visit is confirmed (reported for ``confirm_rise_s``)."""
         return ident >= 0 and not self.visit.pending(ident)
 
-    def _update_unknown_probe(self, t_now: float, fits: Mapping, store) -> bool:
+    def _update_unknown_probe(self, t_now: float, store) -> bool:
         """One step of the unknown phase's probe while the controller gets the unknown value
         (no context visited, or a switch not confirmed yet; a confirmed context without a fit
         ends the phase too where it is explored before its fit: :meth:`probes_before_fit`);
         at the phase's end it is kept in ``carried`` for the context that ended it. Returns
         whether the phase goes on."""
         ident = self.visit.visit()
-        estimate = fits.get(ident)
-        known = self.probes_before_fit() or (estimate is not None and estimate.fitted)
-        if known and self._confirmed(ident):
+        if self._confirmed(ident):  # fitted or not: with a stated floor it is explored
             if self.unknown_probe.started:
                 self.carried, self.unknown_probe = self.unknown_probe, ProbeState()
             return False
