@@ -263,11 +263,12 @@ class ContextEstimator:
         return {k: v for k, v in gained.items() if v}
 
     def _follow_renamings(self, old: np.ndarray, new: np.ndarray, moved: np.ndarray) -> None:
-        """A context the re-clustering renamed passes its fit and its handing to the new id: no
-        sample keeps the old id and most of them now carry one other id that has no fit of its
-        own. These are the same data under another name, not a new terrain, so the new id is
-        not explored from the floor again; its next refit starts from the fit it took over.
-        ``moved``: the samples whose label changed (only their old ids can have been renamed)."""
+        """A context the re-clustering renamed passes its fit and its handing (also a probe
+        started before its first fit) to the new id: no sample keeps the old id and most of
+        them now carry one other id that has no fit of its own. These are the same data under
+        another name, not a new terrain, so the new id is not explored from the floor again;
+        its next refit starts from the fit it took over. ``moved``: the samples whose label
+        changed (only their old ids can have been renamed)."""
         for ident in np.unique(old[moved & (old >= 0)]).tolist():
             of_old = old == ident
             if (new == ident).any():
@@ -277,12 +278,15 @@ class ContextEstimator:
             mine, theirs = self._slots.get(ident), self._slots.get(heir)
             if heir < 0 or 2 * int(counts.max()) <= int(of_old.sum()):
                 continue
-            if mine is None or not mine.estimate.fitted:
+            probe = self.handing.probe_of(ident)
+            explored = probe is not None and probe.started  # explored before its first fit
+            if mine is None or not (mine.estimate.fitted or explored):
                 continue
             if theirs is not None and theirs.estimate.fitted:
                 continue  # a merge into a fitted context: its own fit and handing stand
-            slot = self._slot(heir)
-            slot.estimate = replace(mine.estimate, context_id=heir)
+            if mine.estimate.fitted:
+                slot = self._slot(heir)
+                slot.estimate = replace(mine.estimate, context_id=heir)
             self.handing.renamed(ident, heir)
 
     @property
@@ -306,6 +310,10 @@ class ContextEstimator:
         if context_id is None:
             return self.handing.theta(self.fits())
         slot = self._slots.get(int(context_id))
+        if slot is not None and not slot.estimate.fitted and self.handing.probes_before_fit():
+            probe = self.handing.probe_of(int(context_id))
+            if probe is not None and probe.started:  # explored before its first fit
+                return self.handing.unfitted_theta(int(context_id), self.fits())
         if slot is None or not slot.estimate.fitted:
             theta = np.array(self._prior if slot is None else slot.estimate.theta)
             return theta if np.all(np.isfinite(theta)) else np.array(self._prior)

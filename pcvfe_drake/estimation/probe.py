@@ -11,7 +11,9 @@ sign of it. The estimate takes over as soon as the fit is identifiable
 
 * **start** at ``max(mu_lower_bound, floor_mu)``; with a stated floor the first step is taken on
   the data the context already has: before its id the car drove the new terrain at the floor
-  and those samples joined the context when it was named (paper eq. 5d relabelling);
+  and those samples joined the context when it was named (paper eq. 5d relabelling); with a
+  stated floor the probe also starts once the context's visit is confirmed, before its first
+  fit (``Handing.probes_before_fit``: the evidence below reads the tyres, not a fit);
 * **before the id**, with a stated floor, the unknown value itself is probed, one step above
   the floor at most (:func:`unknown_probe_update`), and the level is carried into the context
   that ends the phase where most of its data belong to it (:func:`carried_probe`);
@@ -418,6 +420,7 @@ def probe_step(
     start_bend: float = math.nan,
     start_mu: float = math.nan,
     fit_mu: float = math.nan,
+    start_since_s: float = math.nan,
 ) -> ProbeState:
     """The probe after one update at ``t_now`` (see the module docstring). ``bend``: the larger
     of the current level's axle bend ratios (NaN: no evidence); at most ``linear_ratio``: the
@@ -429,12 +432,18 @@ def probe_step(
     first call. ``fit_mu``: the context's
     fitted peak where the fit is tight but not identifiable (``probe_fit_target``; NaN: not
     used): a level tried in a bend (a finite ratio, at most ``bend_limit``: no sign of
-    saturation) is raised at least to it, still at most one fast step and within the bounds."""
+    saturation) is raised at least to it, still at most one fast step and within the bounds.
+    ``start_since_s``: the time [s] from which the context's data were driven at ``start_mu``
+    (NaN: not known); a probe that starts at that level counts it from then (its hold and its
+    evidence take in those data): the level is not new, the car has driven it since."""
     is_saturated = is_saturated or bool(bend > bend_limit)
     lb = lower_bound if math.isfinite(lower_bound) else 0.0
     base = probe_base(lb, floor_mu, prior_mu)
     if not state.started:
-        start = ProbeState(mu=base, last_step_s=t_now)
+        since_s = t_now  # the level is set now, unless the car drove it already
+        if math.isfinite(start_since_s) and math.isclose(base, start_mu, rel_tol=1e-9):
+            since_s = start_since_s
+        start = ProbeState(mu=base, last_step_s=since_s)
         if is_saturated or fast_step_rel is None or not math.isfinite(start_mu):
             return start
         target = fit_mu if start_bend <= bend_limit and math.isfinite(fit_mu) else 0.0
@@ -550,13 +559,14 @@ def probe_update(
         return probe_after_fit(state, t_now, judged, base, settings.step_rel)
     force = evidence_force(use, handed[0])
     bend = level_bend(t_level, s_level, vehicle, stiffness, force, use * handed[0])
-    start_bend = start_mu = math.nan
+    start_bend = start_mu = start_since = math.nan
     if settings.start_evidence and not state.started:
         # the data before the start, driven at the floor (the unknown-context value)
         start_mu = settings.floor_mu
         t_all, s_all = since(-math.inf)
         start_force = evidence_force(use, start_mu)
         start_bend = level_bend(t_all, s_all, vehicle, stiffness, start_force, use * start_mu)
+        start_since = float(t_all[0]) if t_all.size else math.nan
     return probe_step(
         state,
         t_now,
@@ -570,6 +580,7 @@ def probe_update(
         start_bend=start_bend,
         start_mu=start_mu,
         fit_mu=fit_mu,
+        start_since_s=start_since,
     )
 
 

@@ -4,7 +4,9 @@ is handed (no pydrake).
 The fitter says what the data say (``ContextEstimate``: the estimate, its std, identifiable or
 not); these rules decide what the controller gets for it:
 
-* no fit yet: **unknown** (the unknown-context value, ``pcvfe_drake.handing.unknown``);
+* no fit yet: **unknown** (the unknown-context value, ``pcvfe_drake.handing.unknown``), or
+  with ``!Probe`` and a stated floor, once its visit is confirmed, **exploring** from its
+  first samples (``Handing.probes_before_fit``: the probe reads the tyres, not the fit);
 * identifiable: **identified**, handed its own estimate, also below the stated floor (the floor
   is an operator's guess, the fit a measurement), less the model error that grows away from the
   frictions the effect model was calibrated at (:class:`ModelError`), but never less than the
@@ -103,9 +105,9 @@ class ContextHanding:
 def context_state(estimate, probe: ProbeState) -> str:
     """The state of a context with the fitter's ``estimate`` (a ``ContextEstimate``) and its
     ``probe``."""
-    if not estimate.fitted:
+    if not estimate.fitted and not probe.started:
         return UNKNOWN
-    if estimate.identifiable:
+    if estimate.fitted and estimate.identifiable:
         return IDENTIFIED
     return BACKED_OFF if probe.backed_off else EXPLORING
 

@@ -150,8 +150,24 @@ class Handing:
     def _fitted_or_unknown(self, ident: int, fits: Mapping) -> np.ndarray:
         estimate = fits.get(ident)
         if estimate is None or not estimate.fitted:
-            return self.unknown(fits)
+            return self.unfitted_theta(ident, fits)
         return self.context_theta(estimate)
+
+    def probes_before_fit(self) -> bool:
+        """Whether a confirmed context is explored before its first fit: with ``!Probe`` and a
+        stated floor, where the data a context has before its fit were driven at the floor (or
+        at the level carried into it), so they are a level tried, and the probe's evidence
+        (bend ratios, slip angles, the friction used) reads the tyres without a fit."""
+        return self.config.probing and self.config.floor_stated
+
+    def unfitted_theta(self, ident: int, fits: Mapping) -> np.ndarray:
+        """The theta of context ``ident`` while it has no fit: its probe's level where it is
+        explored before its fit (:meth:`probes_before_fit`), with the prior's small-slip
+        stiffness as the unknown value keeps it; else the unknown value."""
+        state = self.contexts.get(ident)
+        if state is None or not state.probe.started or not self.probes_before_fit():
+            return self.unknown(fits)
+        return with_friction(self.prior_theta, state.probe.mu)
 
     def unknown(self, fits: Mapping) -> np.ndarray:
         """The theta while the terrain is unknown (``HandingConfig.unknown``), raised to the
@@ -207,22 +223,25 @@ class Handing:
 
     def update(self, t_now: float, fits: Mapping, store) -> None:
         """One step of the probes at ``t_now`` (``!Probe``): a fitted, not identifiable current
-        context raises, holds or backs off its level after checking its newest samples for
-        large slip angles and the current level's data for the tyres' bend ratio; with a stated
-        floor the unknown phase's level is probed too and carried into the context that ends
-        the phase where it was tried on it. ``store``: the estimator's sample store."""
+        context (with a stated floor also a confirmed one before its first fit:
+        :meth:`probes_before_fit`) raises, holds or backs off its level after checking its
+        newest samples for large slip angles and the current level's data for the tyres' bend
+        ratio; with a stated floor the unknown phase's level is probed too and carried into the
+        context that ends the phase where it was tried on it. ``store``: the estimator's
+        sample store."""
         if not self.config.probing:
             return
-        phase = self.config.floor_stated and self._update_unknown_probe(t_now, fits, store)
+        phase = self.config.floor_stated and self._update_unknown_probe(t_now, store)
         ident = self.visit.current
         estimate = fits.get(ident)
         carried, self.carried = self.carried, ProbeState()
         if phase:  # a fitted context not confirmed yet starts from the phase's level as it is
             carried = self.unknown_probe
-        if estimate is None or not estimate.fitted:
+        fitted = estimate is not None and estimate.fitted
+        if not fitted and not (self._confirmed(ident) and self.probes_before_fit()):
             return
         state = self._context(ident)
-        if estimate.identifiable:  # handed until the next update: note its level
+        if fitted and estimate.identifiable:  # handed until the next update: note its level
             mu = float(self.context_theta(estimate)[0])
             state.handed_fit_mu = (
                 mu if math.isnan(state.handed_fit_mu) else max(state.handed_fit_mu, mu)
@@ -239,6 +258,22 @@ class Handing:
             t, states, _ = store.rows(np.flatnonzero(mine & (times >= t0)))
             return t, states
 
+        if not fitted:  # before its first fit (probes_before_fit): the same rules and evidence,
+            # the friction its data used as the demonstrated bound, the prior's small-slip
+            # stiffness (the unknown value's) as what the car drove with, no fit's interval
+            t_all, s_all = since(-math.inf)
+            used = friction_used(t_all, s_all, lateral_only=True) if t_all.size else math.nan
+            state.probe = probe_update(
+                state.probe,
+                t_now,
+                self.probe_settings,
+                self.vehicle,
+                used,
+                self.unfitted_theta(ident, fits),
+                since,
+                self.prior_theta[0],
+            )
+            return
         hold_s = self.probe_settings.hold_s
         drove = math.nan  # an identified fit handed: for a hold after it the car's speed and
         if math.isfinite(state.handed_fit_mu):  # slips answer the fit's level, not the probe's
@@ -265,15 +300,18 @@ class Handing:
             fit_mu=target,
         )
 
-    def _update_unknown_probe(self, t_now: float, fits: Mapping, store) -> bool:
+    def _confirmed(self, ident: int) -> bool:
+        """``ident`` is a context whose visit is confirmed (reported for ``confirm_rise_s``)."""
+        return ident >= 0 and not self.visit.pending(ident)
+
+    def _update_unknown_probe(self, t_now: float, store) -> bool:
         """One step of the unknown phase's probe while the controller gets the unknown value
-        (no fitted context visited, or a switch not confirmed yet); at the
-        phase's end it is kept in ``carried`` for the context that ended it. Returns whether
-        the phase goes on."""
+        (no context visited, or a switch not confirmed yet; a confirmed context without a fit
+        ends the phase too where it is explored before its fit: :meth:`probes_before_fit`);
+        at the phase's end it is kept in ``carried`` for the context that ended it. Returns
+        whether the phase goes on."""
         ident = self.visit.visit()
-        estimate = fits.get(ident)
-        known = estimate is not None and estimate.fitted
-        if known and not self.visit.pending(ident):
+        if self._confirmed(ident):  # fitted or not: with a stated floor it is explored
             if self.unknown_probe.started:
                 self.carried, self.unknown_probe = self.unknown_probe, ProbeState()
             return False

@@ -660,6 +660,47 @@ def test_probe_takes_its_first_step_at_the_id_on_the_data_driven_at_the_floor():
     assert later.mu == pytest.approx(0.3) and later.steps == 0
 
 
+def test_a_probe_starting_at_the_level_already_driven_counts_it_from_then():
+    """A probe whose start level is the one the context's data were driven at (the stated floor)
+    holds it from the context's first sample, not from its own start, so the bends driven
+    there are its level's evidence; a start above that level is a new level, held from now."""
+    rules = {**RULES, "max_excess": 0.12, **FAST, "fast_step_rel": 0.4}
+
+    def start(lb, since_s):
+        return probe_step(
+            ProbeState(),
+            10.0,
+            lower_bound=lb,
+            floor_mu=0.3,
+            prior_mu=1.05,
+            is_saturated=False,
+            start_bend=float("nan"),  # no bend yet when it starts
+            start_mu=0.3,
+            start_since_s=since_s,
+            **rules,
+        )
+
+    def then(state, t_now):  # the level's data now hold a linear bend
+        return probe_step(
+            state,
+            t_now,
+            lower_bound=0.2,
+            floor_mu=0.3,
+            prior_mu=1.05,
+            is_saturated=False,
+            bend=1.0,
+            **rules,
+        )
+
+    driven = start(0.2, 6.0)
+    assert driven.mu == pytest.approx(0.3) and driven.last_step_s == 6.0
+    assert then(driven, 11.0).mu == pytest.approx(0.42)  # 5 s at the floor: a step at once
+    fresh = start(0.2, float("nan"))
+    assert fresh.last_step_s == 10.0 and then(fresh, 11.0) is fresh  # held from now
+    above = start(0.35, 6.0)  # the data used more than the floor: the start is a new level
+    assert above.mu == pytest.approx(0.35) and above.last_step_s == 10.0
+
+
 def test_estimator_starts_the_probe_on_the_bends_driven_before_the_id():
     params = ford_escort()
 
@@ -726,26 +767,93 @@ def test_the_unknown_phase_level_is_carried_into_the_context_it_was_tried_on():
     assert carried_probe(ProbeState(mu=0.3, last_step_s=0.0), np.array([3]), 3) is None
     backed = ProbeState(mu=0.3, ceiling=0.3, last_step_s=4.0, steps=1, backoffs=1)
     assert carried_probe(backed, np.array([3] * 10), 3) is None  # backed off: not carried
-    # the estimator: the phase's step, then the new context starts from it
+    # the estimator: the phase's step on noise frames; the terrain's samples join the context
+    # when it is named (eq. 5d) and the context starts from the phase's level
     params = ford_escort()
     est = ContextEstimator(params, probing(floor_stated=True, sample_period_s=0.01))
     t, x, _ = _mf_slalom(2.0, 0.2, seconds=8.0)
-    for now in range(9):  # a context named but not fitted yet: the unknown value
+    for now in range(9):
+        for ti, xi in zip(t, x, strict=True):
+            if now - 1 < ti <= now:
+                est.add_sample(float(ti), xi, [0, 0], [0 if ti > 5.0 else -1])
+        if now == 5:  # the re-clustering names the terrain: its noise samples join context 0
+            frames = np.arange(0.0, 5.0, 0.1)
+            est.relabel(frames, np.zeros(frames.size, int), 0.1, version=1)
+        est.update_probe(float(now))
+        if now == 5:  # one step while unknown (default fast step), not carried yet
+            assert est.theta_for()[0] == pytest.approx(0.3 * 1.25)
+            step_s = est.handing.unknown_probe.last_step_s
+    # named: the phase ends, the context starts at the phase's level, whose data since the
+    # phase's step (3 s, linear) give the next step at once; no fit needed
+    assert not est.handing.unknown_probe.started and _probe(est).steps == 2
+    assert _probe(est).last_step_s == 6.0 and step_s == 3.0
+    assert est.theta_for()[0] == pytest.approx(0.3 * 1.25**2)
+
+
+def _explore_unfitted(peak, seconds=7.0, **cfg):
+    """Context 0 driven on a slalom (friction peak ``peak``) from its first sample, with a
+    probe update every second and no fit; returns the estimator."""
+    est = ContextEstimator(ford_escort(), probing(sample_period_s=0.01, **cfg))
+    t, x, _ = _mf_slalom(peak, 0.2, seconds=seconds)
+    for now in range(int(seconds) + 1):
         for ti, xi in zip(t, x, strict=True):
             if now - 1 < ti <= now:
                 est.add_sample(float(ti), xi, [0, 0], [0])
         est.update_probe(float(now))
-    assert est.theta_for()[0] == pytest.approx(0.3 * 1.25)  # one step, default fast step
-    step_s = est.handing.unknown_probe.last_step_s
-    _first_fit(est, 1.0, 0.3)
-    # fitted: until its probe's next update it hands the phase's level, no dip to the floor
-    assert est.theta_for()[0] == pytest.approx(0.3 * 1.25)
-    # its fit ends the phase: the context starts at the phase's level, whose data since the
-    # phase's step (over 3 s, linear) give the next step at once
-    est.update_probe(8.5)
-    assert not est.handing.unknown_probe.started and _probe(est).steps == 2
-    assert est.theta_for()[0] == pytest.approx(0.3 * 1.25**2) and _probe(est).last_step_s == 8.5
-    assert 3.0 <= step_s <= 5.0
+    return est
+
+
+def test_a_confirmed_context_is_explored_before_its_first_fit():
+    """With a stated floor the data a context has before its first fit were driven at the floor,
+    and the probe's evidence reads the tyres, not the fit: a confirmed context climbs from its
+    first samples, by the same rules (a linear bend: a step per hold; a slide: a back-off, never
+    below the floor). Without a stated floor, or before the visit is confirmed, it gets the
+    unknown value until its fit."""
+    est = _explore_unfitted(2.0, floor_stated=True)
+    assert not est.fits()[0].fitted and est.handing_state(0) == "exploring"
+    assert _probe(est).steps == 2 and est.theta_for()[0] == pytest.approx(0.3 * 1.25**2)
+    assert est.theta_for(0)[0] == pytest.approx(0.3 * 1.25**2)
+    assert est.table().get(0).probe.steps == 2
+    prior = est.prior_theta  # the prior's small-slip stiffness mu * C_S is kept
+    theta = est.theta_for()
+    np.testing.assert_allclose(theta[0] * theta[1:], prior[0] * prior[1:])
+    # a peak below the floor: the slips back it off at once, never above the floor
+    low = _explore_unfitted(0.22, floor_stated=True)
+    assert _probe(low).backoffs >= 1 and _probe(low).steps == 0
+    assert low.theta_for()[0] == pytest.approx(0.3)
+    # without a stated floor: the unknown value until the first fit
+    conservative = _explore_unfitted(2.0)
+    assert 0 not in conservative.handing.contexts and conservative.handing_state(0) == "unknown"
+    assert conservative.theta_for()[0] <= 0.3
+    # a visit not confirmed (the rise confirmation never passes): not explored
+    est = ContextEstimator(ford_escort(), probing(floor_stated=True, sample_period_s=0.01))
+    est.handing.visit.confirm_s = 100.0
+    t, x, _ = _mf_slalom(2.0, 0.2, seconds=7.0)
+    for now in range(8):
+        for ti, xi in zip(t, x, strict=True):
+            if now - 1 < ti <= now:
+                est.add_sample(float(ti), xi, [0, 0], [0])
+        est.update_probe(float(now))
+    assert 0 not in est.handing.contexts and est.theta_for()[0] <= 0.3 * 1.25
+
+
+def test_the_first_fit_takes_over_the_level_explored_before_it():
+    """The first fit continues the probe where it is, capped by the fit's 95 % interval."""
+    est = _explore_unfitted(2.0, floor_stated=True)
+    level = 0.3 * 1.25**2
+    _first_fit(est, 1.0, 0.3)  # wide: the level as it is
+    assert est.theta_for()[0] == pytest.approx(level) and _probe(est).steps == 2
+    slot = _first_fit(est, 0.4, 0.3)
+    slot.estimate = replace(slot.estimate, theta_std=(0.02, np.nan, np.nan))
+    assert est.theta_for()[0] == pytest.approx(0.4 + 1.96 * 0.02)  # a tight fit caps it
+
+
+def test_a_renamed_context_keeps_the_level_explored_before_its_fit():
+    est = _explore_unfitted(2.0, floor_stated=True)
+    explored = _probe(est)
+    frames = np.arange(0.0, 7.01, 0.1)
+    est.relabel(frames, np.ones(frames.size, int), 0.1, version=1)  # all of context 0 -> 1
+    assert _probe(est, 1) == explored
 
 
 def test_a_back_off_after_an_identifiable_fit_is_judged_at_the_fit_level():
