@@ -14,22 +14,9 @@ from pcvfe_drake.runs.output_paths import write_failed
 MAPPINGS = ("lateral_peak", "peak_and_stiffness", "peak")
 
 CHECK_FRACTION = 0.3
-"""--simulate's first default check surface, as a fraction of the calibration surface's
-friction: a loose or wet surface (about a third of dry asphalt's grip)."""
-
-
-def default_check_mus(calibration_mu: float) -> list[float]:
-    """--simulate's default check surfaces [-], highest first: ``CHECK_FRACTION`` times the
-    calibration surface's friction, and the lowest friction the generated worlds draw
-    (``pcvfe_drake.worlds.generate.MU_RANGE``). The held constants are then checked down to
-    the bottom of the range the fitter is used on, so that no friction the tool's worlds hold
-    relies on an extrapolated model error; the middle check keeps the budget honest between
-    the two ends."""
-    from pcvfe_drake.worlds.generate import MU_RANGE
-
-    values = {round(CHECK_FRACTION * calibration_mu, 4), round(float(MU_RANGE[0]), 4)}
-    return sorted((v for v in values if v != round(calibration_mu, 4)), reverse=True)
-
+"""--simulate's default check surface, as a fraction of the calibration surface's friction: a
+loose or wet surface (about a third of dry asphalt's grip), the low end of what an off-road car
+meets, so that the held constants are checked across the range the fitter will use them on."""
 
 CHECK_SLOWDOWN = 5.0
 """The check drive may take this many times the wall time per simulated second that the
@@ -153,14 +140,11 @@ def register(subparsers) -> None:
     p.add_argument(
         "--check-mu",
         type=float,
-        nargs="+",
         default=None,
-        metavar="MU",
-        help="--simulate: frictions of further surfaces the programme is driven on, where the "
-        "calibrated model fits only mu; their largest offset from the known value joins the "
-        "model-error budget and the model counts as measured between the calibration surface "
-        f"and the lowest one driven (default {CHECK_FRACTION:g} x the calibration surface's "
-        "and the lowest friction the generated worlds draw; 0: no check)",
+        help="--simulate: friction of a second surface the programme is driven on, where the "
+        "calibrated model fits only mu; its offset from the known value joins the model-error "
+        f"budget and the model counts as measured between the two frictions (default "
+        f"{CHECK_FRACTION:g} x the calibration surface's; 0: no check)",
     )
     p.add_argument("--seed", type=int, default=0, help="--simulate: seed of the sensor noise")
     p.add_argument("--context-column", default=None, help="column with surface labels")
@@ -202,12 +186,10 @@ def run(args: argparse.Namespace) -> int:
     if args.check_mu is not None:
         if args.simulate is None:
             raise ValueError("--check-mu drives a second surface: it needs --simulate")
-        no_check = args.check_mu == [0.0]
-        for value in args.check_mu:
-            if not no_check and not (math.isfinite(value) and 0 < value <= 2):
-                raise ValueError(
-                    f"--check-mu must be frictions in (0, 2] or a single 0 (none), got {value}"
-                )
+        if not (math.isfinite(args.check_mu) and 0 <= args.check_mu <= 2):
+            raise ValueError(
+                f"--check-mu must be a friction in (0, 2] or 0 (none), got {args.check_mu}"
+            )
     report = _progress(not args.no_progress and not args.json)
     vehicle = args.simulate or args.vehicle
     params = load_vehicle(vehicle)
@@ -258,56 +240,53 @@ def run(args: argparse.Namespace) -> int:
     report(f"the workbench's loop on {data.n} samples ({data.t[-1] - data.t[0]:.0f} s)")
     result = calibrate(data, vehicle, params, k_s, progress=report)
     summary = result.summary()
-    checks = []
-    if args.simulate is not None and args.check_mu != [0.0]:
-        check_mus = default_check_mus(known_mu) if args.check_mu is None else args.check_mu
-        for check_mu in check_mus:
-            limit_s = check_drive_limit_s(
-                drive_wall_s,
-                programme_duration_s(programme(vehicle, known_mu)),
-                programme_duration_s(programme(vehicle, check_mu)),
+    check = None
+    if args.simulate is not None and (args.check_mu is None or args.check_mu > 0):
+        check_mu = CHECK_FRACTION * known_mu if args.check_mu is None else args.check_mu
+        limit_s = check_drive_limit_s(
+            drive_wall_s,
+            programme_duration_s(programme(vehicle, known_mu)),
+            programme_duration_s(programme(vehicle, check_mu)),
+        )
+        report(
+            f"driving the programme on the check surface: mu {check_mu:.3g} "
+            f"(at most {limit_s:.0f} s)"
+        )
+        last[0] = -1
+        try:
+            check_df = bounded_drive(
+                calibration_drive,
+                limit_s,
+                vehicle,
+                args.mapping,
+                check_mu,
+                seed=args.seed,
+                progress=drive_progress,
             )
-            report(
-                f"driving the programme on a check surface: mu {check_mu:.3g} "
-                f"(at most {limit_s:.0f} s)"
-            )
-            last[0] = -1
-            try:
-                check_df = bounded_drive(
-                    calibration_drive,
-                    limit_s,
-                    vehicle,
-                    args.mapping,
-                    check_mu,
-                    seed=args.seed,
-                    progress=drive_progress,
-                )
-            except (MbSingularity, FloatingPointError, RuntimeError) as exc:
-                # the multi-body truth cannot drive the programme there (the car spun or
-                # reversed out of the model, or it crawls: the bound): that surface is not
-                # checked (below the lowest checked one the model's error is extrapolated)
-                print(
-                    f"warning: the check surface (mu {check_mu:g}) could not be driven on the "
-                    f"multi-body truth ({type(exc).__name__}: {exc}); it is not checked",
-                    file=sys.stderr,
-                )
-                continue
-            checks.append(check_surface(check_df, keep, source, params, result.model, check_mu))
-        if checks:
-            result.model.checked_mu = min(check["mu_known"] for check in checks)
-        else:
+        except (MbSingularity, FloatingPointError, RuntimeError) as exc:
+            # the multi-body truth cannot drive the programme there (the car spun or reversed
+            # out of the model, or it crawls: the bound):
+            # the model is written without a check (its error is extrapolated below the
+            # calibration surface)
             print(
-                "warning: no check surface was driven: the model has no checked_mu", file=sys.stderr
+                f"warning: the check surface (mu {check_mu:g}) could not be driven on the "
+                f"multi-body truth ({type(exc).__name__}: {exc}); the model has no checked_mu",
+                file=sys.stderr,
             )
+            check_df = None
+        if check_df is not None:
+            check = check_surface(check_df, keep, source, params, result.model, check_mu)
+            result.model.checked_mu = round(float(check_mu), 4)
     if known_mu is not None:
         offsets = [abs(mu - known_mu) / known_mu for mu in result.surface_mu.values()]
-        offsets += [check["offset_rel"] for check in checks]
+        if check is not None:
+            offsets.append(check["offset_rel"])
         bias = max(offsets)
         budget = round((result.model.model_error_rel**2 + bias**2) ** 0.5, 4)
         result.model.model_error_rel = budget
         summary["surface_mu_known"] = float(known_mu)
-    if checks:
-        summary["check_surfaces"] = checks
+    if check is not None:
+        summary["check_surface"] = check
     summary["cpu_s"] = round(time.process_time() - cpu0, 1)
     summary["source"] = source
     out = {"vehicle": vehicle, **result.model.to_dict(), "calibration": summary}
@@ -365,7 +344,8 @@ def _print(vehicle: str, result, summary: dict) -> None:
     )
     known = summary.get("surface_mu_known")
     print(f"  surface mu (fitted) {surface}" + (f" (known {known:.4f})" if known else ""))
-    for check in summary.get("check_surfaces", []):
+    check = summary.get("check_surface")
+    if check:
         print(
             f"  check surface mu {check['mu_fitted']:.4f} (known {check['mu_known']:.4f}, "
             f"offset {100 * check['offset_rel']:.1f} %)"

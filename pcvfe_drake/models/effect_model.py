@@ -156,10 +156,10 @@ class EffectModel:
             makes on the car that no covariance of one context's data sees.
         calibrated_mu: the friction of the surface the model was calibrated on (None: not
             calibrated); fits far from it rely on the model beyond its calibration.
-        checked_mu: the lowest friction of the further surfaces where the held model was
-            checked (only mu fitted, each offset from the known friction inside
-            ``model_error_rel``; None: no check): between it and ``calibrated_mu`` the budget
-            was measured, beyond them it is extrapolated (``ModelError``).
+        checked_mu: the friction of a second surface where the held model was checked (only mu
+            fitted, its offset from the known friction inside ``model_error_rel``; None: no
+            check): between the two frictions the budget was measured, beyond them it is
+            extrapolated (``ModelError``).
     """
 
     file: str = ""

@@ -122,27 +122,6 @@ def test_calibrate_reads_only_what_a_car_measures(short_log, tmp_path, capsys, m
     assert seen["columns"] == list(REQUIRED_COLUMNS)
 
 
-def test_the_default_checks_reach_the_generated_worlds_lowest_friction():
-    """Checked down to the bottom of the generated worlds' range, and at the loose surface in
-    between; a surface the calibration itself drove is not checked again."""
-    from pcvfe_drake.commands.calibrate import CHECK_FRACTION, default_check_mus
-    from pcvfe_drake.worlds.generate import MU_RANGE
-
-    assert default_check_mus(1.0489) == [round(CHECK_FRACTION * 1.0489, 4), MU_RANGE[0]]
-    assert default_check_mus(0.5) == [MU_RANGE[0]]  # 0.3 x 0.5 is the lowest: one check
-    assert default_check_mus(MU_RANGE[0]) == [round(CHECK_FRACTION * MU_RANGE[0], 4)]
-
-
-def test_bad_check_mus_are_one_line_errors(capsys):
-    from pcvfe_drake.cli import main
-
-    argv = ["calibrate", "--simulate", "ford_escort", "--check-mu", "0.3", "0"]
-    assert main(argv) == 2
-    assert "--check-mu must be frictions in (0, 2] or a single 0 (none), got 0.0" in (
-        capsys.readouterr().err
-    )
-
-
 def test_check_mu_needs_the_simulated_programme(capsys):
     from pcvfe_drake.cli import main
 
@@ -195,7 +174,7 @@ def test_a_check_surface_the_truth_cannot_drive_is_a_warning(
 
     def drive(vehicle, mapping, mu, seed=0, progress=None):
         surfaces.append(mu)
-        if len(surfaces) > 1:
+        if len(surfaces) == 2:
             raise MbSingularity("wheel ground speed <= 0 (rear right -0.2 m/s)", np.zeros(29))
         return df
 
@@ -217,7 +196,6 @@ def test_a_check_surface_the_truth_cannot_drive_is_a_warning(
     assert "MbSingularity: multi-body truth singular: wheel ground speed" in err  # the child's
     check_mu = float(err.split("the check surface (mu ")[1].split(")")[0])
     assert check_mu == pytest.approx(0.3 * surfaces[0], rel=1e-4)
-    assert err.count("warning: the check surface") == 2  # and the generated worlds' lowest
     model = load_model_file(out)
     assert model.checked_mu is None and model.calibrated_mu is not None
 
@@ -241,7 +219,7 @@ def test_a_check_drive_past_its_bound_is_stopped_with_a_warning(
 
     def drive(vehicle, mapping, mu, seed=0, progress=None):
         calls.append(mu)
-        if len(calls) == 2:  # in a check drive's process (each check is its own process)
+        if len(calls) == 2:  # in the check drive's process
             time.sleep(60.0)
         time.sleep(0.02)
         return df
@@ -253,7 +231,7 @@ def test_a_check_drive_past_its_bound_is_stopped_with_a_warning(
     argv = ["calibrate", "--simulate", "ford_escort", "--mapping", "lateral_peak"]
     start = time.monotonic()
     assert main([*argv, "--out", str(out), "--no-progress"]) == 0
-    assert time.monotonic() - start < 30.0
+    assert time.monotonic() - start < 20.0
     err = capsys.readouterr().err
     assert "CheckDriveTimeout" in err and "ran past its bound" in err
     assert "the model has no checked_mu" in err
