@@ -359,17 +359,20 @@ class WorkbenchModel:
 
         The yaw/slip eigenvalues are about ``-mu C_S g max(1, m lf lr / I_z) / v`` (they grow
         like 1/v); the step keeps ``h |lambda| <= RK4_STABLE_HLAMBDA``. A tyre effect whose
-        small-slip stiffness is not ``mu C_S`` says so with ``stiffness_mu``, a
+        small-slip stiffness is not ``mu C_S`` says so with ``stiffness_mu``, which then sets
+        the step alone (the steepest slope of a tyre with a peak is at small slip, whatever
+        its peak: a peak far above the data's friction must not shrink the step), a
         ``cornering_stiffness`` hook with ``stiffness_factor`` (``eff``: the effects' parameter
         dicts).
         """
         vp = self.vehicle
         v_min = max(float(np.min(speeds)) if np.size(speeds) else 1.0, V_FLOOR_MPS)
-        mu = base["mu"]
+        own = None  # a tyre law's own small-slip stiffness replaces the linear tyre's mu C_S
         for e in self.effects if eff is not None else ():
             alt = e.stiffness_mu(base["mu"], vp, eff[e.name])
             if alt is not None:
-                mu = np.maximum(mu, alt)
+                own = alt if own is None else np.maximum(own, alt)
+        mu = base["mu"] if own is None else own
         for e in self.effects if eff is not None else ():
             factor = e.stiffness_factor(eff[e.name])
             if factor is not None:

@@ -56,6 +56,10 @@ def test_model_passes_the_base_mu_and_integrates_with_the_tyre_stiffness():
     base_lin, eff_lin = lin._unpack(np.array([[vp.mu]]), np.zeros(1, int))
     assert step_peak == pytest.approx(lin.stable_step(base_lin, np.array([5.0]), eff_lin))
     assert MF_SHAPE == pytest.approx(1.35)
+    # a peak far above the nominal friction at the same small-slip stiffness (the peak
+    # evidence's tyre "without a peak") integrates with the same step, not a 1000x smaller one
+    high, eff_high = model._unpack(np.array([[300.0, 0.0]]), np.zeros(1, int))
+    assert model.stable_step(high, np.array([5.0]), eff_high) == pytest.approx(step_peak)
 
 
 def test_planted_magic_formula_truth_matches_the_effect():
