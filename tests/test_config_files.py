@@ -32,3 +32,13 @@ def test_header_says_what_it_is_and_points_to_the_docs(path):
     assert "docs/" in "\n".join(header), f"{path.name}: the header names no doc"
     long = [b for b in comment_blocks(text) if len(b) > MAX_BLOCK]
     assert not long, f"{path.name}: a comment block of {len(long[0])} lines"
+
+
+DATA_FILES = sorted(p for p in DATA.rglob("*.yaml") if p not in FILES)
+
+
+@pytest.mark.parametrize("path", DATA_FILES, ids=lambda p: str(p.relative_to(DATA)))
+def test_other_shipped_data_files_hold_no_lab_notes(path):
+    """Worlds, courses, vehicles and the rest: data, with at most a short comment."""
+    long = [b for b in comment_blocks(path.read_text()) if len(b) > MAX_BLOCK]
+    assert not long, f"{path.name}: a comment block of {len(long[0])} lines"
