@@ -101,6 +101,16 @@ def check_control_priority(priority: int, setting: str) -> None:
         pass
 
 
+def real_time_permitted(priority: int = 1) -> bool:
+    """Whether this process may run a thread at ``SCHED_FIFO`` ``priority`` (root,
+    CAP_SYS_NICE or an rtprio limit, on Linux): a check that changes nothing."""
+    try:
+        check_control_priority(priority, "real-time priority")
+    except SchedulingError:
+        return False
+    return True
+
+
 def normal_scheduling() -> None:
     """Set the calling thread back to ``SCHED_OTHER`` if it inherited a real-time policy (the
     initializer of threads that a real-time loop starts, such as the refit worker)."""

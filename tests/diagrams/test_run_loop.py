@@ -16,6 +16,7 @@ from pcvfe_drake.diagrams import run_simulation as run_module
 from pcvfe_drake.diagrams.run_simulation import RunFolder, run_simulation
 from pcvfe_drake.diagrams.scenario_io import load_scenario
 from pcvfe_drake.diagrams.world_io import scenario_course
+from pcvfe_drake.hardware.scheduling import real_time_permitted
 from pcvfe_drake.runs.drivelog import read_drive_log
 from pcvfe_drake.runs.summary import summary_table
 
@@ -219,18 +220,9 @@ def test_a_car_braked_into_reverse_on_the_multibody_truth_is_a_scored_failure(
     assert "truth model singular" in summary_table(s)
 
 
-def _fifo_permitted() -> bool:
-    from pcvfe_drake.hardware.scheduling import SchedulingError, check_control_priority
-
-    try:
-        check_control_priority(1, "hardware.control_priority")
-    except SchedulingError:
-        return False
-    return True
-
-
 @pytest.mark.skipif(
-    not _fifo_permitted(), reason="SCHED_FIFO not permitted here (no root, CAP_SYS_NICE, rtprio)"
+    not real_time_permitted(),
+    reason="SCHED_FIFO not permitted here (no root, CAP_SYS_NICE, rtprio)",
 )
 def test_the_control_priority_holds_for_the_loop_thread_only_while_it_runs(tmp_path, monkeypatch):
     """``control_priority`` raises the thread that runs the loop (the NMPC's updates run on it at

@@ -16,22 +16,16 @@ from pcvfe_drake.hardware.scheduling import (
     control_priority,
     normal_scheduling,
     priority_problem,
+    real_time_permitted,
 )
 from pcvfe_drake.hardware.settings import HardwareSettings, hardware_problems
 
 SETTING = "hardware.control_priority"
 
 
-def fifo_permitted() -> bool:
-    try:
-        check_control_priority(1, SETTING)
-    except SchedulingError:
-        return False
-    return True
-
-
 needs_fifo = pytest.mark.skipif(
-    not fifo_permitted(), reason="SCHED_FIFO not permitted here (no root, CAP_SYS_NICE, rtprio)"
+    not real_time_permitted(),
+    reason="SCHED_FIFO not permitted here (no root, CAP_SYS_NICE, rtprio)",
 )
 
 

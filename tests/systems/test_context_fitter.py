@@ -17,11 +17,7 @@ from pydrake.trajectories import PiecewisePolynomial
 from pcvfe_drake.contexts.cluster_table import FrameLabels
 from pcvfe_drake.estimation.context_estimator import EstimateTable
 from pcvfe_drake.handing.config import HandingConfig
-from pcvfe_drake.hardware.scheduling import (
-    SchedulingError,
-    check_control_priority,
-    control_priority,
-)
+from pcvfe_drake.hardware.scheduling import control_priority, real_time_permitted
 from pcvfe_drake.models.synthetic_drive import s_curve_drive
 from pcvfe_drake.systems.context_fitter import ContextFitter
 from pcvfe_drake.vehicle.params import ford_escort
@@ -225,16 +221,8 @@ def _thread_ids() -> set[int]:
     return {int(tid) for tid in os.listdir("/proc/self/task")}
 
 
-def _fifo_permitted() -> bool:
-    try:
-        check_control_priority(1, "hardware.control_priority")
-    except SchedulingError:
-        return False
-    return True
-
-
 @pytest.mark.skipif(
-    not sys.platform.startswith("linux") or not _fifo_permitted(),
+    not sys.platform.startswith("linux") or not real_time_permitted(),
     reason="SCHED_FIFO not permitted here (no root, CAP_SYS_NICE or rtprio limit)",
 )
 def test_the_refit_worker_runs_at_ordinary_priority_beside_a_real_time_loop(params):
