@@ -69,13 +69,14 @@ LOGE2 = 0.6931471805599453
 """log(2), as numpy's ``logaddexp`` adds it for equal arguments."""
 
 
-def _jit(fn=None, inline="never"):
+def jit(fn=None, inline="never"):
     """Compiled with numba (IEEE arithmetic: no fast-math, numpy's error model), cached on
-    disk; the plain function without numba (then never called: the plan is None).
+    disk; the plain function without numba (the rollout then runs numpy, the synthetic plant
+    these functions uncompiled).
     ``inline="always"`` inlines it into its callers in numba's own IR: a call that passes
     arrays costs their reference counts, and LLVM does not inline a function this large."""
     if fn is None:
-        return lambda f: _jit(f, inline)
+        return lambda f: jit(f, inline)
     if numba is None:
         return fn
     return numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=False, inline=inline)(
@@ -83,19 +84,19 @@ def _jit(fn=None, inline="never"):
     )
 
 
-@_jit
+@jit
 def _maximum(a, b):
     """np.maximum of two floats (NaN propagates: a diverged rollout stays NaN, as in numpy)."""
     return a if (a >= b or a != a) else b
 
 
-@_jit
+@jit
 def _minimum(a, b):
     """np.minimum of two floats (NaN propagates)."""
     return a if (a <= b or a != a) else b
 
 
-@_jit
+@jit
 def _sign(x):
     """np.sign of a float (0 at 0, NaN at NaN)."""
     if x > 0.0:
@@ -105,7 +106,7 @@ def _sign(x):
     return x  # 0.0 or NaN
 
 
-@_jit
+@jit
 def _logaddexp0(y):
     """np.logaddexp(0.0, y), as numpy's ``npy_logaddexp`` forms it."""
     if y == 0.0:
@@ -118,12 +119,12 @@ def _logaddexp0(y):
     return tmp
 
 
-@_jit
+@jit
 def _d_atan2(w, dw, u, du):
     return (u * dw - w * du) / (u * u + w * w)
 
 
-@_jit
+@jit
 def _peak_law(alpha, d_alpha, peak, d_peak, stiff, d_stiff, shape, tg):
     """peak_tyre's magic formula at slip ``alpha`` and its derivative (``tg``: else 0)."""
     shape_peak = shape * peak
@@ -136,7 +137,7 @@ def _peak_law(alpha, d_alpha, peak, d_peak, stiff, d_stiff, shape, tg):
     return force, d_peak * math.sin(angle) + peak * math.cos(angle) * shape * dx / (1 + x * x)
 
 
-@_jit
+@jit
 def _brush_law(alpha, d_alpha, c_alpha, d_c_alpha, f_max, d_f_max, tg):
     """tire_saturation's brush law at slip ``alpha`` (peak ``f_max``) and its derivative
     (``tg``: else 0)."""
@@ -152,7 +153,7 @@ def _brush_law(alpha, d_alpha, c_alpha, d_c_alpha, f_max, d_f_max, tg):
     return 3.0 * f_max * bracket, 3.0 * d_f_max * bracket + 3.0 * f_max * d_bracket
 
 
-@_jit
+@jit
 def _law(code, alpha, d_alpha, c_alpha, d_c_alpha, t0, t1, t2, t3, shape, tg):
     """The axle's law at slip ``alpha``: the tyre effect's (``code``; ``t0``-``t3`` its peak
     and stiffness with their derivatives), or the linear law (code -1)."""
@@ -163,7 +164,7 @@ def _law(code, alpha, d_alpha, c_alpha, d_c_alpha, t0, t1, t2, t3, shape, tg):
     return c_alpha * alpha, d_c_alpha * alpha + c_alpha * d_alpha
 
 
-@_jit
+@jit
 def _camber_signs(a_roll, d_roll, a_x, d_x, k_x, width, tg):
     """wheel_camber's smooth signs (left, right) and their derivatives (``tg``: else 0)."""
     left = math.tanh((a_roll + k_x * a_x) / width)
@@ -175,7 +176,7 @@ def _camber_signs(a_roll, d_roll, a_x, d_x, k_x, width, tg):
     return left, right, d_left, d_right
 
 
-@_jit(inline="always")
+@jit(inline="always")
 def _axle_force(
     front, fz, dfz, alpha, d_alpha, c_s, mu, dmu, z, dz, vv, q, chains, col, off, sh, tg
 ):
@@ -304,7 +305,7 @@ def _axle_force(
     return fy, dfy
 
 
-@_jit(inline="always")
+@jit(inline="always")
 def _rhs(z, dz, u0, u1, vv, mu, dmu, c_sf, c_sr, q, chains, col, off, sh, K, D, st, tg):
     """One evaluation of the right-hand side for one row into ``K[st]`` (nz,), and its
     derivative along mu into ``D[st]`` for a state whose derivative along mu is ``dz`` and a mu
@@ -479,7 +480,7 @@ def _rhs(z, dz, u0, u1, vv, mu, dmu, c_sf, c_sr, q, chains, col, off, sh, K, D, 
         D[st, s] = ((d_fyf + d_fyr) / m - dz[s]) / tau
 
 
-@_jit
+@jit
 def _lag_at(s0, ds0, start, d_start, stage, d_stage, offset, tau):
     """steering_lag's state ``offset`` seconds into a step that starts at ``s0`` with the
     angle ``start`` and reaches ``stage`` (``SteeringLag.states_at``), and its derivative."""
@@ -496,7 +497,7 @@ def _lag_at(s0, ds0, start, d_start, stage, d_stage, offset, tau):
     return stage + e, d_stage + de
 
 
-@_jit
+@jit
 def rollout_rows(Z, S, U, substeps, h, vv, mu, dmu, c_sf, c_sr, params, chains, col, off):
     """RK4 as WorkbenchModel.simulate's loop, one row after the other; with ``S`` (N,
     horizon + 1, 7) the ST states' derivatives along mu (``S[:, 0]`` given; ``dmu`` (N,) the

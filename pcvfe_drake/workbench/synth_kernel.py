@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from pcvfe_drake.models.compiled_kernel import numba
+from pcvfe_drake.models.compiled_kernel import jit
 from pcvfe_drake.models.effects import RHO_AIR_KGPM3
 
 TRUTH_COLUMNS = (
@@ -85,21 +85,13 @@ VEHICLE_FIELDS = (
 """The ``VehicleParams`` fields the plant reads, in the order of ``vv``."""
 
 
-def _jit(fn):
-    """Compiled as :mod:`pcvfe_drake.models.compiled_kernel`'s functions are (no fast-math,
-    cached on disk); the plain function without numba."""
-    if numba is None:  # pragma: no cover - exercised only without numba
-        return fn
-    return numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=False)(fn)
-
-
-@_jit
+@jit
 def _clip(x, lo, hi):
     """np.clip of a float."""
     return min(max(x, lo), hi)
 
 
-@_jit
+@jit
 def _brush(alpha, fz, c_alpha, mu_peak):
     """Lateral brush-tyre force [N]; linear where ``mu_peak`` is not finite."""
     if not math.isfinite(mu_peak):
@@ -115,7 +107,7 @@ def _brush(alpha, fz, c_alpha, mu_peak):
     return f_max * (1.0 if alpha > 0.0 else (-1.0 if alpha < 0.0 else 0.0))
 
 
-@_jit
+@jit
 def _axle(alpha, fz, mu_axle, c_s, peak_axle, q):
     """One axle's (or wheel's) lateral force [N]: the magic formula where the truth has one,
     else the brush tyre (linear without a peak)."""
@@ -128,7 +120,7 @@ def _axle(alpha, fz, mu_axle, c_s, peak_axle, q):
     return d * math.sin(shape * math.atan(stiffness * alpha / (shape * d)))
 
 
-@_jit
+@jit
 def rates(s, out, steer_cmd, acc_cmd, q, vv):
     """The truth plant's derivative of one state row ``s`` into ``out`` (same length), under
     the commands ``[steer_cmd rad/s, acc_cmd m/s^2]`` (``synth._truth_rates``)."""
@@ -233,14 +225,14 @@ def rates(s, out, steer_cmd, acc_cmd, q, vv):
         out[10] = ((fyf + fyr) / m - a_roll) / max(q[WCAM_TAU], 1e-6)
 
 
-@_jit
+@jit
 def rates_rows(S, steer, acc, Q, vv, out):
     """:func:`rates` of every row of ``S`` (rows of ``Q`` its parameters) into ``out``."""
     for i in range(S.shape[0]):
         rates(S[i], out[i], steer[i], acc[i], Q[i], vv)
 
 
-@_jit
+@jit
 def _delayed(acc_log, i, k, t, delay, dt):
     """Row ``i``'s acceleration command at time ``t`` [s] through its dead time: the command
     logged at the last sample at or before ``t - delay``, at most sample ``k``."""
@@ -248,7 +240,7 @@ def _delayed(acc_log, i, k, t, delay, dt):
     return acc_log[min(max(idx, 0), k), i]
 
 
-@_jit
+@jit
 def advance(S, Q, vv, steer, acc_log, delay, k, dt, substeps):
     """Advance every row of ``S`` in place from sample ``k`` to ``k + 1`` (``dt`` [s]) by
     ``substeps`` RK4 steps, the steering rate ``steer[i]`` held and the acceleration command
