@@ -59,6 +59,7 @@ from pcvfe_drake.contexts.density_gate import (
     full_hdbscan_labels,
     hdbscan_labels,
 )
+from pcvfe_drake.shallow_copy import copied_generator, shallow_copy
 
 __all__ = [
     "MAX_ABS_FEATURE",
@@ -122,6 +123,19 @@ class ContextClusterer:
         self._visit_seen_s = -math.inf  # when the visit's context was last reported
         # Assignment index: stored members of the active contexts and their gates.
         self._index = GateIndex(np.zeros((0, 1)), np.zeros(0, dtype=int), self.params)
+
+    def __deepcopy__(self, memo) -> ContextClusterer:
+        # An independent clusterer, copying only what its methods write into: the store's
+        # arrays (written row by row), the records (their fields are updated), the counts and
+        # the random generator. The parameters and the gate index are never written (the index
+        # is rebuilt whole), so the copies share them.
+        other = shallow_copy(self)
+        for name in ("_x", "_t", "_w", "_label", "_used"):
+            setattr(other, name, getattr(self, name).copy())
+        other._count = dict(self._count)
+        other._records = {k: shallow_copy(r) for k, r in self._records.items()}
+        other._rng = copied_generator(self._rng)
+        return other
 
     # ----------------------------------------------------------------------------------------
     # Properties

@@ -55,6 +55,7 @@ from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 from pcvfe_drake.estimation.probe import DEFAULT_PROBE_USE_FRACTION, wheel_peak_share
 from pcvfe_drake.estimation.sample_store import NOISE, SampleStore, labels_from_frames
 from pcvfe_drake.handing.handing import Handing
+from pcvfe_drake.shallow_copy import shallow_copy
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import NU, NX
 
@@ -157,8 +158,8 @@ class ContextEstimator:
             )
 
     def __deepcopy__(self, memo) -> ContextEstimator:
-        other = copy.copy(self)
-        other._slots = {k: copy.copy(v) for k, v in self._slots.items()}
+        other = shallow_copy(self)
+        other._slots = {k: shallow_copy(v) for k, v in self._slots.items()}
         other.handing = copy.deepcopy(self.handing, memo)
         other._store = copy.deepcopy(self._store, memo)
         return other

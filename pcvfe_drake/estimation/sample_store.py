@@ -16,10 +16,9 @@ Core: numpy only.
 
 from __future__ import annotations
 
-import copy
-
 import numpy as np
 
+from pcvfe_drake.shallow_copy import shallow_copy
 from pcvfe_drake.vehicle.single_track import NU, NX
 
 ROW = 1 + NX + NU
@@ -139,7 +138,7 @@ class SampleStore:
         return dropped
 
     def __deepcopy__(self, memo) -> SampleStore:
-        other = copy.copy(self)
+        other = shallow_copy(self)
         other._tail = self._tail.copy()
         other._tail_labels = self._tail_labels.copy()
         return other

@@ -43,6 +43,7 @@ from pcvfe_drake.handing.context_state import (
 )
 from pcvfe_drake.handing.unknown import unknown_theta, with_friction
 from pcvfe_drake.handing.visit_tracker import VisitTracker
+from pcvfe_drake.shallow_copy import shallow_copy
 
 CARRY_SHARE = 0.8
 """The unknown phase's level is carried into a context only when this share of the level's
@@ -100,9 +101,9 @@ class Handing:
         )
 
     def __deepcopy__(self, memo) -> Handing:
-        other = copy.copy(self)
-        other.visit = copy.copy(self.visit)
-        other.contexts = {k: copy.copy(v) for k, v in self.contexts.items()}
+        other = shallow_copy(self)
+        other.visit = shallow_copy(self.visit)
+        other.contexts = {k: shallow_copy(v) for k, v in self.contexts.items()}
         return other
 
     def _context(self, ident: int) -> ContextHanding:

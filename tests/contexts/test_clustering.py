@@ -209,6 +209,39 @@ def test_unseen_terrain_is_noise_and_copies_are_independent():
     assert clusterer.table().record(0).last_seen_s < 200.0
 
 
+def _rows(table) -> list[tuple]:
+    return [
+        (*tuple(r.centroid), r.size, r.first_seen_s, r.last_seen_s, r.active, r.radius)
+        for r in table.records
+    ]
+
+
+def test_a_copy_goes_on_exactly_as_the_original_and_shares_nothing_written():
+    """The clusterer's own ``__deepcopy__`` copies only what its methods write into: a copy fed
+    the same frames gives the same ids, tables and store as the original, and frames fed to one
+    (through the store's reservoir draws and re-clusterings) leave the other as it was."""
+    stream = synthetic_feature_stream(n_laps=2, late_terrain_from_lap=1, seed=5)
+    params = ClusteringParams(max_stored=300)  # a full store: the reservoir draws at random
+    clusterer = ContextClusterer(params)
+    half = len(stream.t_s) // 2
+    for i, (t, z) in enumerate(zip(stream.t_s[:half], stream.z[:half], strict=True)):
+        clusterer.assign_frame(z, t)
+        if i % 100 == 99:
+            clusterer.recluster(t)
+    twin = copy.deepcopy(clusterer)
+    frozen = copy.deepcopy(clusterer)
+    snapshot = (frozen._x.copy(), frozen._label.copy(), _rows(frozen.table()))
+    for i, (t, z) in enumerate(zip(stream.t_s[half:], stream.z[half:], strict=True)):
+        assert twin.assign_frame(z, t) == clusterer.assign_frame(z, t)
+        if i % 100 == 99:
+            assert _rows(twin.recluster(t)) == _rows(clusterer.recluster(t))
+    assert np.array_equal(twin._x, clusterer._x) and np.array_equal(twin._w, clusterer._w)
+    assert _rows(twin.table()) == _rows(clusterer.table())
+    assert np.array_equal(frozen._x, snapshot[0]) and np.array_equal(frozen._label, snapshot[1])
+    assert _rows(frozen.table()) == snapshot[2] != _rows(clusterer.table())
+    assert frozen.n_frames == half
+
+
 def test_bad_input_is_reported():
     clusterer = ContextClusterer()
     clusterer.assign(np.zeros(5), 0.0)
