@@ -272,9 +272,10 @@ def _pure_longitudinal(slip, gamma, fz, pv):
     d_x = mu_x * fz
     e_x = pv[P_EX1]
     k_x = fz * pv[P_KX1]
-    b_x = k_x / (c_x * d_x)
+    den = c_x * d_x
+    b_x = k_x / den if den != 0.0 else math.nan  # (uncompiled Python would raise at 0)
     bk = b_x * kappa_x
-    return d_x * math.sin(c_x * math.atan(bk - e_x * (bk - math.atan(bk))) + s_vx), c_x * d_x
+    return d_x * math.sin(c_x * math.atan(bk - e_x * (bk - math.atan(bk))) + s_vx), den
 
 
 @jit(inline="always")
@@ -291,10 +292,11 @@ def _pure_lateral(alpha, gamma, fz, pv):
     d_y = mu_y * fz
     e_y = pv[P_EY1]
     k_y = fz * pv[P_KY1]
-    b_y = k_y / (c_y * d_y)
+    den = c_y * d_y
+    b_y = k_y / den if den != 0.0 else math.nan
     ba = b_y * alpha_y
     f_y = d_y * math.sin(c_y * math.atan(ba - e_y * (ba - math.atan(ba)))) + s_vy
-    return f_y, mu_y, c_y * d_y
+    return f_y, mu_y, den
 
 
 @jit(inline="always")
