@@ -43,8 +43,9 @@ class VehiclePlant(LeafSystem):
         C_Sf,
         C_Sr]; continuous state (7); any Drake integrator works (the default error-controlled
         RK3 is the fast choice).
-        ``"mb"``: ``vehiclemodels.vehicle_dynamics_mb`` through :class:`MbTruth`, tire friction
-        scaled to the mu under the car. Two state realisations (``mb_integration``):
+        ``"mb"``: ``vehiclemodels.vehicle_dynamics_mb`` through :class:`MbTruth` (its compiled
+        transcription, ``pcvfe_drake.vehicle.mb_kernel``), tire friction scaled to the mu under
+        the car. Two state realisations (``mb_integration``):
 
         * ``"continuous"`` (default): 29 continuous states, integrated by the simulator's
           integrator (Drake's default error-controlled RK3 is the recommended one).
@@ -129,11 +130,11 @@ class VehiclePlant(LeafSystem):
             state_ticket = self.xc_ticket()
         else:
             self.mb = MbTruth(mb_vehicle or self.params.name, friction_scaling)
-            # Tire parameter sets per terrain (index -1: no map, params.mu), built once.
-            self._mb_params = {-1: self.mb.parameters_for_mu(self.params.mu)}
+            # Parameter vectors per terrain (index -1: no map, params.mu), built once.
+            self._mb_params = {-1: self.mb.parameter_vector_for_mu(self.params.mu)}
             if terrain_map is not None:
                 for k, terrain in enumerate(terrain_map.terrains):
-                    self._mb_params[k] = self.mb.parameters_for_mu(terrain.mu)
+                    self._mb_params[k] = self.mb.parameter_vector_for_mu(terrain.mu)
             self._x0 = self.mb.initial_state(x0)
             if mb_integration == "continuous":
                 self._state_index = None
@@ -186,16 +187,16 @@ class VehiclePlant(LeafSystem):
         mu, k = self.terrain_map.mu_and_index_at(x[:2])
         return float(mu), int(k)
 
-    def _mb_parameters(self, mu: float, k: int):
-        """The multi-body tire parameters for friction ``mu`` on terrain ``k``: the terrain's
-        set, built once, unless the terrain's mu varies in space (then one set per 0.005 of
-        mu, cached)."""
+    def _mb_parameters(self, mu: float, k: int) -> np.ndarray:
+        """The multi-body parameter vector (``MbTruth.parameter_vector_for_mu``) for friction
+        ``mu`` on terrain ``k``: the terrain's, built once, unless the terrain's mu varies in
+        space (then one per 0.005 of mu, cached)."""
         if k < 0 or self.terrain_map.mu_fields[k] is None:
             return self._mb_params[k]
         key = ("mu", round(mu / 0.005))
         params = self._mb_params.get(key)
         if params is None:
-            params = self._mb_params[key] = self.mb.parameters_for_mu(key[1] * 0.005)
+            params = self._mb_params[key] = self.mb.parameter_vector_for_mu(key[1] * 0.005)
         return params
 
     def _raw_state(self, context) -> np.ndarray:
@@ -227,10 +228,11 @@ class VehiclePlant(LeafSystem):
         else:
             mu, k = self._mu_index(x)
             try:
-                xdot = self.mb.rhs(x.tolist(), u.tolist(), self._mb_parameters(mu, k))
+                xdot = self.mb.rhs(x, u, self._mb_parameters(mu, k))
             except MbSingularity as exc:
                 raise exc.at(context.get_time()) from exc
-            if not np.all(np.isfinite(xdot)):
+            # a finite sum has only finite terms; the exact test only where the sum is not
+            if not math.isfinite(xdot.sum()) and not np.isfinite(xdot).all():
                 raise ValueError(
                     f"VehiclePlant: MB derivatives are not finite at t = {context.get_time():.4f} "
                     f"s (state {x.tolist()}, input {u.tolist()})"

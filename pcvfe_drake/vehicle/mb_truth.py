@@ -2,7 +2,10 @@
 
 The MB model of the ``vehiclemodels`` package (``vehicle_dynamics_mb``: 29 states, sprung and
 unsprung masses, suspension, Pacejka magic-formula tires with combined slip, load transfer, wheel
-spin) is wrapped here with three additions:
+spin) is wrapped here with the additions below. Its derivative is evaluated by a compiled
+transcription of the package's equations (``pcvfe_drake.vehicle.mb_kernel``: the package's
+Python costs most of a simulation's time), which gives the package's numbers bit for bit; the
+package stays the reference the tests compare it with.
 
 * **Friction per terrain.** The package's tire has one friction level: the peak factors
   ``p_dy1`` (lateral, 1.0489 for the Ford Escort) and ``p_dx1`` (longitudinal, 1.1739). For a
@@ -31,7 +34,7 @@ spin) is wrapped here with three additions:
 * **Wheel speeds >= 0.** The package zeroes the derivative of a negative wheel speed; an
   integrator stage that overshoots below 0 then leaves the wheel locked for good (from rest,
   LSODA and Drake's RK3 both ended at 0.37 m/s instead of 2.0 m/s after 1 s at 2 m/s^2).
-  :meth:`MbTruth.rhs` evaluates the package at ``max(omega, 0)`` instead, which spins such a
+  :meth:`MbTruth.rhs` evaluates the model at ``max(omega, 0)`` instead, which spins such a
   wheel up again.
 
 * **Where the model ends.** The package divides by each wheel's ground speed (the speed of the
@@ -40,17 +43,18 @@ spin) is wrapped here with three additions:
   ("negative wheel spin forbidden"): the model is defined for a car rolling forward on all four
   wheels. A car that reverses (``v_x <= -0.1`` m/s) or spins so far that a wheel moves backwards
   or sideways over the ground (``u_w <= 0``) has left it, and no integrator can go on.
-  :meth:`MbTruth.rhs` raises :class:`MbSingularity` there (the package's ``ZeroDivisionError``
-  with the wheels' ground speeds named); the run loop scores it as the catastrophic failure
-  ``truth_singular`` (``pcvfe_drake.control.failure``). The speeds are not clamped: a car in that
-  state has already failed, and a clamp would invent tire forces the model does not define.
+  :meth:`MbTruth.rhs` raises :class:`MbSingularity` there (where the package raises
+  ``ZeroDivisionError``; with the wheels' ground speeds named); the run loop scores it as the
+  catastrophic failure ``truth_singular`` (``pcvfe_drake.control.failure``). The speeds are not
+  clamped: a car in that state has already failed, and a clamp would invent tire forces the
+  model does not define.
 
 The package's model switches to kinematic equations below ``|v_x| = 0.1`` m/s and its wheel
 slip becomes very stiff at low speed (eigenvalues ~ -47000 1/s at 0.1 m/s), so driving from rest
-is slow to integrate (about real time); the model is meant for driving at speed.
+takes an error-controlled integrator many small steps; the model is meant for driving at speed.
 
-The inputs are the single-track ones, ``u = [steer_rate rad/s, accel m/s^2]``; the package applies
-its steering and acceleration constraints itself.
+The inputs are the single-track ones, ``u = [steer_rate rad/s, accel m/s^2]``; the model applies
+the package's steering and acceleration constraints itself.
 """
 
 from __future__ import annotations
@@ -61,7 +65,9 @@ import math
 import numpy as np
 from scipy.integrate import solve_ivp
 from vehiclemodels.init_mb import init_mb
-from vehiclemodels.vehicle_dynamics_mb import vehicle_dynamics_mb
+
+from pcvfe_drake.vehicle import mb_kernel
+from pcvfe_drake.vehicle.mb_kernel import SINGULAR, mb_derivative, mb_parameter_vector
 
 NX_MB = 29
 """Number of MB states."""
@@ -72,7 +78,7 @@ WHEEL_SPEEDS = slice(23, 27)
 
 WHEELS = ("front left", "front right", "rear left", "rear right")
 """The wheels in the package's order (wheel speeds ``x[23:27]``)."""
-KINEMATIC_BELOW_MPS = 0.1
+KINEMATIC_BELOW_MPS = mb_kernel.KINEMATIC_BELOW_MPS
 """Below this ``|v_x|`` [m/s] the package uses kinematic equations (no slip, no division)."""
 
 FRICTION_SCALINGS = ("peak_and_stiffness", "peak", "lateral_peak")
@@ -136,25 +142,35 @@ class MbSingularity(ArithmeticError):
         return f"multi-body truth singular{when}: {self.detail}"
 
 
+def _track_geometry(p) -> tuple[float, float, float]:
+    """``(a, T_f, T_r)`` [m] of a parameter set or of its vector (``mb_parameter_vector``)."""
+    if isinstance(p, np.ndarray):
+        return float(p[mb_kernel.A]), float(p[mb_kernel.T_F]), float(p[mb_kernel.T_R])
+    return p.a, p.T_f, p.T_r
+
+
 def wheel_ground_speeds(x, p) -> np.ndarray:
     """The four wheels' ground speeds ``u_w`` [m/s] (``WHEELS`` order) of an MB state ``x``
-    under parameters ``p``, before the package sets negative ones to 0 (its own formulas)."""
+    under parameters ``p`` (a parameter set or its vector), before the package sets negative
+    ones to 0 (its own formulas)."""
     x = np.asarray(x, dtype=float)
+    a, t_f, t_r = _track_geometry(p)
     cos_d, sin_d = math.cos(x[2]), math.sin(x[2])
-    lateral_front = (x[VY] + p.a * x[5]) * sin_d
+    lateral_front = (x[VY] + a * x[5]) * sin_d
     return np.array(
         [
-            (x[VX] + 0.5 * p.T_f * x[5]) * cos_d + lateral_front,
-            (x[VX] - 0.5 * p.T_f * x[5]) * cos_d + lateral_front,
-            x[VX] + 0.5 * p.T_r * x[5],
-            x[VX] - 0.5 * p.T_r * x[5],
+            (x[VX] + 0.5 * t_f * x[5]) * cos_d + lateral_front,
+            (x[VX] - 0.5 * t_f * x[5]) * cos_d + lateral_front,
+            x[VX] + 0.5 * t_r * x[5],
+            x[VX] - 0.5 * t_r * x[5],
         ]
     )
 
 
 def singularity_detail(x, p) -> str:
-    """Why the model is singular at MB state ``x``: the wheels whose ground speed is <= 0 and the
-    car's ``v_x`` and yaw rate ("" where it is not singular)."""
+    """Why the model is singular at MB state ``x`` under parameters ``p`` (a parameter set or
+    its vector): the wheels whose ground speed is <= 0 and the car's ``v_x`` and yaw rate (""
+    where it is not singular)."""
     x = np.asarray(x, dtype=float)
     if abs(x[VX]) < KINEMATIC_BELOW_MPS:
         return ""
@@ -196,6 +212,7 @@ class MbTruth:
         self.base_parameters = commonroad_parameters(vehicle)
         self.mu_nominal = float(self.base_parameters.tire.p_dy1)
         self._by_mu: dict[float, object] = {}
+        self._vector_by_mu: dict[float, np.ndarray] = {}
 
     def parameters_for_mu(self, mu: float):
         """The CommonRoad parameter set with the tire friction scaled to ``mu`` (cached)."""
@@ -213,6 +230,15 @@ class MbTruth:
                 p.tire.p_kx1 = base.p_kx1 * s
             self._by_mu[mu] = p
         return p
+
+    def parameter_vector_for_mu(self, mu: float) -> np.ndarray:
+        """The parameter vector (``mb_kernel.mb_parameter_vector``) of
+        :meth:`parameters_for_mu`'s set, what :meth:`rhs` evaluates fastest (cached)."""
+        mu = _check_mu(mu)
+        pv = self._vector_by_mu.get(mu)
+        if pv is None:
+            pv = self._vector_by_mu[mu] = mb_parameter_vector(self.parameters_for_mu(mu))
+        return pv
 
     def initial_state(self, x_st) -> np.ndarray:
         """MB state (29,) from a single-track state [sx, sy, delta, v, psi, psi_dot, beta]
@@ -234,25 +260,41 @@ class MbTruth:
             raise ValueError(f"MB state is not finite: entries {np.flatnonzero(~np.isfinite(x))}")
         if not np.all(np.isfinite(u)):
             raise ValueError(f"input [steer_rate, accel] = {u.tolist()} is not finite")
-        return self.rhs(x.tolist(), u.tolist(), self.parameters_for_mu(mu))
+        return self.rhs(x, u, self.parameter_vector_for_mu(mu))
 
     @staticmethod
-    def rhs(x: list, u: list, p) -> np.ndarray:
-        """Unchecked fast path: derivative for a state list (modified in place), an input list
-        and a parameter set from :meth:`parameters_for_mu` (the caller has validated them).
+    def rhs(x, u, p) -> np.ndarray:
+        """Unchecked fast path: the derivative (29,) at an MB state ``x`` (array or list; not
+        changed), an input ``u = [steer_rate, accel]`` and parameters ``p``: the vector of
+        :meth:`parameter_vector_for_mu` (fastest), or a parameter set from
+        :meth:`parameters_for_mu` (converted on each call). The caller has validated them.
         Raises :class:`MbSingularity` where the model ends (module docstring)."""
-        # Wheel speeds are evaluated at max(omega, 0). The package itself zeroes the derivative
-        # of a negative wheel speed, which lets a wheel that an integrator stage pushed below 0
-        # stay there, locked, for ever (seen from rest with Drake's RK3 and with LSODA); at 0 the
-        # package's derivative is the physical one and spins the wheel up again.
-        for i in range(23, 27):
-            if x[i] < 0.0:
-                x[i] = 0.0
-        try:
-            return np.array(vehicle_dynamics_mb(x, u, p), dtype=float)
-        except ZeroDivisionError as exc:
-            detail = singularity_detail(x, p) or f"the package divided by zero ({exc})"
-            raise MbSingularity(detail, x) from exc
+        # Wheel speeds are evaluated at max(omega, 0) (in the kernel). The package itself zeroes
+        # the derivative of a negative wheel speed, which lets a wheel that an integrator stage
+        # pushed below 0 stay there, locked, for ever (seen from rest with Drake's RK3 and with
+        # LSODA); at 0 the package's derivative is the physical one and spins the wheel up again.
+        pv = p if isinstance(p, np.ndarray) else mb_parameter_vector(p)
+        if not (
+            type(x) is np.ndarray
+            and x.dtype == np.float64
+            and x.flags.c_contiguous
+            and x.flags.writeable
+        ):  # one array type for the compiled kernel: no second compilation
+            x = np.array(x, dtype=np.float64)
+        if x.shape != (NX_MB,) or pv.shape != (len(mb_kernel.MB_PARAMETER_FIELDS),):
+            raise ValueError(
+                f"MbTruth.rhs: state of shape {x.shape} (want ({NX_MB},)) or parameter vector "
+                f"of shape {pv.shape} (want ({len(mb_kernel.MB_PARAMETER_FIELDS)},))"
+            )
+        out = np.empty(NX_MB)
+        code = mb_derivative(x, float(u[0]), float(u[1]), pv, out)
+        if code:
+            x = x.copy()
+            wheels = x[WHEEL_SPEEDS]
+            wheels[wheels < 0.0] = 0.0  # the state as evaluated
+            detail = singularity_detail(x, pv) or f"the model divides by zero: {SINGULAR[code]}"
+            raise MbSingularity(detail, x)
+        return out
 
     def integrate(
         self,
@@ -275,11 +317,11 @@ class MbTruth:
         self.derivatives(x, u, mu)  # validates shapes, finiteness and mu
         if not duration_s > 0:
             raise ValueError(f"duration_s={duration_s!r} must be > 0")
-        p = self.parameters_for_mu(mu)
+        p = self.parameter_vector_for_mu(mu)
         ul = np.asarray(u, dtype=float).tolist()
         if method == "lsoda":
             sol = solve_ivp(
-                lambda _t, y: self.rhs(y.tolist(), ul, p),
+                lambda _t, y: self.rhs(y, ul, p),
                 (0.0, float(duration_s)),
                 x,
                 method="LSODA",
@@ -294,10 +336,10 @@ class MbTruth:
             h = duration_s / n
             xn = x.copy()
             for _ in range(n):
-                k1 = self.rhs(xn.tolist(), ul, p)
-                k2 = self.rhs((xn + 0.5 * h * k1).tolist(), ul, p)
-                k3 = self.rhs((xn + 0.5 * h * k2).tolist(), ul, p)
-                k4 = self.rhs((xn + h * k3).tolist(), ul, p)
+                k1 = self.rhs(xn, ul, p)
+                k2 = self.rhs(xn + 0.5 * h * k1, ul, p)
+                k3 = self.rhs(xn + 0.5 * h * k2, ul, p)
+                k4 = self.rhs(xn + h * k3, ul, p)
                 xn = xn + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
                 np.maximum(xn[WHEEL_SPEEDS], 0.0, out=xn[WHEEL_SPEEDS])
         else:
