@@ -288,6 +288,9 @@ class ContextEstimator:
             if mine.estimate.fitted:
                 slot = self._slot(heir)
                 slot.estimate = replace(mine.estimate, context_id=heir)
+                # The samples its fit used were used: they do not wait again under the new id.
+                slot.estimate_data_end_s = mine.estimate_data_end_s
+                slot.delay_counts = mine.delay_counts
             self.handing.renamed(ident, heir)
 
     @property

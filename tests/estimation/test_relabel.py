@@ -191,6 +191,15 @@ def test_a_renamed_context_passes_its_fit_and_its_exploration_to_the_new_id(para
     assert est.handing.probe_of(7) == est.handing.probe_of(5)
     np.testing.assert_array_equal(est.theta_for(7), before)  # not the unknown value again
     assert 7 in est.pending()  # refitted on its data, from the fit it took over
+    # the samples context 5's fit used were used: under the new id they do not wait again
+    waited = est.table().get(7).sample_to_estimate_s
+    assert waited == fit5.sample_to_estimate_s and waited[2] > 0
+    for k in range(50):  # half a second more on the same ground, then the refit publishes it
+        est.add_sample(8.0 + 0.01 * (k + 1), S[0][-1], U[0][-1], [7])
+    est.refit(9.0)
+    p50, p99, counted = est.table().get(7).sample_to_estimate_s
+    assert 0 < counted - waited[2] <= 50  # the new samples join the waits counted before
+    assert p50 <= waited[0] and p99 <= waited[1]  # (counted again, the old ones waited longer)
     # a split is no renaming: a context that keeps samples keeps its own state, and an id
     # that has a fit of its own keeps it
     frames_l = np.where(frames_t < 4.0 - 1e-9, 7, 9)
