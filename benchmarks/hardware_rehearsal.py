@@ -100,11 +100,18 @@ def contexts_vs_truth(log: pd.DataFrame, truth: pd.DataFrame, terrain_mu: dict) 
 
 
 def rehearsal(
-    args, scenario, terrain_mu, work: Path, env: dict | None, hold_s: float | None = None
+    args,
+    scenario,
+    terrain_mu,
+    work: Path,
+    env: dict | None,
+    hold_s: float | None = None,
+    estimator: str | None = None,
 ) -> dict:
     """One rehearsal (bridge + hardware station, two processes) in ``work``; ``env``: the
     environment of both processes (None: this one); ``hold_s``: the station's
-    ``hardware.playout_hold_s`` (None: the scenario's)."""
+    ``hardware.playout_hold_s`` (None: the scenario's); ``estimator``: the station's friction
+    source (None: the scenario's)."""
     work.mkdir(parents=True, exist_ok=True)
     url = f"tcpq://127.0.0.1:{free_port()}"
     priority = getattr(args, "priority", 0)
@@ -135,8 +142,9 @@ def rehearsal(
     )
     override = work / "rate.yaml"
     hold = "" if hold_s is None else f"  playout_hold_s: {hold_s}\n"
+    source = "" if estimator is None else f"estimator: {estimator}\n"
     override.write_text(
-        f"hardware:\n  realtime_rate: {args.rate}\n  control_priority: {priority}\n{hold}"
+        f"{source}hardware:\n  realtime_rate: {args.rate}\n  control_priority: {priority}\n{hold}"
     )
     try:
         subprocess.run(
