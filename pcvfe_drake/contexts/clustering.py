@@ -13,8 +13,9 @@ cost:
   stands for), used for centroids and sizes. The store holds at most about ``max_stored`` vectors,
   whatever the length of the drive.
 * **Re-clustering** (:meth:`ContextClusterer.recluster`) runs scikit-learn's HDBSCAN (no number of
-  clusters) on the store, detaches small groups hanging off a cluster (they become noise), and
-  re-forms the strata from the labels. At the start of a drive (one terrain only) HDBSCAN's
+  clusters) on the store, detaches the small groups a cluster's dense body does not reach (they
+  become noise, so a pocket of another terrain cannot widen or pass its gate), and re-forms the
+  strata from the labels. At the start of a drive (one terrain only) HDBSCAN's
   densest core is grown into the whole terrain.
 * **Persistence** (paper Algorithm 1): new centroids take the id of the closest previous centroid
   within epsilon; pairs are taken in order of increasing distance so one id goes to at most one
