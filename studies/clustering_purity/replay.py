@@ -315,7 +315,7 @@ def _summary(rows: list[dict]) -> dict:
         "carried_terrain_total_s": round(float(sum(r["carried_terrain_s"] for r in rows)), 1),
         "runs_with_carried_over_0.5s": int(sum(r["longest_carried_s"] > 0.5 for r in rows)),
         "longest_carried_s": max(r["longest_carried_s"] for r in rows),
-        "worst_run": f"{Path(worst['run']).name} ({worst['carried_s']} s)",
+        "worst_run": f"{'/'.join(Path(worst['run']).parts[-3:])} ({worst['carried_s']} s)",
         "purity_mean": round(float(np.mean([r["purity"] for r in rows])), 4),
         "noise_fraction_mean": round(float(np.mean([r["noise_fraction"] for r in rows])), 4),
         "known_noise_fraction_mean": round(
