@@ -6,8 +6,8 @@ its bounded store (at most ``max_stored`` = 2000 vectors of 36 numbers by defaul
 - ``kth``: each context member's leave-one-out distance to its k-th nearest other member (the
   outlier gate, at every re-clustering; ``density_gate.kth_member_distances``);
 - ``detach``: within each HDBSCAN cluster, the body grown from its densest members by the gate
-  (repeated k-th-neighbour searches), then the graph of the other members closer than the
-  body's gate and its connected components (every re-clustering;
+  (repeated k-th-neighbour searches), its fringe, then the graph of the other members closer
+  than the body's gate and its connected components (every re-clustering;
   ``density_gate.detach_small_groups``);
 - ``gate``: a frame's nearest stored member and its k-th nearest member of that context, the
   online assignment of every camera frame (``GateIndex.labels``), one frame at a time and in
@@ -94,6 +94,10 @@ def sk_detach(x, labels, weights, params: ClusteringParams, algorithm: str) -> n
         seed[np.argsort(core, kind="stable")[: params.min_cluster_size]] = True
         body, gate = sk_grow(members, seed, params, scale_sq, algorithm)
         rest = np.flatnonzero(~body)
+        if rest.size == 0:
+            continue
+        near = NearestNeighbors(n_neighbors=1, algorithm=algorithm).fit(members[body])
+        rest = rest[near.kneighbors(members[rest])[0][:, 0] > gate]
         if rest.size == 0:
             continue
         nn = NearestNeighbors(algorithm=algorithm).fit(members[rest])

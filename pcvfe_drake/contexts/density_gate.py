@@ -103,10 +103,10 @@ def grow_by_gate(
     max_rounds: int | None = None,
 ) -> np.ndarray:
     """``body`` (N,) bool grown over the points of ``d2`` (:func:`pairwise_sq_distances`) like a
-    flood fill: every point whose k-th nearest body member (k = ``gate_neighbours``) is within
-    the body's gate (:func:`body_gate`) joins, the gate is recomputed from the grown body, until
-    nothing changes (or after ``max_rounds``). A point joins only where the body is as dense
-    around it as around the body's own members, as a new frame would be assigned."""
+    flood fill: every point whose k-th nearest body member (k = ``gate_neighbours``, as a new
+    frame is assigned) is within the body's gate (:func:`body_gate`) joins, the gate is
+    recomputed from the grown body, until nothing changes (or after ``max_rounds``). The radius
+    comes from the body's own members, so sparse points outside it cannot widen it."""
     body = body.copy()
     rounds = 0
     while max_rounds is None or rounds < max_rounds:
@@ -139,9 +139,14 @@ def detach_small_groups(
     ``min_cluster_size`` members nearest to their ``min_samples``-th nearest member (HDBSCAN's
     core distance: a group of fewer than ``min_samples`` members cannot be among them while the
     body has more) and grows by the gate (:func:`grow_by_gate`): the members a new frame of the
-    body's terrain would be assigned like. Members it does not reach are linked when closer
-    than the body's gate; linked groups that stand for fewer than ``min_cluster_size`` frames
-    (sum of weights) become noise, larger ones (a lobe HDBSCAN kept in the cluster) stay.
+    body's terrain would be assigned like. A seed of the densest members has smaller neighbour
+    distances than its terrain as a whole, so the growth can stop short of frames of the same
+    terrain a little sparser than the core (a young cluster, a second look of the ground):
+    members whose nearest body member is within the body's gate are kept as its fringe (a frame
+    near them is within about two gates of the body). The fringe links nothing further, so no
+    chain passes through it. The other members are linked when closer than the body's gate;
+    linked groups that stand for fewer than ``min_cluster_size`` frames (sum of weights) become
+    noise, larger ones (a lobe HDBSCAN kept in the cluster) stay.
     """
     out = labels.copy()
     for k in np.unique(labels[labels >= 0]):
@@ -159,6 +164,10 @@ def detach_small_groups(
         if rest.size == 0:
             continue
         gate = body_gate(d2, body, params, scale_sq)
+        fringe = d2[np.ix_(rest, np.flatnonzero(body))].min(1) <= gate * gate
+        rest = rest[~fringe]
+        if rest.size == 0:
+            continue
         n_comp, comp = connected_components(
             csr_matrix(d2[np.ix_(rest, rest)] <= gate * gate), directed=False
         )
