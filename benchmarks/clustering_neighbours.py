@@ -5,10 +5,8 @@ its bounded store (at most ``max_stored`` = 2000 vectors of 36 numbers by defaul
 
 - ``kth``: each context member's leave-one-out distance to its k-th nearest other member (the
   outlier gate, at every re-clustering; ``density_gate.kth_member_distances``);
-- ``detach``: within each HDBSCAN cluster, the body grown from its densest members by the gate
-  (repeated k-th-neighbour searches), its fringe, then the graph of the other members closer
-  than the body's gate and its connected components (every re-clustering;
-  ``density_gate.detach_small_groups``);
+- ``detach``: within each HDBSCAN cluster, the graph of members closer than the cluster's gate
+  and its connected components (every re-clustering; ``density_gate.detach_small_groups``);
 - ``gate``: a frame's nearest stored member and its k-th nearest member of that context, the
   online assignment of every camera frame (``GateIndex.labels``), one frame at a time and in
   blocks of 4096 (``ContextClusterer.predict``).
@@ -61,50 +59,24 @@ def sk_kth(members: np.ndarray, k: int, algorithm: str) -> np.ndarray:
     return dist[:, k - 1]
 
 
-def sk_grow(members, body, params: ClusteringParams, scale_sq: float, algorithm: str):
-    """``density_gate.grow_by_gate`` with scikit-learn's k-th neighbours; (body, its gate)."""
-    body = body.copy()
-    while True:
-        inside = members[body]
-        gate = gate_radius(
-            sk_kth(inside, params.gate_neighbours, algorithm), params, scale_sq
-        )  # fmt: skip
-        if body.all():
-            return body, gate
-        k = min(params.gate_neighbours, inside.shape[0])
-        nn = NearestNeighbors(n_neighbors=k, algorithm=algorithm).fit(inside)
-        outside = np.flatnonzero(~body)
-        reached = nn.kneighbors(members[outside])[0][:, k - 1] ** 2 <= gate * gate
-        if not reached.any():
-            return body, gate
-        body[outside[reached]] = True
-
-
 def sk_detach(x, labels, weights, params: ClusteringParams, algorithm: str) -> np.ndarray:
     """``detach_small_groups`` with scikit-learn's k-th neighbours and radius graph."""
     out = labels.copy()
     for k in np.unique(labels[labels >= 0]):
         idx = np.flatnonzero(labels == k)
-        if idx.size <= params.min_cluster_size:
-            continue
         members = x[idx]
-        scale_sq = float((members * members).sum(1).max())
-        core = sk_kth(members, params.min_samples, algorithm)
-        seed = np.zeros(idx.size, dtype=bool)
-        seed[np.argsort(core, kind="stable")[: params.min_cluster_size]] = True
-        body, gate = sk_grow(members, seed, params, scale_sq, algorithm)
-        rest = np.flatnonzero(~body)
-        if rest.size == 0:
+        kk = min(params.gate_neighbours, idx.size - 1)
+        if kk < 1:
             continue
-        near = NearestNeighbors(n_neighbors=1, algorithm=algorithm).fit(members[body])
-        rest = rest[near.kneighbors(members[rest])[0][:, 0] > gate]
-        if rest.size == 0:
-            continue
-        nn = NearestNeighbors(algorithm=algorithm).fit(members[rest])
+        nn = NearestNeighbors(n_neighbors=kk, algorithm=algorithm).fit(members)
+        kth = nn.kneighbors()[0][:, kk - 1]
+        gate = gate_radius(kth, params, float((members * members).sum(1).max()))
         graph = nn.radius_neighbors_graph(radius=gate, mode="connectivity")
         n_comp, comp = connected_components(graph, directed=False)
-        mass = np.bincount(comp, weights=weights[idx[rest]], minlength=n_comp)
-        out[idx[rest[mass[comp] < params.min_cluster_size]]] = NOISE
+        if n_comp == 1:
+            continue
+        mass = np.bincount(comp, weights=weights[idx], minlength=n_comp)
+        out[idx[mass[comp] < params.min_cluster_size]] = NOISE
     return out
 
 

@@ -13,9 +13,8 @@ cost:
   stands for), used for centroids and sizes. The store holds at most about ``max_stored`` vectors,
   whatever the length of the drive.
 * **Re-clustering** (:meth:`ContextClusterer.recluster`) runs scikit-learn's HDBSCAN (no number of
-  clusters) on the store, detaches the small groups a cluster's dense body does not reach (they
-  become noise, so a pocket of another terrain cannot widen or pass its gate), and re-forms the
-  strata from the labels. At the start of a drive (one terrain only) HDBSCAN's
+  clusters) on the store, detaches small groups hanging off a cluster (they become noise), and
+  re-forms the strata from the labels. At the start of a drive (one terrain only) HDBSCAN's
   densest core is grown into the whole terrain.
 * **Persistence** (paper Algorithm 1): new centroids take the id of the closest previous centroid
   within epsilon; pairs are taken in order of increasing distance so one id goes to at most one
@@ -58,9 +57,7 @@ from pcvfe_drake.contexts.density_gate import (
     detach_small_groups,
     fit_hdbscan,
     full_hdbscan_labels,
-    grow_by_gate,
     hdbscan_labels,
-    pairwise_sq_distances,
 )
 from pcvfe_drake.shallow_copy import copied_generator, shallow_copy
 
@@ -514,17 +511,23 @@ class ContextClusterer:
         """One cluster (one terrain so far): HDBSCAN's densest core, grown by the outlier gate.
 
         With ``allow_single_cluster=True`` HDBSCAN keeps only the densest ``min_cluster_size``
-        points of a lone cluster. The core is grown like a flood fill (:func:`grow_by_gate`,
-        at most 10 rounds to bound the cost): points of lower density (outliers, the first
-        frames of a next terrain) stay noise.
+        points of a lone cluster. The core is grown like a flood fill: every point that passes
+        the gate of the current members joins, the gate is recomputed from the members, until
+        nothing changes (at most 10 rounds). Points of lower density (outliers, the first frames
+        of a next terrain) stay noise.
         """
         p = self.params
         labels = fit_hdbscan(x, p.min_cluster_size, p.min_samples, allow_single_cluster=True)
         if labels.max(initial=NOISE) != 0:
             return labels
-        scale_sq = float((x * x).sum(1).max())
-        body = grow_by_gate(pairwise_sq_distances(x), labels == 0, p, scale_sq, max_rounds=10)
-        return np.where(body, 0, NOISE)
+        for _ in range(10):
+            members = labels == 0
+            grown = GateIndex(x[members], labels[members], p).labels(x)
+            grown[members] = 0
+            if np.array_equal(grown, labels):
+                break
+            labels = grown
+        return labels
 
     def _epsilon(self, rec: ClusterRecord) -> float:
         if self.params.persistence_epsilon is not None:

@@ -69,110 +69,35 @@ def gate_radius(kth: np.ndarray, params: ClusteringParams, scale_sq: float) -> f
     return max(gate, 1e-6 * (1.0 + math.sqrt(scale_sq)))
 
 
-def pairwise_sq_distances(x: np.ndarray) -> np.ndarray:
-    """(N, N) squared distances between the rows of ``x`` (N, d), the diagonal set to inf, so
-    that a row's k-th smallest entry is its leave-one-out k-th-neighbour distance."""
-    sq = (x * x).sum(1)
-    d2 = np.maximum(sq[:, None] - 2.0 * x @ x.T + sq[None, :], 0.0)
-    np.fill_diagonal(d2, np.inf)
-    return d2
-
-
-def _kth_smallest(d2: np.ndarray, k: int) -> np.ndarray:
-    """The k-th smallest entry (1-based) of each row of ``d2``."""
-    return np.partition(d2, k - 1, axis=1)[:, k - 1]
-
-
-def body_gate(d2: np.ndarray, body: np.ndarray, params: ClusteringParams, scale_sq: float) -> float:
-    """The outlier gate (:func:`gate_radius`) of the points ``body`` (N,) bool of ``d2``
-    (:func:`pairwise_sq_distances`): from their leave-one-out k-th-neighbour distances among
-    themselves."""
-    inside = np.flatnonzero(body)
-    k = min(params.gate_neighbours, inside.size - 1)
-    if k < 1:
-        return gate_radius(np.zeros(0), params, scale_sq)
-    kth = np.sqrt(_kth_smallest(d2[np.ix_(inside, inside)], k))
-    return gate_radius(kth, params, scale_sq)
-
-
-def grow_by_gate(
-    d2: np.ndarray,
-    body: np.ndarray,
-    params: ClusteringParams,
-    scale_sq: float,
-    max_rounds: int | None = None,
-) -> np.ndarray:
-    """``body`` (N,) bool grown over the points of ``d2`` (:func:`pairwise_sq_distances`) like a
-    flood fill: every point whose k-th nearest body member (k = ``gate_neighbours``, as a new
-    frame is assigned) is within the body's gate (:func:`body_gate`) joins, the gate is
-    recomputed from the grown body, until nothing changes (or after ``max_rounds``). The radius
-    comes from the body's own members, so sparse points outside it cannot widen it."""
-    body = body.copy()
-    rounds = 0
-    while max_rounds is None or rounds < max_rounds:
-        rounds += 1
-        inside = np.flatnonzero(body)
-        outside = np.flatnonzero(~body)
-        if outside.size == 0 or inside.size == 0:
-            break
-        gate = body_gate(d2, body, params, scale_sq)
-        k = min(params.gate_neighbours, inside.size)
-        reached = _kth_smallest(d2[np.ix_(outside, inside)], k) <= gate * gate
-        if not reached.any():
-            break
-        body[outside[reached]] = True
-    return body
-
-
 def detach_small_groups(
     x: np.ndarray, labels: np.ndarray, weights: np.ndarray, params: ClusteringParams
 ) -> np.ndarray:
-    """Labels with the members of each cluster that lie outside its dense body set to noise.
+    """Labels with the members of each cluster that are not connected to its body set to noise.
 
     HDBSCAN counts a group of fewer than ``min_cluster_size`` points that splits off a selected
-    cluster as members of that cluster: the first frames of a new terrain, a transition strip,
-    or a few frames of a terrain seen once at the start of the drive join a known context. With
-    ``gate_neighbours`` of them close together the outlier gate passes that other terrain's
-    frames, and their own sparse k-th-neighbour distances widen the gate (a high quantile of
-    them) until it links them to the rest: judged by the whole cluster's gate, such groups stay
-    connected. So the body is judged from its dense part only. It starts as the
-    ``min_cluster_size`` members nearest to their ``min_samples``-th nearest member (HDBSCAN's
-    core distance: a group of fewer than ``min_samples`` members cannot be among them while the
-    body has more) and grows by the gate (:func:`grow_by_gate`): the members a new frame of the
-    body's terrain would be assigned like. A seed of the densest members has smaller neighbour
-    distances than its terrain as a whole, so the growth can stop short of frames of the same
-    terrain a little sparser than the core (a young cluster, a second look of the ground):
-    members whose nearest body member is within the body's gate are kept as its fringe (a frame
-    near them is within about two gates of the body). The fringe links nothing further, so no
-    chain passes through it. The other members are linked when closer than the body's gate;
-    linked groups that stand for fewer than ``min_cluster_size`` frames (sum of weights) become
-    noise, larger ones (a lobe HDBSCAN kept in the cluster) stay.
+    cluster as members of that cluster: the first frames of a new terrain next to a known one
+    join the known context, and the outlier gate would then pass the new terrain's frames. Within
+    each cluster, members are linked when closer than the cluster's gate; linked groups that
+    stand for fewer than ``min_cluster_size`` frames (sum of weights) become noise.
     """
     out = labels.copy()
     for k in np.unique(labels[labels >= 0]):
         idx = np.flatnonzero(labels == k)
-        if idx.size <= params.min_cluster_size:
-            continue  # the seed below would be the whole cluster
         members = x[idx]
-        scale_sq = float((members * members).sum(1).max())
-        d2 = pairwise_sq_distances(members)
-        core = _kth_smallest(d2, min(params.min_samples, idx.size - 1))
-        seed = np.zeros(idx.size, dtype=bool)
-        seed[np.argsort(core, kind="stable")[: params.min_cluster_size]] = True
-        body = grow_by_gate(d2, seed, params, scale_sq)
-        rest = np.flatnonzero(~body)
-        if rest.size == 0:
+        sq = (members * members).sum(1)
+        d2 = np.maximum(sq[:, None] - 2.0 * members @ members.T + sq[None, :], 0.0)
+        kk = min(params.gate_neighbours, idx.size - 1)
+        if kk < 1:
             continue
-        gate = body_gate(d2, body, params, scale_sq)
-        fringe = d2[np.ix_(rest, np.flatnonzero(body))].min(1) <= gate * gate
-        rest = rest[~fringe]
-        if rest.size == 0:
+        np.fill_diagonal(d2, np.inf)
+        kth = np.sqrt(np.partition(d2, kk - 1, axis=1)[:, kk - 1])
+        gate = gate_radius(kth, params, float(sq.max()))
+        n_comp, comp = connected_components(csr_matrix(d2 <= gate * gate), directed=False)
+        if n_comp == 1:
             continue
-        n_comp, comp = connected_components(
-            csr_matrix(d2[np.ix_(rest, rest)] <= gate * gate), directed=False
-        )
-        mass = np.bincount(comp, weights=weights[idx[rest]], minlength=n_comp)
-        out[idx[rest[mass[comp] < params.min_cluster_size]]] = NOISE
+        mass = np.bincount(comp, weights=weights[idx], minlength=n_comp)
+        small = mass[comp] < params.min_cluster_size
+        out[idx[small]] = NOISE
     return out
 
 
