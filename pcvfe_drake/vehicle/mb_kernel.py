@@ -331,6 +331,13 @@ def _combined_lateral(slip, alpha, gamma, mu_y, fz, f0_y, pv):
 
 
 # ---------------------------------------------------------------------------- the derivative
+@jit(inline="always")
+def _suspension(static, z, dz, stiffness, damping, roll):
+    """One corner's suspension force [N]: its static load, less the spring on the deflection
+    ``z`` [m] and the damper on its rate ``dz`` [m/s], plus the anti-roll term ``roll``."""
+    return static - z * stiffness - dz * damping + roll
+
+
 @jit
 def mb_derivative(x, steer_rate, accel, pv, out):
     """The multi-body derivative (29,) into ``out`` at state ``x`` (29,) (the package's
@@ -472,30 +479,13 @@ def mb_derivative(x, steer_rate, accel, pv, out):
     F_RAR = delta_r * K_ras + dot_delta_r * K_rad
 
     # suspension forces [N] (bump stops and squat/lift forces neglected, as in the package)
-    F_SLF = (
-        m_s * g * b / (2 * (a + b))
-        - z_SLF * pv[K_SF]
-        - dz_SLF * pv[K_SDF]
-        + (x[6] - x[13]) * pv[K_TSF] / T_f
-    )
-    F_SRF = (
-        m_s * g * b / (2 * (a + b))
-        - z_SRF * pv[K_SF]
-        - dz_SRF * pv[K_SDF]
-        - (x[6] - x[13]) * pv[K_TSF] / T_f
-    )
-    F_SLR = (
-        m_s * g * a / (2 * (a + b))
-        - z_SLR * pv[K_SR]
-        - dz_SLR * pv[K_SDR]
-        + (x[6] - x[18]) * pv[K_TSR] / T_r
-    )
-    F_SRR = (
-        m_s * g * a / (2 * (a + b))
-        - z_SRR * pv[K_SR]
-        - dz_SRR * pv[K_SDR]
-        - (x[6] - x[18]) * pv[K_TSR] / T_r
-    )
+    # (a + (-t) is a - t exactly in IEEE arithmetic: the helper keeps the package's numbers)
+    roll_f = (x[6] - x[13]) * pv[K_TSF] / T_f
+    roll_r = (x[6] - x[18]) * pv[K_TSR] / T_r
+    F_SLF = _suspension(m_s * g * b / (2 * (a + b)), z_SLF, dz_SLF, pv[K_SF], pv[K_SDF], roll_f)
+    F_SRF = _suspension(m_s * g * b / (2 * (a + b)), z_SRF, dz_SRF, pv[K_SF], pv[K_SDF], -roll_f)
+    F_SLR = _suspension(m_s * g * a / (2 * (a + b)), z_SLR, dz_SLR, pv[K_SR], pv[K_SDR], roll_r)
+    F_SRR = _suspension(m_s * g * a / (2 * (a + b)), z_SRR, dz_SRR, pv[K_SR], pv[K_SDR], -roll_r)
 
     # sums of forces [N] and moments [N m] on the sprung mass
     sumX = F_x_LR + F_x_RR + (F_x_LF + F_x_RF) * cos_d - (F_y_LF + F_y_RF) * sin_d
