@@ -207,6 +207,18 @@ def world_table(runs: pd.DataFrame, metric, sources: list[str]) -> list[dict]:
     return out
 
 
+def oracle_failed_worlds(runs: pd.DataFrame) -> list[str]:
+    """The worlds where a finished run of the ``oracle`` source had a catastrophic failure:
+    knowing the friction under the car exactly was not enough there (typically a friction drop
+    inside a bend), so no source is expected to drive that world, and a ratio to the oracle's
+    speed is not defined."""
+    if not {"world", "source", "failures", "status"} <= set(runs.columns):
+        return []
+    mine = runs[(runs["source"] == "oracle") & (runs["status"] == "done")]
+    mine = mine[mine["world"].astype(str) != ""]
+    return sorted(str(w) for w in mine.loc[mine["failures"].fillna(0) > 0, "world"].unique())
+
+
 def _worlds_section(doc: _Doc, runs: pd.DataFrame, sources: list[str], metrics) -> None:
     """Results over the worlds of the world axis: per source, each metric's per-world mean
     (over seeds), its median and its worst world, since a mean over worlds hides the world a
@@ -236,6 +248,14 @@ def _worlds_section(doc: _Doc, runs: pd.DataFrame, sources: list[str], metrics) 
                 ]
             )
     doc.table(header, rows)
+    failed = oracle_failed_worlds(runs)
+    if failed:
+        doc.p(
+            f"The oracle itself failed in {len(failed)} world{'s' if len(failed) != 1 else ''}: "
+            f"{', '.join(failed)}. Knowing the friction under the car exactly was not enough "
+            "there, so these worlds say more about the world than about a friction source; "
+            "judge speeds against the oracle over the other worlds."
+        )
     done = runs[(runs["status"] == "done") & (runs["world"].astype(str) != "")]
     per = done.pivot_table(index="world", columns="source", values="mean_speed_mps", aggfunc="mean")
     if not per.empty:

@@ -71,6 +71,25 @@ def test_runs_are_stored_per_world_and_the_report_gives_median_and_worst_world(s
     )
 
 
+def test_worlds_the_oracle_fails_are_named_in_the_report():
+    from pcvfe_drake.evaluation.report import _Doc, _worlds_section, oracle_failed_worlds
+    from pcvfe_drake.evaluation.tables import METRICS
+
+    rows = [
+        ("w1", "oracle", 0, "done", 9.0), ("w1", "pcvfe", 0, "done", 8.5),
+        ("w2", "oracle", 1, "done", 7.0), ("w2", "pcvfe", 1, "done", 6.0),
+        ("w3", "oracle", 0, "error", None), ("w3", "pcvfe", 2, "done", 5.0),
+    ]  # fmt: skip
+    runs = pd.DataFrame(rows, columns=["world", "source", "failures", "status", "mean_speed_mps"])
+    assert oracle_failed_worlds(runs) == ["w2"]  # a run that did not finish says nothing
+    assert oracle_failed_worlds(runs[runs["source"] != "oracle"]) == []
+    doc = _Doc()
+    metric = next(m for m in METRICS if m.column == "mean_speed_mps")
+    _worlds_section(doc, runs, ["oracle", "pcvfe"], [metric])
+    text = " ".join(b[1] for b in doc.blocks if b[0] == "p")
+    assert "The oracle itself failed in 1 world: w2." in text
+
+
 def _world_rows(runs: pd.DataFrame, column: str):
     from pcvfe_drake.evaluation.report import world_table
     from pcvfe_drake.evaluation.tables import METRICS
