@@ -332,6 +332,21 @@ def _combined_lateral(slip, alpha, gamma, mu_y, fz, f0_y, pv):
 
 # ---------------------------------------------------------------------------- the derivative
 @jit(inline="always")
+def wheel_ground_speeds(x, a, T_f, T_r):
+    """The four wheels' ground speeds [m/s] (left front, right front, left rear, right rear)
+    along each wheel's heading at MB state ``x``, with the CG-to-front-axle distance ``a`` and
+    the track widths ``T_f``, ``T_r`` [m]: what the package divides the longitudinal slips by,
+    after setting a negative one to 0 (the package's formulas)."""
+    cos_d, sin_d = math.cos(x[2]), math.sin(x[2])
+    return (
+        (x[3] + 0.5 * T_f * x[5]) * cos_d + (x[10] + a * x[5]) * sin_d,
+        (x[3] - 0.5 * T_f * x[5]) * cos_d + (x[10] + a * x[5]) * sin_d,
+        x[3] + 0.5 * T_r * x[5],
+        x[3] - 0.5 * T_r * x[5],
+    )
+
+
+@jit(inline="always")
 def _suspension(static, z, dz, stiffness, damping, roll):
     """One corner's suspension force [N]: its static load, less the spring on the deflection
     ``z`` [m] and the damper on its rate ``dz`` [m/s], plus the anti-roll term ``roll``."""
@@ -386,10 +401,7 @@ def mb_derivative(x, steer_rate, accel, pv, out):
     if not kinematic:
         # each wheel's ground speed along its heading [m/s]; the package sets a negative one
         # to 0 and then divides by it
-        u_w_lf = (x[3] + 0.5 * T_f * x[5]) * cos_d + (x[10] + a * x[5]) * sin_d
-        u_w_rf = (x[3] - 0.5 * T_f * x[5]) * cos_d + (x[10] + a * x[5]) * sin_d
-        u_w_lr = x[3] + 0.5 * T_r * x[5]
-        u_w_rr = x[3] - 0.5 * T_r * x[5]
+        u_w_lf, u_w_rf, u_w_lr, u_w_rr = wheel_ground_speeds(x, a, T_f, T_r)
         if u_w_lf <= 0.0 or u_w_rf <= 0.0 or u_w_lr <= 0.0 or u_w_rr <= 0.0:
             return WHEEL_AT_REST_OVER_GROUND
         slip[0] = 1 - R_w * omega[0] / u_w_lf

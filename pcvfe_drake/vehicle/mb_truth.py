@@ -153,18 +153,8 @@ def wheel_ground_speeds(x, p) -> np.ndarray:
     """The four wheels' ground speeds ``u_w`` [m/s] (``WHEELS`` order) of an MB state ``x``
     under parameters ``p`` (a parameter set or its vector), before the package sets negative
     ones to 0 (its own formulas)."""
-    x = np.asarray(x, dtype=float)
-    a, t_f, t_r = _track_geometry(p)
-    cos_d, sin_d = math.cos(x[2]), math.sin(x[2])
-    lateral_front = (x[VY] + a * x[5]) * sin_d
-    return np.array(
-        [
-            (x[VX] + 0.5 * t_f * x[5]) * cos_d + lateral_front,
-            (x[VX] - 0.5 * t_f * x[5]) * cos_d + lateral_front,
-            x[VX] + 0.5 * t_r * x[5],
-            x[VX] - 0.5 * t_r * x[5],
-        ]
-    )
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    return np.array(mb_kernel.wheel_ground_speeds(x, *_track_geometry(p)))
 
 
 def singularity_detail(x, p) -> str:
