@@ -143,7 +143,7 @@ def lcm_rehearsal(args, work: Path) -> dict:
         for p in load:
             p.kill()
             p.wait()
-    r, orc = runs["estimator"], runs["fixed"]
+    r, fixed = runs["estimator"], runs["fixed"]
     return {
         "scenario": args.lcm_scenario,
         "estimator": scenario.estimator,
@@ -151,11 +151,11 @@ def lcm_rehearsal(args, work: Path) -> dict:
         "load_procs": args.load_procs,
         "priority": args.priority,
         "fixed": {
-            "latency_ms": orc["latency_ms"],
-            "state_timeouts": orc["state_timeouts"],
-            "nmpc_fallbacks": orc["nmpc_fallbacks"],
-            "max_lag_s": orc.get("max_lag_s"),
-            "bridge_pace": orc.get("bridge_pace"),
+            "latency_ms": fixed["latency_ms"],
+            "state_timeouts": fixed["state_timeouts"],
+            "nmpc_fallbacks": fixed["nmpc_fallbacks"],
+            "max_lag_s": fixed.get("max_lag_s"),
+            "bridge_pace": fixed.get("bridge_pace"),
         },
         "latency_ms": r["latency_ms"],
         "state_timeouts": r["state_timeouts"],
@@ -226,17 +226,19 @@ def main() -> int:
             f"({lcm['contexts_fitted']} contexts fitted), load average "
             f"{lcm['load_average_start']:.1f} -> {lcm['load_average_end']:.1f}"
         )
-        orc = lcm["fixed"]
+        fixed = lcm["fixed"]
         print(
             f"  a fixed friction (no estimator) over LCM, same load: p99 "
-            f"{orc['latency_ms']['p99_ms']} ms, state timeouts {orc['state_timeouts']}, "
-            f"NMPC fallbacks {orc['nmpc_fallbacks']}"
+            f"{fixed['latency_ms']['p99_ms']} ms, state timeouts {fixed['state_timeouts']}, "
+            f"NMPC fallbacks {fixed['nmpc_fallbacks']}"
         )
         p99 = lat.get("p99_ms")
         meets["lcm_actuation_latency_p99"] = (
             p99 is not None and p99 < TARGETS["lcm_actuation_latency_p99_ms_max"]
         )
-        meets["lcm_no_timeout_beyond_the_fixed_mu"] = lcm["state_timeouts"] <= orc["state_timeouts"]
+        meets["lcm_no_timeout_beyond_the_fixed_mu"] = (
+            lcm["state_timeouts"] <= fixed["state_timeouts"]
+        )
     result["meets"] = meets
     print(json.dumps(result))
     return 0
