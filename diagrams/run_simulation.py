@@ -271,10 +271,11 @@ def StartLocalMeshcat() -> Meshcat:
 
 def _estimate_table(diagram, context) -> list[dict]:
     """The fitter's final per-context estimates (id, mu, mu_std, samples, identifiability,
-    the effect model's parameters) from its
-    ``estimate_table`` output (``pcvfe_drake.estimation.context_estimator.EstimateTable``)."""
+    the effect model's parameters): the table of its estimator with the samples it holds since
+    its last decision taken in (``ContextFitter.estimator``)."""
     fitter = diagram.GetSubsystemByName("fitter")
-    table = fitter.GetOutputPort("estimate_table").Eval(fitter.GetMyContextFromRoot(context))
+    own = fitter.GetMyContextFromRoot(context)
+    table = fitter.estimator(own).table(own.get_time())
     return [
         {
             "id": int(e.context_id),

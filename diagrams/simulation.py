@@ -41,7 +41,7 @@ from pcvfe_drake.runs.runlog import RunLog
 from pcvfe_drake.runs.scenario import Scenario
 from pcvfe_drake.systems.clip_features import ClipFeatures
 from pcvfe_drake.systems.context_clustering import ContextClustering
-from pcvfe_drake.systems.context_fitter import ContextFitter
+from pcvfe_drake.systems.context_fitter import ContextFitter, HeldSamples
 from pcvfe_drake.systems.lookup_friction import LookupFriction
 from pcvfe_drake.systems.meshcat_view import MeshcatView
 from pcvfe_drake.systems.nmpc import Nmpc
@@ -69,6 +69,15 @@ def nmpc_config(scenario: Scenario) -> NmpcConfig:
     if scenario.estimator == "kmpc":
         config = dataclasses.replace(config, model="ks")
     return config
+
+
+def _decision_period(rates) -> float | None:
+    """The fitter decides ``theta_hat`` at the NMPC's period when it is a whole multiple of
+    the sampling period (the NMPC reads it at that period's multiples), else at every sample."""
+    per = round(rates.nmpc_period_s / rates.fitter_sample_period_s)
+    if per >= 1 and abs(per * rates.fitter_sample_period_s - rates.nmpc_period_s) <= 1e-9:
+        return rates.nmpc_period_s
+    return None
 
 
 def _add_friction_source(
@@ -110,15 +119,31 @@ def _add_friction_source(
                 refit_worker=refit_worker,
                 config=scenario.fit_config(),
                 planner_mu_share=scenario.nmpc.speed_margin**2,  # the NMPC's share of mu
+                decision_period_s=_decision_period(rates),
             ),
         )
         builder.Connect(features, clustering.GetInputPort("features"))
-        builder.Connect(station.GetOutputPort("state"), fitter.GetInputPort("state"))
-        builder.Connect(actuation, fitter.GetInputPort("actuation"))
-        builder.Connect(clustering.GetOutputPort("context_id"), fitter.GetInputPort("context_id"))
-        builder.Connect(
-            clustering.GetOutputPort("frame_labels"), fitter.GetInputPort("frame_labels")
-        )
+        takers = [fitter]
+        if fitter.decision_period_s > rates.fitter_sample_period_s:
+            held = builder.AddNamedSystem(
+                "fitter_samples",
+                HeldSamples(
+                    sample_period_s=rates.fitter_sample_period_s,
+                    capacity=fitter.held_capacity,
+                    relabel=fitter.config.relabel,
+                ),
+            )
+            builder.Connect(held.get_output_port(), fitter.GetInputPort("held_samples"))
+            takers.append(held)
+        for taker in takers:
+            builder.Connect(station.GetOutputPort("state"), taker.GetInputPort("state"))
+            builder.Connect(actuation, taker.GetInputPort("actuation"))
+            builder.Connect(
+                clustering.GetOutputPort("context_id"), taker.GetInputPort("context_id")
+            )
+            builder.Connect(
+                clustering.GetOutputPort("frame_labels"), taker.GetInputPort("frame_labels")
+            )
         return fitter.GetOutputPort("theta_hat"), clustering.GetOutputPort("context_id")
     if kind == "lookup":
         table = build_lookup_table(

@@ -19,6 +19,46 @@ from pcvfe_drake.hardware.scheduling import normal_scheduling
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import NTHETA, NU, NX
 
+_ROW = 1 + NX + NU + 2
+"""A sample: time [s], state (NX), actuation (NU), context id, frame-labels version (-inf:
+none)."""
+_LAST_TAKEN, _NEXT_REFIT = 0, 1
+"""The fitter's schedule (discrete state): time of the last sample the estimator took [s],
+time of the next refit [s]."""
+_TIME_EPS_S = 1e-9
+"""Event times closer than this are the same time [s]."""
+
+
+def sample_row(context: Context, state, actuation, context_id, frame_labels) -> np.ndarray:
+    """The fitter's sample at the context's time from its input ports: (t, state, actuation,
+    context id, frame-labels version; -inf where ``frame_labels`` is None or has no value)."""
+    row = np.empty(_ROW)
+    row[0] = context.get_time()
+    row[1 : 1 + NX] = state.Eval(context)
+    row[1 + NX : 1 + NX + NU] = actuation.Eval(context)
+    row[1 + NX + NU] = context_id.Eval(context)[0]
+    row[-1] = (
+        frame_labels.Eval(context).version
+        if frame_labels is not None and frame_labels.HasValue(context)
+        else -math.inf
+    )
+    return row
+
+
+def _decision_period(decision_period_s, sample_period_s: float) -> tuple[float, int]:
+    """``(decision period [s], samples per decision)``; a clear error unless it is a whole
+    multiple of the sample period."""
+    if decision_period_s is None:
+        return sample_period_s, 1
+    ok = isinstance(decision_period_s, int | float) and math.isfinite(decision_period_s)
+    per = round(decision_period_s / sample_period_s) if ok else 0
+    if not (ok and per >= 1 and abs(per * sample_period_s - decision_period_s) <= 1e-9):
+        raise ValueError(
+            f"ContextFitter: decision_period_s must be a whole multiple of sample_period_s "
+            f"({sample_period_s!r} s), got {decision_period_s!r}"
+        )
+    return float(decision_period_s), int(per)
+
 
 class ContextFitter(LeafSystem):
     """Estimates theta = [mu, C_Sf, C_Sr] per terrain context and outputs the current one.
@@ -31,6 +71,7 @@ class ContextFitter(LeafSystem):
         - actuation
         - context_id
         - frame_labels (optional)
+        - held_samples (with a decision period longer than the sample period)
         output_ports:
         - theta_hat
         - estimate_table
@@ -55,16 +96,29 @@ class ContextFitter(LeafSystem):
       context theta, standard deviations, samples, windows, last update time, status and the
       number of discarded (diverged) refits.
 
-    Rates: a periodic unrestricted update every ``sample_period_s`` (default 0.01 s = 100 Hz)
-    appends (t, state, actuation) with the current context id to the sample store and sets
-    ``theta_hat`` (and relabels and refits when ``frame_labels`` has a new version); a periodic
-    unrestricted update every ``period_s`` (default 1 s = 1 Hz, first at t = ``period_s``)
-    starts a refit of the contexts whose data changed, on the data up to then, published
-    ``latency_s`` later (the declared latency, in simulated time: the NMPC never waits for a
-    refit, and a seed still gives one result; 0: published at once), bounded per update (see
-    :class:`pcvfe_drake.estimation.live_fit_config.LiveFitConfig`: ``max_contexts_per_update``,
-    ``max_windows``, ``max_iterations``). When both fire at once the sample is taken first. The
-    :class:`ContextEstimator` (sample store, estimates) lives in the context's abstract state.
+    Rates: the state, actuation and context id are sampled every ``sample_period_s`` (default
+    0.01 s = 100 Hz) and appended to the sample store in time order; every ``period_s`` (default
+    1 s = 1 Hz, first at t = ``period_s``) a refit of the contexts whose data changed starts, on
+    the data up to then, published ``latency_s`` later (the declared latency, in simulated time:
+    the NMPC never waits for a refit, and a seed still gives one result; 0: published at once),
+    bounded per update (see :class:`pcvfe_drake.estimation.live_fit_config.LiveFitConfig`:
+    ``max_contexts_per_update``, ``max_windows``, ``max_iterations``). At a time with both, the
+    sample is taken first. The :class:`ContextEstimator` (sample store, estimates) lives in the
+    context's abstract state.
+
+    ``theta_hat`` is decided every ``decision_period_s`` (the period at which the controller
+    reads it; default: every sample). With a longer decision period the samples in between come
+    from a :class:`HeldSamples` system at the sample rate (input ``held_samples``), and one
+    unrestricted update at the last sample before each decision hands them to the estimator one
+    by one, in time order, with their own times: the estimator goes through the same steps as
+    with a decision at every sample (a refit or relabelling due at a held sample happens at
+    that sample's time, on the data up to it), and the controller, whose updates fall on the
+    decision period's multiples, reads the same ``theta_hat``. What changes is the cost: Drake
+    copies the whole state of a system at each of its unrestricted updates, here the estimator,
+    twice per update; the held samples save those copies and the handing's decisions for the
+    samples the controller never reads. :meth:`estimator` includes the held samples; the
+    ``estimate_table`` output is the estimator's as of the last decision (no direct
+    feedthrough).
     """
 
     def __init__(
@@ -77,6 +131,7 @@ class ContextFitter(LeafSystem):
         refit_worker: bool = False,
         config: LiveFitConfig | None = None,
         planner_mu_share: float = DEFAULT_PROBE_USE_FRACTION,
+        decision_period_s: float | None = None,
         **config_overrides,
     ) -> None:
         """
@@ -97,6 +152,9 @@ class ContextFitter(LeafSystem):
                 its data rate.
             planner_mu_share: the share of the handed mu the planner uses (the NMPC's
                 ``speed_margin^2``), which the handing's exploration judges its levels by.
+            decision_period_s: the period at which ``theta_hat`` is read (the NMPC's period, its
+                updates on the period's multiples); a whole multiple of ``sample_period_s``
+                (None: every sample; see "Rates").
             config_overrides: individual ``LiveFitConfig`` fields (e.g. ``horizon_steps=10``,
                 ``fit_stiffness=True``); None values are ignored.
         """
@@ -112,6 +170,9 @@ class ContextFitter(LeafSystem):
                 f"got {latency_s!r}"
             )
         self._latency_s = float(latency_s)
+        self._decision_period_s, self._per_decision = _decision_period(
+            decision_period_s, float(sample_period_s)
+        )
         # The worker and its job in flight live outside the Context: a thread's future cannot be
         # copied into Drake state. Only a loop paced to the wall clock uses them. The worker
         # thread is started by the loop's thread and may inherit its real-time policy
@@ -143,11 +204,15 @@ class ContextFitter(LeafSystem):
         )
         self._estimator_index = self.DeclareAbstractState(AbstractValue.Make(estimator))
         self._theta_index = self.DeclareDiscreteState(BasicVector(estimator.prior_theta))
+        schedule = np.array([-math.inf, self._period_s])
+        self._schedule_index = self.DeclareDiscreteState(BasicVector(schedule))
+        self._held_port = None
+        if self._per_decision > 1:
+            self._held_port = self.DeclareVectorInputPort("held_samples", self.held_capacity * _ROW)
         self.DeclarePeriodicUnrestrictedUpdateEvent(
-            period_sec=self._sample_period_s, offset_sec=0.0, update=self._on_sample
-        )
-        self.DeclarePeriodicUnrestrictedUpdateEvent(
-            period_sec=self._period_s, offset_sec=self._period_s, update=self._on_refit
+            period_sec=self._decision_period_s,
+            offset_sec=self._decision_period_s - self._sample_period_s,
+            update=self._on_decision,
         )
         self._theta_port = self.DeclareStateOutputPort("theta_hat", self._theta_index)
         self._table_port = self.DeclareAbstractOutputPort(
@@ -184,9 +249,23 @@ class ContextFitter(LeafSystem):
         """Sampling period [s]."""
         return self._sample_period_s
 
+    @property
+    def decision_period_s(self) -> float:
+        """Period at which ``theta_hat`` is decided [s]."""
+        return self._decision_period_s
+
     def estimator(self, context: Context) -> ContextEstimator:
-        """The estimator held in ``context`` (read only: change it through events)."""
-        return context.get_abstract_state(self._estimator_index).get_value()
+        """The estimator held in ``context`` with the samples held since the last decision
+        taken in (read only: change it through events). Without held samples the context's
+        own; else a copy that took them (refits due there run in it, never in the worker)."""
+        estimator = context.get_abstract_state(self._estimator_index).get_value()
+        rows, _, next_refit = self._held(context)
+        if not len(rows):
+            return estimator
+        estimator = deepcopy(estimator)
+        for row in rows:
+            next_refit = self._take(context, estimator, row, next_refit, live=False)
+        return estimator
 
     def _set_theta(self, state: State, estimator: ContextEstimator) -> None:
         theta = estimator.theta_for()
@@ -194,32 +273,91 @@ class ContextFitter(LeafSystem):
             theta = estimator.prior_theta
         state.get_mutable_discrete_state(self._theta_index).SetFromVector(theta)
 
-    def _on_sample(self, context: Context, state: State) -> EventStatus:
-        estimator = state.get_mutable_abstract_state(self._estimator_index).get_mutable_value()
-        estimator.add_sample(
-            context.get_time(),
-            self._state_port.Eval(context),
-            self._actuation_port.Eval(context),
-            self._context_id_port.Eval(context),
+    @property
+    def held_capacity(self) -> int:
+        """Rows the ``held_samples`` input holds (a decision's samples, the one the last
+        decision took and one whose event time fell a rounding error before the decision)."""
+        return self._per_decision + 1
+
+    def _sample_row(self, context: Context) -> np.ndarray:
+        return sample_row(
+            context,
+            self._state_port,
+            self._actuation_port,
+            self._context_id_port,
+            self._frame_labels_port if self._config.relabel else None,
         )
-        t = context.get_time()
-        if self._relabel(context, estimator):
-            self._start(estimator, t)  # a new terrain's first fit without waiting for the period
-        self._finish(estimator, t)
+
+    def _held(self, context: Context) -> tuple[np.ndarray, float, float]:
+        """The held samples the estimator has not taken (time order), the time of the last it
+        took and of the next refit [s]."""
+        schedule = context.get_discrete_state(self._schedule_index).get_value()
+        last, next_refit = float(schedule[_LAST_TAKEN]), float(schedule[_NEXT_REFIT])
+        if self._held_port is None:
+            return np.zeros((0, _ROW)), last, next_refit
+        if not self._held_port.HasValue(context):
+            raise RuntimeError(
+                "ContextFitter: decision_period_s is longer than sample_period_s but the "
+                "held_samples input is not connected (a HeldSamples system at the sample rate)"
+            )
+        rows = np.asarray(self._held_port.Eval(context)).reshape(self.held_capacity, _ROW)
+        if math.isfinite(last) and rows[0, 0] > last + _TIME_EPS_S:
+            raise RuntimeError(
+                f"ContextFitter: samples lost at t={context.get_time():.6g} s: the oldest held "
+                f"sample ({rows[0, 0]:.6g} s) is newer than the last one taken ({last:.6g} s)"
+            )
+        return rows[rows[:, 0] > last + _TIME_EPS_S], last, next_refit
+
+    def _take(
+        self, context: Context, estimator: ContextEstimator, row, next_refit: float, live: bool
+    ) -> float:
+        """The estimator's steps for one sample ``row`` (the refits due before it, the sample,
+        a relabelling, publication, a refit due at its time), as a decision at every sample
+        takes them; the next refit time. ``live`` False: no worker (a read of the state)."""
+        t = float(row[0])
+        while next_refit < t - _TIME_EPS_S:
+            self._refit_at(context, estimator, next_refit, live)
+            next_refit += self._period_s
+        estimator.add_sample(t, row[1 : 1 + NX], row[1 + NX : 1 + NX + NU], row[1 + NX + NU])
+        if self._relabel(context, estimator, float(row[-1])):
+            self._start(estimator, t, live)  # a new terrain's first fit without waiting
+        self._finish(estimator, t, live)
+        if abs(t - next_refit) <= _TIME_EPS_S:
+            self._refit_at(context, estimator, t, live)
+            next_refit += self._period_s
+        return next_refit
+
+    def _refit_at(self, context: Context, estimator: ContextEstimator, t: float, live: bool):
+        self._relabel(context, estimator)
+        self._start(estimator, t, live)
+        self._finish(estimator, t, live)
+
+    def _on_decision(self, context: Context, state: State) -> EventStatus:
+        """Take the held samples and this one into the estimator; decide ``theta_hat``."""
+        estimator = state.get_mutable_abstract_state(self._estimator_index).get_mutable_value()
+        rows, last, next_refit = self._held(context)
+        current = self._sample_row(context)
+        if not (len(rows) and rows[-1, 0] >= current[0] - _TIME_EPS_S):
+            rows = np.vstack([rows, current[None, :]])  # else held at (nearly) this time
+        for row in rows:
+            next_refit = self._take(context, estimator, row, next_refit, live=True)
         self._set_theta(state, estimator)
+        schedule = np.array([max(last, float(rows[-1, 0])), next_refit])
+        state.get_mutable_discrete_state(self._schedule_index).SetFromVector(schedule)
         return EventStatus.Succeeded()
 
-    def _start(self, estimator: ContextEstimator, t: float) -> None:
-        """Start a refit at ``t`` (with a worker: on a copy, in the worker thread)."""
-        if not estimator.start_refit(t) or self._worker is None:
+    def _start(self, estimator: ContextEstimator, t: float, live: bool = True) -> None:
+        """Start a refit at ``t`` (with a worker: on a copy, in the worker thread; not when
+        ``live`` is False, a read of the state, which refits in the event)."""
+        if not estimator.start_refit(t) or self._worker is None or not live:
             return
         copy = deepcopy(estimator)
         due = t + self._latency_s
         self._job = (copy, self._worker.submit(copy.finish_refit, due, self._latency_s))
 
-    def _finish(self, estimator: ContextEstimator, t: float) -> None:
+    def _finish(self, estimator: ContextEstimator, t: float, live: bool = True) -> None:
         """Publish the refit in flight if it is due (and, with a worker, done)."""
-        if self._worker is None:
+        if self._worker is None or not live:
             estimator.finish_refit(t, self._latency_s)
             return
         if self._job is None or t < estimator.refit_started_s + self._latency_s - 1e-9:
@@ -237,23 +375,81 @@ class ContextFitter(LeafSystem):
             return
         estimator.adopt(copy, done, t)
 
-    def _relabel(self, context: Context, estimator: ContextEstimator) -> bool:
-        """Relabel the stored samples if ``frame_labels`` has a new version; True if it had."""
+    def _relabel(
+        self, context: Context, estimator: ContextEstimator, version: float | None = None
+    ) -> bool:
+        """Relabel the stored samples if ``frame_labels`` has a new version (``version``: the
+        one a held sample saw; the labels are those standing now, which differ from its own
+        only on frames after it unless a second re-clustering came in between); True if it
+        had."""
         if not (self._config.relabel and self._frame_labels_port.HasValue(context)):
             return False
         frames = self._frame_labels_port.Eval(context)
-        if frames.version <= estimator.labels_version:
+        seen = frames.version if version is None else version
+        if seen <= estimator.labels_version:
             return False
         estimator.relabel(frames.t_s, frames.labels, frames.frame_period_s, version=frames.version)
         return True
 
-    def _on_refit(self, context: Context, state: State) -> EventStatus:
-        estimator = state.get_mutable_abstract_state(self._estimator_index).get_mutable_value()
-        self._relabel(context, estimator)
-        self._start(estimator, context.get_time())
-        self._finish(estimator, context.get_time())
-        self._set_theta(state, estimator)
-        return EventStatus.Succeeded()
-
     def _calc_table(self, context: Context, output: AbstractValue) -> None:
-        output.set_value(self.estimator(context).table(context.get_time()))
+        own = context.get_abstract_state(self._estimator_index).get_value()
+        output.set_value(own.table(context.get_time()))
+
+
+class HeldSamples(LeafSystem):
+    """Holds a :class:`ContextFitter`'s samples between its decisions.
+
+    .. pydrake_system::
+
+        name: HeldSamples
+        input_ports:
+        - state
+        - actuation
+        - context_id
+        - frame_labels (optional)
+        output_ports:
+        - held_samples
+
+    The inputs are the fitter's (connect the same sources). A periodic unrestricted update every
+    ``sample_period_s`` (offset 0) appends the sample (time, state, actuation, context id,
+    frame-labels version) to a ring of ``capacity`` rows, oldest first: ``held_samples``
+    (``capacity`` x 12, from state). It is a system of its own because Drake copies the whole
+    state of a system at each of its unrestricted updates: here a few numbers per sample, where
+    the fitter's holds the estimator. Unrestricted, not discrete, so that a sample at the time of
+    another system's update reads the inputs from before that update, as the fitter's own
+    decision does.
+    """
+
+    def __init__(self, *, sample_period_s: float, capacity: int, relabel: bool = True) -> None:
+        super().__init__()
+        if not (isinstance(capacity, int) and capacity >= 1):
+            raise ValueError(f"HeldSamples: capacity must be an int >= 1, got {capacity!r}")
+        self._capacity = capacity
+        self._relabel = bool(relabel)
+        self._state_port = self.DeclareVectorInputPort("state", NX)
+        self._actuation_port = self.DeclareVectorInputPort("actuation", NU)
+        self._context_id_port = self.DeclareVectorInputPort("context_id", 1)
+        self._frame_labels_port = self.DeclareAbstractInputPort(
+            "frame_labels", AbstractValue.Make(FrameLabels())
+        )
+        rows = np.zeros((capacity, _ROW))
+        rows[:, 0] = -math.inf  # empty
+        self._rows_index = self.DeclareDiscreteState(BasicVector(rows.ravel()))
+        self.DeclarePeriodicUnrestrictedUpdateEvent(
+            period_sec=float(sample_period_s), offset_sec=0.0, update=self._on_sample
+        )
+        self.DeclareStateOutputPort("held_samples", self._rows_index)
+
+    def _on_sample(self, context: Context, state: State) -> EventStatus:
+        rows = context.get_discrete_state(self._rows_index).get_value()
+        new = np.empty_like(rows)
+        new[:-_ROW] = rows[_ROW:]
+        new[-_ROW:] = sample_row(
+            context,
+            self._state_port,
+            self._actuation_port,
+            self._context_id_port,
+            self._frame_labels_port if self._relabel else None,
+        )
+        state.get_mutable_discrete_state(self._rows_index).SetFromVector(new)
+        return EventStatus.Succeeded()

@@ -19,7 +19,7 @@ from pcvfe_drake.estimation.context_estimator import EstimateTable
 from pcvfe_drake.handing.config import HandingConfig
 from pcvfe_drake.hardware.scheduling import control_priority, real_time_permitted
 from pcvfe_drake.models.synthetic_drive import s_curve_drive
-from pcvfe_drake.systems.context_fitter import ContextFitter
+from pcvfe_drake.systems.context_fitter import ContextFitter, HeldSamples
 from pcvfe_drake.vehicle.params import ford_escort
 
 
@@ -252,3 +252,81 @@ def test_the_refit_worker_runs_at_ordinary_priority_beside_a_real_time_loop(para
     assert loop_policy == os.SCHED_FIFO and loop not in policies
     assert policies, "the refit ran in no new thread"
     assert set(policies.values()) == {os.SCHED_OTHER}, policies
+
+
+def _recorded_drive_diagram(params, decision_period_s, latency_s):
+    """The recorded drive of the test above (two contexts, noise between and at the end) into a
+    fitter deciding every ``decision_period_s`` (with its HeldSamples where that is longer
+    than the sample period)."""
+    t, S, U = s_curve_drive(params, [0.45, 0.8], duration_s=3.0, phase_rad=[0.0, 1.5])
+    n = t.size
+    times = np.concatenate([t, t + 3.01 + 0.5])
+    ctx = np.concatenate([np.full(n, 2.0), np.full(n, 5.0)])
+    ctx[-50:] = -1.0
+    ctx[n - 1] = -1.0
+    builder = DiagramBuilder()
+    sources = [
+        builder.AddSystem(TrajectorySource(PiecewisePolynomial.ZeroOrderHold(times, y.T)))
+        for y in (np.concatenate([S[0], S[1]]), np.concatenate([U[0], U[1]]), ctx[None, :].T)
+    ]
+    fitter = builder.AddNamedSystem(
+        "fitter",
+        ContextFitter(
+            params,
+            period_s=1.0,
+            latency_s=latency_s,
+            decision_period_s=decision_period_s,
+            handing=HandingConfig(noise_hold_s=0.25),
+        ),
+    )
+    takers = [fitter]
+    if fitter.decision_period_s > fitter.sample_period_s:
+        held = builder.AddSystem(
+            HeldSamples(sample_period_s=fitter.sample_period_s, capacity=fitter.held_capacity)
+        )
+        builder.Connect(held.get_output_port(), fitter.GetInputPort("held_samples"))
+        takers.append(held)
+    for taker in takers:
+        for source, name in zip(sources, ("state", "actuation", "context_id"), strict=True):
+            builder.Connect(source.get_output_port(), taker.GetInputPort(name))
+    return builder.Build(), fitter, times[-1]
+
+
+@pytest.mark.parametrize("latency_s", [0.0, 0.33])
+def test_a_decision_period_hands_the_controller_what_a_decision_every_sample_does(
+    params, latency_s
+):
+    """Deciding every 0.05 s from held samples: the estimator takes the same steps, so between
+    samples before each decision tick (where a controller reads it) theta_hat is the same, and
+    so are the final estimates; the fitter's own state is copied 5 times less often."""
+    runs = {}
+    for decision in (None, 0.05):
+        diagram, fitter, end = _recorded_drive_diagram(params, decision, latency_s)
+        simulator = Simulator(diagram)
+        fc = fitter.GetMyContextFromRoot(simulator.get_mutable_context())
+        thetas = []
+        for k in range(1, int(end / 0.05)):
+            simulator.AdvanceTo(k * 0.05 - 0.005)  # after the last decision before tick k
+            thetas.append(np.array(fitter.GetOutputPort("theta_hat").Eval(fc)))
+        simulator.AdvanceTo(end - 0.005)
+        runs[decision] = (np.array(thetas), fitter.estimator(fc).table(end))
+    (every, table_every), (held, table_held) = runs[None], runs[0.05]
+    assert np.ptp(every[:, 0]) > 0.3  # the drive moves theta (prior, 0.45, 0.8, the floor)
+    np.testing.assert_array_equal(every, held)
+    assert repr(table_every) == repr(table_held)  # (NaN std entries: not ==)
+
+
+def test_held_samples_and_decision_period_are_checked(params):
+    with pytest.raises(ValueError, match="whole multiple of sample_period_s"):
+        ContextFitter(params, decision_period_s=0.025)
+    with pytest.raises(ValueError, match="capacity"):
+        HeldSamples(sample_period_s=0.01, capacity=0)
+    fitter = ContextFitter(params, decision_period_s=0.05)
+    assert fitter.held_capacity == 6 and fitter.HasInputPort("held_samples")
+    assert not fitter.HasAnyDirectFeedthrough()
+    context = fitter.CreateDefaultContext()
+    for name, value in (("state", np.zeros(7)), ("actuation", np.zeros(2)), ("context_id", [0])):
+        fitter.GetInputPort(name).FixValue(context, value)
+    simulator = Simulator(fitter, context)
+    with pytest.raises(RuntimeError, match="held_samples input is not connected"):
+        simulator.AdvanceTo(0.05)
