@@ -109,8 +109,9 @@ class ContextFitter(LeafSystem):
     ``theta_hat`` is decided every ``decision_period_s`` (the period at which the controller
     reads it; default: every sample). With a longer decision period the samples in between come
     from a :class:`HeldSamples` system at the sample rate (input ``held_samples``), and one
-    unrestricted update at the last sample before each decision hands them to the estimator one
-    by one, in time order, with their own times: the estimator goes through the same steps as
+    unrestricted update, half a sample period after the last sample before each of the
+    controller's updates, hands them to the estimator one by one, in time order, with their own
+    times: the estimator goes through the same steps as
     with a decision at every sample (a refit or relabelling due at a held sample happens at
     that sample's time, on the data up to it), and the controller, whose updates fall on the
     decision period's multiples, reads the same ``theta_hat``. What changes is the cost: Drake
@@ -209,10 +210,12 @@ class ContextFitter(LeafSystem):
         self._held_port = None
         if self._per_decision > 1:
             self._held_port = self.DeclareVectorInputPort("held_samples", self.held_capacity * _ROW)
+        # Without held samples: at each sample, taking it. With them: half a sample period
+        # after the last sample before each decision tick, when HeldSamples holds it (its
+        # update at that tick is done), before the controller's update reads theta_hat.
+        offset = 0.0 if self._held_port is None else (self._per_decision - 0.5) * sample_period_s
         self.DeclarePeriodicUnrestrictedUpdateEvent(
-            period_sec=self._decision_period_s,
-            offset_sec=self._decision_period_s - self._sample_period_s,
-            update=self._on_decision,
+            period_sec=self._decision_period_s, offset_sec=offset, update=self._on_decision
         )
         self._theta_port = self.DeclareStateOutputPort("theta_hat", self._theta_index)
         self._table_port = self.DeclareAbstractOutputPort(
@@ -275,8 +278,7 @@ class ContextFitter(LeafSystem):
 
     @property
     def held_capacity(self) -> int:
-        """Rows the ``held_samples`` input holds (a decision's samples, the one the last
-        decision took and one whose event time fell a rounding error before the decision)."""
+        """Rows the ``held_samples`` input holds (a decision's samples and one more)."""
         return self._per_decision + 1
 
     def _sample_row(self, context: Context) -> np.ndarray:
@@ -333,16 +335,18 @@ class ContextFitter(LeafSystem):
         self._finish(estimator, t, live)
 
     def _on_decision(self, context: Context, state: State) -> EventStatus:
-        """Take the held samples and this one into the estimator; decide ``theta_hat``."""
+        """Take the samples since the last decision into the estimator (the held ones, or
+        without held samples this one); decide ``theta_hat``."""
         estimator = state.get_mutable_abstract_state(self._estimator_index).get_mutable_value()
         rows, last, next_refit = self._held(context)
-        current = self._sample_row(context)
-        if not (len(rows) and rows[-1, 0] >= current[0] - _TIME_EPS_S):
-            rows = np.vstack([rows, current[None, :]])  # else held at (nearly) this time
+        if self._held_port is None:
+            rows = self._sample_row(context)[None, :]
         for row in rows:
             next_refit = self._take(context, estimator, row, next_refit, live=True)
+        if len(rows):
+            last = max(last, float(rows[-1, 0]))
         self._set_theta(state, estimator)
-        schedule = np.array([max(last, float(rows[-1, 0])), next_refit])
+        schedule = np.array([last, next_refit])
         state.get_mutable_discrete_state(self._schedule_index).SetFromVector(schedule)
         return EventStatus.Succeeded()
 

@@ -306,9 +306,9 @@ def test_a_decision_period_hands_the_controller_what_a_decision_every_sample_doe
         fc = fitter.GetMyContextFromRoot(simulator.get_mutable_context())
         thetas = []
         for k in range(1, int(end / 0.05)):
-            simulator.AdvanceTo(k * 0.05 - 0.005)  # after the last decision before tick k
+            simulator.AdvanceTo(k * 0.05 - 0.002)  # after the last decision before tick k
             thetas.append(np.array(fitter.GetOutputPort("theta_hat").Eval(fc)))
-        simulator.AdvanceTo(end - 0.005)
+        simulator.AdvanceTo(end - 0.002)
         runs[decision] = (np.array(thetas), fitter.estimator(fc).table(end))
     (every, table_every), (held, table_held) = runs[None], runs[0.05]
     assert np.ptp(every[:, 0]) > 0.3  # the drive moves theta (prior, 0.45, 0.8, the floor)
