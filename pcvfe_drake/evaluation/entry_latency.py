@@ -61,7 +61,18 @@ def read_run(folder: Path) -> tuple[dict, pd.DataFrame, object]:
         raise FileNotFoundError(f"{folder}: no drive_log.parquet or drive_log.csv")
     summary = json.loads((folder / "summary.json").read_text())
     scenario = yaml.safe_load((folder / "scenario.yaml").read_text()) or {}
-    return summary, log, load_course(scenario.get("course") or None)
+    return summary, log, run_course(scenario)
+
+
+def run_course(scenario: dict):
+    """The course a stored run drove: its scenario's ``course``, else its world's own (a
+    generated world brings its course file), else the default course."""
+    course = scenario.get("course") or ""
+    if not course and scenario.get("world"):
+        from pcvfe_drake.diagrams.world_io import load_world, world_course_name
+
+        course = world_course_name(*load_world(scenario["world"]))
+    return load_course(course or None)
 
 
 def run_entries(folder: Path) -> dict:

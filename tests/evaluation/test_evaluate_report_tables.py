@@ -26,16 +26,18 @@ from pcvfe_drake.vehicle.single_track import STATE_NAMES
 COURSE = load_course("slalom")
 
 
-def _run_folder(folder, speed_mps: float, seed: int, *, enter_s: float = 5.0) -> None:
+def _run_folder(
+    folder, speed_mps: float, seed: int, *, enter_s: float = 5.0, course=COURSE
+) -> None:
     """A run along the course's centre line at ``speed_mps``: sand until ``enter_s``, then
     brick; brick's context 1 is reported 2 s after the entry, first fitted at 3 s, and the
     handed mu reaches the truth at 4 s (times scaled by nothing: the log's own clock)."""
     folder.mkdir(parents=True)
     t = np.arange(0.0, 12.0, 0.05)
     s = speed_mps * t
-    x = np.interp(s, np.arange(COURSE.n) * COURSE.ds, COURSE.x)
-    y = np.interp(s, np.arange(COURSE.n) * COURSE.ds, COURSE.y)
-    psi = np.interp(s, np.arange(COURSE.n) * COURSE.ds, COURSE.heading)
+    x = np.interp(s, np.arange(course.n) * course.ds, course.x)
+    y = np.interp(s, np.arange(course.n) * course.ds, course.y)
+    psi = np.interp(s, np.arange(course.n) * course.ds, course.heading)
     state = {"sx": x, "sy": y, "delta": 0 * t, "v": 0 * t + speed_mps, "psi": psi}
     state |= {"psi_dot": 0 * t, "beta": 0 * t}
     log = pd.DataFrame({"t": t, **state})
@@ -83,6 +85,23 @@ def test_entry_latency_and_the_time_lost_at_the_same_arc_length(tmp_path):
     assert "paper_eval / oracle" not in result["groups"]
     with pytest.raises(ValueError, match="--against kmpc"):
         experiment_entries(tmp_path / "exp", against="kmpc")
+
+
+def test_a_run_on_a_generated_world_is_measured_along_the_worlds_own_course(tmp_path):
+    """A generated world brings its course (the run's scenario names none): the lateral error
+    and the progress are taken along that course, not the default one."""
+    from pcvfe_drake.evaluation.entry_latency import run_course
+    from pcvfe_drake.vehicle.params import ford_escort
+    from pcvfe_drake.worlds.generate import write_generated_world
+
+    world_path, _ = write_generated_world(3, ford_escort(), tmp_path / "worlds")
+    course = run_course({"world": str(world_path), "course": ""})
+    assert course.length != pytest.approx(load_course(None).length)
+    folder = tmp_path / "run"
+    _run_folder(folder, 4.0, 0, course=course)
+    (folder / "scenario.yaml").write_text(yaml.safe_dump({"world": str(world_path), "course": ""}))
+    (brick,) = run_entries(folder)["entries"]
+    assert brick["lat"] < 1e-6  # on the world's centre line
 
 
 def test_entry_latency_needs_run_folders(tmp_path):
