@@ -31,7 +31,13 @@ A refit (:func:`incremental_refit`):
    core on the equivalent linear residual);
 4. accepts a step shorter than ``RELINEARISE_SCALE`` at once (the models hold there);
    after a longer one it relinearises (step 2 at the new point) and iterates while the cost
-   still falls, at most ``max_iterations`` times; a step that raised the cost is undone.
+   still falls, at most ``max_iterations`` times. A step that raised the cost is undone and
+   retried from the best point at ``1 / STEP_SHRINK`` of its length, at most
+   ``MAX_REJECTIONS`` times in a row, as the batch fit's Levenberg-Marquardt damps a rejected
+   step. Without the retry a refit started where mu lies far above the friction the data
+   used (the flat side of a peak tyre's cost, e.g. a first fit made before the context was
+   driven near its limit) stays there: the models linearised on the flat side have almost no
+   curvature, their minimiser lies on mu's lower bound, and the cost there is far higher.
 
 A context whose samples were relabelled (a re-clustering moved samples in or out, so a
 window's data may have changed) keeps its estimate but no window (``forget_windows``): its next
@@ -57,6 +63,17 @@ RELINEARISE_SCALE = 0.05
 parameter's typical magnitudes (``EffectParam.scale``; mu's is 0.1 of the nominal mu) from its
 linearisation point [-]: the quadratic model's error on the minimiser is of second order in
 that distance."""
+
+STEP_SHRINK = 4.0
+"""A step that raised the cost is retried at this fraction (1 / STEP_SHRINK) of its length from
+the best point [-], the factor by which the batch fit's Levenberg-Marquardt raises its damping
+after a rejected step (``models.estimate.fit``)."""
+
+MAX_REJECTIONS = 8
+"""Retries of a step that raised the cost before the refit stops at the best point, as many as
+the batch fit's Levenberg-Marquardt allows per iteration: 4^-8 of a step across the whole
+bounds is far inside ``RELINEARISE_SCALE``, where the windows' models hold and a retry costs no
+rollout."""
 
 
 @dataclass(frozen=True)
@@ -245,11 +262,11 @@ def incremental_refit(
 
     rollouts = 0
     history: list[float] = []
-    best = None
+    best = None  # (theta, cost, store) of the last accepted point
     converged = False
     iterations = 0
-    for iteration in range(1, max_iterations + 1):
-        iterations = iteration
+    rejections = 0
+    while True:
         far = np.any(np.abs(stored.theta - theta[free]) > RELINEARISE_SCALE * free_scale, axis=1)
         rows = np.flatnonzero(missing | far)
         if rows.size:
@@ -267,19 +284,30 @@ def incremental_refit(
         ssr, _, _ = quadratic(stored, theta[free], sigma)
         cost = ssr + prior_cost(theta)
         if best is not None and not cost < best[1]:
-            theta, stored = best[0], best[2]  # the longer step raised the cost: undo it
-            converged = True
-            break
+            # the step raised the cost: back to the best point, and retry a shorter step there
+            # while retries are left (the cost of a peak tyre rises steeply on one side of
+            # the peak, where a model linearised on the flat side overshoots)
+            rejections += 1
+            if rejections > MAX_REJECTIONS:
+                theta, stored = best[0], best[2]
+                converged = True
+                break
+            trial = best[0].copy()
+            trial[free] = best[0][free] + (theta[free] - best[0][free]) / STEP_SHRINK
+            theta, stored = trial, best[2]
+            continue
+        rejections = 0
+        iterations += 1
         history.append(cost)
         best = (theta.copy(), cost, stored)
         step = minimise_quadratic(stored, theta, problem)
-        short = np.all(np.abs(step[free] - theta[free]) <= RELINEARISE_SCALE * free_scale)
-        theta = step
-        if short:
+        if np.all(np.abs(step[free] - theta[free]) <= RELINEARISE_SCALE * free_scale):
+            theta = step  # a short step: the models hold there
             converged = True
             break
-    else:
-        theta, stored = best[0], best[2]  # the last step was not evaluated: keep the best
+        if iterations == max_iterations:
+            break  # the last step is not evaluated: keep the best point
+        theta = step
     ssr, gram, scores = quadratic(stored, theta[free], sigma)
     stored = WindowInformation(
         stored.keys, stored.theta, stored.ee, stored.ej, stored.jj, theta.copy()

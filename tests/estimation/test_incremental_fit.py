@@ -10,6 +10,7 @@ import pytest
 from pcvfe_drake.estimation.context_estimator import ContextEstimator
 from pcvfe_drake.estimation.effect_fit import EffectFitter
 from pcvfe_drake.estimation.incremental_fit import (
+    MAX_REJECTIONS,
     RELINEARISE_SCALE,
     Problem,
     WindowInformation,
@@ -128,6 +129,24 @@ def test_a_far_estimate_is_relinearised(drive):
     assert result.rollouts >= 1  # every window re-evaluated away from its point
     assert abs(result.model_theta[0] - batch.model_theta[0]) <= 0.5 * batch.model_std[0]
     np.testing.assert_array_equal(again.keys, info.keys)
+
+
+def test_a_refit_started_on_the_flat_side_of_the_peak_comes_down(drive):
+    """From a stale estimate far above the friction the data used, the models linearised there
+    send mu to its lower bound, where the cost is far higher: the refit retries shorter steps
+    (as the batch fit's Levenberg-Marquardt damps a rejected step) instead of staying put."""
+    t, S, U = drive
+    fitter = EffectFitter(ford_escort(), SHIPPED)
+    n = np.searchsorted(t, 18.0)
+    batch, info = fitter.refit(t[:n], S[:n], U[:n], None, 1.0489)
+    stale = info.estimate.copy()
+    stale[0] = 1.2
+    moved = WindowInformation(info.keys, info.theta, info.ee, info.ej, info.jj, stale)
+    result, _ = fitter.refit(t[:n], S[:n], U[:n], moved, 1.0489)
+    warm = fitter(t[:n], S[:n], U[:n], previous=stale, mu_start=1.0489)
+    assert abs(warm.model_theta[0] - batch.model_theta[0]) <= batch.model_std[0]
+    assert abs(result.model_theta[0] - batch.model_theta[0]) <= batch.model_std[0]
+    assert result.rollouts <= fitter.max_iterations * (1 + MAX_REJECTIONS)
 
 
 def test_estimator_resets_on_relabel_and_publishes_after_the_declared_latency(drive):
