@@ -12,7 +12,7 @@ import warnings
 
 import numpy as np
 from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import connected_components
+from scipy.sparse.csgraph import connected_components, depth_first_order
 from sklearn.cluster import HDBSCAN
 
 from pcvfe_drake.contexts.clustering_params import NOISE, ClusteringParams
@@ -101,7 +101,8 @@ def detach_small_groups(
             mass = np.bincount(comp, weights=weights[idx], minlength=n_comp)
             keep = mass[comp] >= params.min_cluster_size
         alive = np.flatnonzero(keep)
-        pocket = detach_pockets(d2[np.ix_(alive, alive)], weights[idx[alive]], params)
+        sub = d2 if keep.all() else d2[np.ix_(alive, alive)]
+        pocket = detach_pockets(sub, weights[idx[alive]], params)
         keep[alive[pocket]] = False
         out[idx[~keep]] = NOISE
     return out
@@ -115,24 +116,27 @@ def _reach_sq(d2: np.ndarray, k: int) -> np.ndarray:
 
 
 def _spanning_tree(r2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Minimum spanning tree of the complete graph with weights ``r2`` (Prim): the two ends and
-    the weight of each of its ``n - 1`` edges."""
+    """Minimum spanning tree of the complete graph with weights ``r2`` (M, M; the diagonal is
+    ignored), by Prim's algorithm (dense: M steps of O(M)): the two ends and the weight of each
+    of its ``M - 1`` edges."""
     n = r2.shape[0]
-    inside = np.zeros(n, dtype=bool)
-    inside[0] = True
+    done = np.zeros(n, dtype=bool)
+    done[0] = True
     best = r2[0].copy()
+    best[0] = np.inf
     parent = np.zeros(n, dtype=int)
     child = np.empty(n - 1, dtype=int)
     via = np.empty(n - 1, dtype=int)
     weight = np.empty(n - 1)
     for e in range(n - 1):
-        cand = np.where(inside, np.inf, best)
-        j = int(cand.argmin())
-        child[e], via[e], weight[e] = j, parent[j], cand[j]
-        inside[j] = True
-        closer = r2[j] < best
-        best = np.where(closer, r2[j], best)
-        parent = np.where(closer, j, parent)
+        j = int(best.argmin())
+        child[e], via[e], weight[e] = j, parent[j], best[j]
+        done[j] = True
+        best[j] = np.inf
+        row = r2[j]
+        closer = (row < best) & ~done
+        best[closer] = row[closer]
+        parent[closer] = j
     return child, via, weight
 
 
@@ -145,32 +149,17 @@ def _components(n: int, ends: tuple[np.ndarray, np.ndarray], linked: np.ndarray)
 
 def _subtrees(n: int, ends: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """For a tree of ``n`` points rooted at point 0: the end of each edge farther from the root,
-    and each point's (entry, exit) order of a depth-first walk, (n, 2): the points below an
-    edge are those whose entry lies within its far end's entry and exit."""
-    adj: list[list[tuple[int, int]]] = [[] for _ in range(n)]
-    for e, (a, b) in enumerate(zip(*ends, strict=True)):
-        adj[int(a)].append((int(b), e))
-        adj[int(b)].append((int(a), e))
-    far = np.empty(len(ends[0]), dtype=int)
-    span = np.zeros((n, 2), dtype=int)
-    seen = np.zeros(n, dtype=bool)
-    seen[0] = True
-    clock = 0
-    stack: list[tuple[int, int]] = [(0, 0)]
-    while stack:
-        node, i = stack.pop()
-        if i == 0:
-            span[node, 0] = clock
-            clock += 1
-        if i < len(adj[node]):
-            stack.append((node, i + 1))
-            nxt, e = adj[node][i]
-            if not seen[nxt]:
-                seen[nxt] = True
-                far[e] = nxt
-                stack.append((nxt, 0))
-        else:
-            span[node, 1] = clock - 1
+    and each point's (first, last) position in a depth-first order, (n, 2): the points below an
+    edge are those whose position lies within its far end's first and last."""
+    graph = csr_matrix((np.ones(len(ends[0])), ends), shape=(n, n))
+    order, parent = depth_first_order(graph, 0, directed=False, return_predecessors=True)
+    size = np.ones(n, dtype=int)
+    for node in order[:0:-1]:
+        size[parent[node]] += size[node]
+    first = np.empty(n, dtype=int)
+    first[order] = np.arange(n)
+    span = np.stack([first, first + size - 1], axis=1)
+    far = np.where(parent[ends[0]] == ends[1], ends[0], ends[1])
     return far, span
 
 
