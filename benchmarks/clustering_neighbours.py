@@ -6,7 +6,9 @@ its bounded store (at most ``max_stored`` = 2000 vectors of 36 numbers by defaul
 - ``kth``: each context member's leave-one-out distance to its k-th nearest other member (the
   outlier gate, at every re-clustering; ``density_gate.kth_member_distances``);
 - ``detach``: within each HDBSCAN cluster, the graph of members closer than the cluster's gate
-  and its connected components (every re-clustering; ``density_gate.detach_small_groups``);
+  and its connected components, then the pockets on the tree of the survivors (every
+  re-clustering; ``density_gate.detach_small_groups``; the pocket step is the project's own in
+  both columns);
 - ``gate``: a frame's nearest stored member and its k-th nearest member of that context, the
   online assignment of every camera frame (``GateIndex.labels``), one frame at a time and in
   blocks of 4096 (``ContextClusterer.predict``).
@@ -32,6 +34,7 @@ import time
 
 import numpy as np
 from scipy.sparse.csgraph import connected_components
+from sklearn.metrics import pairwise_distances
 from sklearn.neighbors import NearestNeighbors
 from threadpoolctl import threadpool_limits
 
@@ -39,6 +42,7 @@ from pcvfe_drake.contexts.clustering import ClusteringParams, ContextClusterer, 
 from pcvfe_drake.contexts.clustering_params import NOISE
 from pcvfe_drake.contexts.density_gate import (
     GateIndex,
+    detach_pockets,
     detach_small_groups,
     gate_radius,
     kth_member_distances,
@@ -73,10 +77,15 @@ def sk_detach(x, labels, weights, params: ClusteringParams, algorithm: str) -> n
         gate = gate_radius(kth, params, float((members * members).sum(1).max()))
         graph = nn.radius_neighbors_graph(radius=gate, mode="connectivity")
         n_comp, comp = connected_components(graph, directed=False)
-        if n_comp == 1:
-            continue
-        mass = np.bincount(comp, weights=weights[idx], minlength=n_comp)
-        out[idx[mass[comp] < params.min_cluster_size]] = NOISE
+        keep = np.ones(idx.size, dtype=bool)
+        if n_comp > 1:
+            mass = np.bincount(comp, weights=weights[idx], minlength=n_comp)
+            keep = mass[comp] >= params.min_cluster_size
+        alive = np.flatnonzero(keep)
+        full = pairwise_distances(members[alive], metric="sqeuclidean")
+        np.fill_diagonal(full, np.inf)
+        keep[alive[detach_pockets(full, weights[idx[alive]], params)]] = False
+        out[idx[~keep]] = NOISE
     return out
 
 

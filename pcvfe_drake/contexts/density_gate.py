@@ -12,7 +12,7 @@ import warnings
 
 import numpy as np
 from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import connected_components
+from scipy.sparse.csgraph import connected_components, depth_first_order
 from sklearn.cluster import HDBSCAN
 
 from pcvfe_drake.contexts.clustering_params import NOISE, ClusteringParams
@@ -78,7 +78,10 @@ def detach_small_groups(
     cluster as members of that cluster: the first frames of a new terrain next to a known one
     join the known context, and the outlier gate would then pass the new terrain's frames. Within
     each cluster, members are linked when closer than the cluster's gate; linked groups that
-    stand for fewer than ``min_cluster_size`` frames (sum of weights) become noise.
+    stand for fewer than ``min_cluster_size`` frames (sum of weights) become noise. Such a group
+    also widens the gate it is judged by (its sparse members set the gate's high quantile), so a
+    group can stay linked only through its own width: :func:`detach_pockets` then removes the
+    groups that lie beyond the gate the rest of the cluster has without them.
     """
     out = labels.copy()
     for k in np.unique(labels[labels >= 0]):
@@ -93,12 +96,161 @@ def detach_small_groups(
         kth = np.sqrt(np.partition(d2, kk - 1, axis=1)[:, kk - 1])
         gate = gate_radius(kth, params, float(sq.max()))
         n_comp, comp = connected_components(csr_matrix(d2 <= gate * gate), directed=False)
-        if n_comp == 1:
-            continue
-        mass = np.bincount(comp, weights=weights[idx], minlength=n_comp)
-        small = mass[comp] < params.min_cluster_size
-        out[idx[small]] = NOISE
+        keep = np.ones(idx.size, dtype=bool)
+        if n_comp > 1:
+            mass = np.bincount(comp, weights=weights[idx], minlength=n_comp)
+            keep = mass[comp] >= params.min_cluster_size
+        alive = np.flatnonzero(keep)
+        sub = d2 if keep.all() else d2[np.ix_(alive, alive)]
+        pocket = detach_pockets(sub, weights[idx[alive]], params)
+        keep[alive[pocket]] = False
+        out[idx[~keep]] = NOISE
     return out
+
+
+def _reach_sq(d2: np.ndarray, k: int) -> np.ndarray:
+    """Squared mutual reachability distances of ``d2`` (squared distances, diagonal inf) with
+    the leave-one-out k-th-neighbour distance as each point's core distance."""
+    core = np.partition(d2, k - 1, axis=1)[:, k - 1]
+    return np.maximum(d2, np.maximum(core[:, None], core[None, :]))
+
+
+def _spanning_tree(r2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Minimum spanning tree of the complete graph with weights ``r2`` (M, M; the diagonal is
+    ignored), by Prim's algorithm (dense: M steps of O(M)): the two ends and the weight of each
+    of its ``M - 1`` edges."""
+    n = r2.shape[0]
+    done = np.zeros(n, dtype=bool)
+    done[0] = True
+    best = r2[0].copy()
+    best[0] = np.inf
+    parent = np.zeros(n, dtype=int)
+    child = np.empty(n - 1, dtype=int)
+    via = np.empty(n - 1, dtype=int)
+    weight = np.empty(n - 1)
+    for e in range(n - 1):
+        j = int(best.argmin())
+        child[e], via[e], weight[e] = j, parent[j], best[j]
+        done[j] = True
+        best[j] = np.inf
+        row = r2[j]
+        closer = (row < best) & ~done
+        best[closer] = row[closer]
+        parent[closer] = j
+    return child, via, weight
+
+
+def _components(n: int, ends: tuple[np.ndarray, np.ndarray], linked: np.ndarray) -> np.ndarray:
+    """Component label of each of ``n`` points under the tree edges ``ends`` where ``linked``."""
+    a, b = ends[0][linked], ends[1][linked]
+    graph = csr_matrix((np.ones(a.size), (a, b)), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
+
+
+def _subtrees(n: int, ends: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """For a tree of ``n`` points rooted at point 0: the end of each edge farther from the root,
+    and each point's (first, last) position in a depth-first order, (n, 2): the points below an
+    edge are those whose position lies within its far end's first and last."""
+    graph = csr_matrix((np.ones(len(ends[0])), ends), shape=(n, n))
+    order, parent = depth_first_order(graph, 0, directed=False, return_predecessors=True)
+    size = np.ones(n, dtype=int)
+    for node in order[:0:-1]:
+        size[parent[node]] += size[node]
+    first = np.empty(n, dtype=int)
+    first[order] = np.arange(n)
+    span = np.stack([first, first + size - 1], axis=1)
+    far = np.where(parent[ends[0]] == ends[1], ends[0], ends[1])
+    return far, span
+
+
+def _gate_of(d2: np.ndarray, rows: np.ndarray, params: ClusteringParams) -> float:
+    """Outlier gate (without the rounding floor) of the points ``rows`` of ``d2`` (squared
+    distances, diagonal inf) among themselves."""
+    k = min(params.gate_neighbours, rows.size - 1)
+    kth = np.partition(d2[np.ix_(rows, rows)], k - 1, axis=1)[:, k - 1]
+    return params.gate_scale * float(np.quantile(np.sqrt(kth), params.gate_quantile))
+
+
+def detach_pockets(d2: np.ndarray, weights: np.ndarray, params: ClusteringParams) -> np.ndarray:
+    """(M,) bool: the members of one cluster that form pockets, given their squared pairwise
+    distances ``d2`` (M, M; diagonal inf) and weights (M,).
+
+    The members are linked as HDBSCAN links points, by the minimum spanning tree of their
+    mutual reachability distances, here with the gate's own k (``gate_neighbours``): two members
+    are as far apart as the larger of their distance and their k-th-neighbour distances, the
+    density a new frame must meet at the gate. An edge of the tree parts the lighter side from
+    the rest; the side is separated when the edge is longer than the gate the rest has without
+    it, so the side's own sparse members, which widen the whole cluster's gate, cannot keep it
+    linked. A separated side of at least ``gate_neighbours`` members (enough to pass a frame by
+    themselves) is a pocket where it stands for fewer than ``min_cluster_size`` frames: HDBSCAN
+    could not make a cluster of it and kept it as members. A heavier side that falls apart at
+    the rest's gate into several groups of at least ``gate_neighbours`` members loses those
+    lighter than ``min_cluster_size``, so that several foreign groups, each small and far from
+    the others, do not pass as one lobe; a side that stays one group (a lobe HDBSCAN kept) and
+    a group as heavy as a cluster stay. Members off the body alone or in pairs stay: they
+    cannot pass a frame by themselves. A cluster without a pocket keeps every member, so its
+    gate is exactly the one its members give. Edges are tried longest first; after each pocket
+    the remaining edges are tried again against the smaller rest.
+    """
+    m = d2.shape[0]
+    pocket = np.zeros(m, dtype=bool)
+    k = min(params.gate_neighbours, m - 1)
+    if k < 1 or m <= params.gate_neighbours:
+        return pocket
+    child, via, weight = _spanning_tree(_reach_sq(d2, k))
+    order = np.argsort(weight)[::-1]
+    kth = np.sqrt(np.partition(d2, k - 1, axis=1)[:, k - 1])
+    ends = (child, via)
+    far, span = _subtrees(m, ends)
+    mcs = params.min_cluster_size
+    while True:
+        total = float(weights[~pocket].sum())
+        if total < mcs:
+            return pocket
+        # Dropping members can only lengthen the others' k-th-neighbour distances, so a rest's
+        # gate is at least the one of its members' distances as they are now (``bound``).
+        # The lighter side leaves at least half the weight: a floor for every rest's gate.
+        n = int((~pocket).sum())
+        half = int((np.cumsum(np.sort(weights[~pocket])) <= total / 2).sum())
+        least = np.sort(kth[~pocket])[: max(1, n - half)]
+        floor = params.gate_scale * float(np.quantile(least, params.gate_quantile))
+        live = ~pocket[child] & ~pocket[via]
+        found = None
+        for e in order:
+            if weight[e] <= floor * floor:
+                break
+            if not live[e]:
+                continue
+            lo, hi = span[far[e]]
+            side = (span[:, 0] >= lo) & (span[:, 0] <= hi) & ~pocket
+            mass = float(weights[side].sum())
+            small = side if mass <= total - mass else ~side & ~pocket
+            rest = ~small & ~pocket
+            if small.sum() < params.gate_neighbours or weights[rest].sum() < mcs:
+                continue
+            bound = params.gate_scale * float(np.quantile(kth[rest], params.gate_quantile))
+            if weight[e] <= bound * bound:
+                continue
+            gate = _gate_of(d2, np.flatnonzero(rest), params)
+            if weight[e] <= gate * gate:
+                continue
+            if weights[small].sum() >= mcs:
+                cut = live & (weight <= gate * gate)
+                cut[e] = False
+                pieces = _components(m, ends, cut)
+                count = np.bincount(pieces[small], minlength=m)
+                group = count >= params.gate_neighbours
+                if group.sum() < 2:
+                    continue  # one group, with stragglers at most: a lobe
+                light = np.bincount(pieces[small], weights[small], minlength=m) < mcs
+                small = small & (group & light)[pieces]
+                if not small.any():
+                    continue
+            found = small
+            break
+        if found is None:
+            return pocket
+        pocket |= found
 
 
 class GateIndex:

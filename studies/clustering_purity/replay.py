@@ -33,11 +33,14 @@ Usage (from the repository root, with the project's venv)::
 
     python studies/clustering_purity/replay.py RUN_OR_FOLDER... --out result.json
     python studies/clustering_purity/replay.py --compare before.json after.json
+    python studies/clustering_purity/replay.py --held-out --compare before.json after.json
+    python studies/clustering_purity/replay.py --held-out --compare b.json a.json --known x.json
 
 A folder is searched for run folders (those holding ``drive_log.parquet`` or ``drive_log.csv``).
 ``--compare`` prints the two results side by side for the ``--dev`` folders (with
-``--held-out`` also for the rest, the runs judged only at the end). The study: ``README.md``
-here.
+``--held-out`` also for the rest, the runs judged only at the end; with ``--known``, the rest
+named in those earlier result files is held out and the others are fresh). The study:
+``README.md`` here.
 """
 
 from __future__ import annotations
@@ -335,23 +338,31 @@ def _is_dev(run: str, dev: list[str]) -> bool:
     return any(run == d or run.startswith(d.rstrip("/") + "/") for d in dev)
 
 
-def compare(before: Path, after: Path, dev: list[str], held_out: bool) -> dict:
+def compare(
+    before: Path, after: Path, dev: list[str], held_out: bool, known: list[Path] | None = None
+) -> dict:
     """Before/after summaries over the runs whose replay is trusted in ``before`` (agreement 1.0
-    with the code that ran them): the development set, and with ``held_out`` the rest."""
+    with the code that ran them): the development set, and with ``held_out`` the rest. With
+    ``known`` (result files of an earlier comparison) the rest is split: runs named in them are
+    held out, the others are fresh."""
     a = {r["run"]: r for r in json.loads(before.read_text())["runs"]}
     b = {r["run"]: r for r in json.loads(after.read_text())["runs"]}
     trusted = sorted(k for k, r in a.items() if r.get("usable") and r["agreement"] == 1.0)
     missing = [k for k in trusted if not b.get(k, {}).get("usable")]
     if missing:
         raise ValueError(f"{after}: lacks trusted runs of {before}, e.g. {missing[0]}")
-    out = {}
-    for name, keep in (("dev", True), ("held_out", False))[: 2 if held_out else 1]:
-        runs = [k for k in trusted if _is_dev(k, dev) == keep]
-        out[name] = {
-            "before": _summary([a[k] for k in runs]),
-            "after": _summary([b[k] for k in runs]),
-        }
-    return out
+    seen = {r["run"] for f in known or [] for r in json.loads(f.read_text())["runs"]}
+    groups = {"dev": [k for k in trusted if _is_dev(k, dev)]}
+    rest = [k for k in trusted if not _is_dev(k, dev)]
+    if held_out and known:
+        groups["held_out"] = [k for k in rest if k in seen]
+        groups["fresh"] = [k for k in rest if k not in seen]
+    elif held_out:
+        groups["held_out"] = rest
+    return {
+        name: {"before": _summary([a[k] for k in runs]), "after": _summary([b[k] for k in runs])}
+        for name, runs in groups.items()
+    }
 
 
 def _print_compare(result: dict) -> None:
@@ -372,9 +383,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--held-out", action="store_true", help="--compare: also the runs outside --dev"
     )
+    ap.add_argument(
+        "--known",
+        nargs="*",
+        type=Path,
+        help="--compare --held-out: result files whose runs are held out; the others are fresh",
+    )
     args = ap.parse_args(argv)
     if args.compare:
-        result = compare(*args.compare, dev=args.dev, held_out=args.held_out)
+        result = compare(*args.compare, dev=args.dev, held_out=args.held_out, known=args.known)
         _print_compare(result)
         if args.out:
             args.out.write_text(json.dumps(result, indent=1))
