@@ -278,12 +278,15 @@ def score(run: RunFrames, result: Replay) -> dict:
     }
 
 
-def replay_folder(folder: Path) -> dict:
-    """Replay and score one run folder (``usable`` False with the reason when it cannot be)."""
+def replay_folder(folder: Path, settings: dict | None = None) -> dict:
+    """Replay and score one run folder (``usable`` False with the reason when it cannot be),
+    with the run's clustering settings changed by ``settings`` (field: value)."""
     row: dict = {"run": str(folder)}
     try:
         run = load_run(folder)
-    except ValueError as err:
+        if settings:
+            run = replace(run, params=replace(run.params, **settings))
+    except (ValueError, TypeError) as err:
         return {**row, "usable": False, "reason": str(err)}
     start = time.perf_counter()
     result = replay(run)
@@ -389,7 +392,21 @@ def main(argv: list[str] | None = None) -> int:
         type=Path,
         help="--compare --held-out: result files whose runs are held out; the others are fresh",
     )
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="replay with this clustering setting changed (YAML value, e.g. "
+        "continuation_hold_s=null); repeatable",
+    )
     args = ap.parse_args(argv)
+    settings = {}
+    for item in args.set:
+        field_name, eq, value = item.partition("=")
+        if not eq:
+            ap.error(f"--set {item!r}: expected FIELD=VALUE")
+        settings[field_name.strip()] = yaml.safe_load(value)
     if args.compare:
         result = compare(*args.compare, dev=args.dev, held_out=args.held_out, known=args.known)
         _print_compare(result)
@@ -400,7 +417,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("give run folders, or --compare BEFORE AFTER")
     rows = []
     for folder in run_folders(args.paths):
-        row = replay_folder(folder)
+        row = replay_folder(folder, settings)
         rows.append(row)
         if row["usable"]:
             print(
