@@ -85,15 +85,20 @@ def scenario_world(scenario, vehicle=None) -> World:
     )
 
 
+def course_to_drive(course: str, world) -> str:
+    """The course a run drives: ``course`` when it names one, else the course of ``world`` (a
+    shipped name or a file; "" when neither names one)."""
+    if course or not world:
+        return course or ""
+    return world_course_name(*load_world(world))
+
+
 def scenario_course(scenario) -> Course:
     """The course a scenario drives (its own ``course``, else its world's), without building
     the world's terrain raster."""
-    if scenario.course:
-        return load_course(scenario.course)
-    spec, path = load_world(scenario.world)
-    name = world_course_name(spec, path)
+    name = course_to_drive(scenario.course, scenario.world)
     if not name:
-        raise ValueError(f"scenario {scenario.name!r}: the world {spec.name!r} has no course")
+        raise ValueError(f"scenario {scenario.name!r}: the world {scenario.world!r} has no course")
     return load_course(name)
 
 

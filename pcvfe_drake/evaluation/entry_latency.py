@@ -67,12 +67,9 @@ def read_run(folder: Path) -> tuple[dict, pd.DataFrame, object]:
 def run_course(scenario: dict):
     """The course a stored run drove: its scenario's ``course``, else its world's own (a
     generated world brings its course file), else the default course."""
-    course = scenario.get("course") or ""
-    if not course and scenario.get("world"):
-        from pcvfe_drake.diagrams.world_io import load_world, world_course_name
+    from pcvfe_drake.diagrams.world_io import course_to_drive
 
-        course = world_course_name(*load_world(scenario["world"]))
-    return load_course(course or None)
+    return load_course(course_to_drive(scenario.get("course") or "", scenario.get("world")) or None)
 
 
 def run_entries(folder: Path) -> dict:
