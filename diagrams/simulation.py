@@ -41,7 +41,7 @@ from pcvfe_drake.runs.runlog import RunLog
 from pcvfe_drake.runs.scenario import Scenario
 from pcvfe_drake.systems.clip_features import ClipFeatures
 from pcvfe_drake.systems.context_clustering import ContextClustering
-from pcvfe_drake.systems.context_fitter import ContextFitter, HeldSamples
+from pcvfe_drake.systems.context_fitter import ContextFitter, HeldSamples, samples_per_period
 from pcvfe_drake.systems.lookup_friction import LookupFriction
 from pcvfe_drake.systems.meshcat_view import MeshcatView
 from pcvfe_drake.systems.nmpc import Nmpc
@@ -74,8 +74,7 @@ def nmpc_config(scenario: Scenario) -> NmpcConfig:
 def _decision_period(rates) -> float | None:
     """The fitter decides ``theta_hat`` at the NMPC's period when it is a whole multiple of
     the sampling period (the NMPC reads it at that period's multiples), else at every sample."""
-    per = round(rates.nmpc_period_s / rates.fitter_sample_period_s)
-    if per >= 1 and abs(per * rates.fitter_sample_period_s - rates.nmpc_period_s) <= 1e-9:
+    if samples_per_period(rates.nmpc_period_s, rates.fitter_sample_period_s):
         return rates.nmpc_period_s
     return None
 

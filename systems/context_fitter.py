@@ -45,19 +45,25 @@ def sample_row(context: Context, state, actuation, context_id, frame_labels) -> 
     return row
 
 
+def samples_per_period(period_s, sample_period_s: float) -> int:
+    """How many sampling periods make ``period_s`` (0 where it is not a whole multiple)."""
+    ok = isinstance(period_s, int | float) and math.isfinite(period_s)
+    per = round(period_s / sample_period_s) if ok else 0
+    return per if per >= 1 and abs(per * sample_period_s - period_s) <= 1e-9 else 0
+
+
 def _decision_period(decision_period_s, sample_period_s: float) -> tuple[float, int]:
     """``(decision period [s], samples per decision)``; a clear error unless it is a whole
     multiple of the sample period."""
     if decision_period_s is None:
         return sample_period_s, 1
-    ok = isinstance(decision_period_s, int | float) and math.isfinite(decision_period_s)
-    per = round(decision_period_s / sample_period_s) if ok else 0
-    if not (ok and per >= 1 and abs(per * sample_period_s - decision_period_s) <= 1e-9):
+    per = samples_per_period(decision_period_s, sample_period_s)
+    if not per:
         raise ValueError(
             f"ContextFitter: decision_period_s must be a whole multiple of sample_period_s "
             f"({sample_period_s!r} s), got {decision_period_s!r}"
         )
-    return float(decision_period_s), int(per)
+    return float(decision_period_s), per
 
 
 class ContextFitter(LeafSystem):
