@@ -392,6 +392,8 @@ class ContextFitter(LeafSystem):
         one a held sample saw; the labels are those standing now, which differ from its own
         only on frames after it unless a second re-clustering came in between); True if it
         had."""
+        if version is not None and version <= estimator.labels_version:
+            return False  # the sample saw no new version: no port read on the per-sample path
         if not (self._config.relabel and self._frame_labels_port.HasValue(context)):
             return False
         frames = self._frame_labels_port.Eval(context)
