@@ -258,6 +258,17 @@ def _sign(y):
 
 
 @jit(inline="always")
+def _shape(c, d, e, k, x):
+    """The magic formula's ``C atan(B x - E (B x - atan(B x)))`` at slip ``x`` with the
+    stiffness factor ``B = k / (C D)``, and the denominator ``C D`` (B NaN where it is 0: the
+    package divides by zero there, which uncompiled Python would raise)."""
+    den = c * d
+    b = k / den if den != 0.0 else math.nan
+    bx = b * x
+    return c * math.atan(bx - e * (bx - math.atan(bx))), den
+
+
+@jit(inline="always")
 def _pure_longitudinal(slip, gamma, fz, pv):
     """Longitudinal force [N] at pure slip (the package's ``formula_longitudinal``): slip
     ``slip`` [-] (the package negates it), camber ``gamma`` [rad], vertical load ``fz`` [N].
@@ -268,14 +279,9 @@ def _pure_longitudinal(slip, gamma, fz, pv):
     s_vx = fz * pv[P_VX1]
     kappa_x = kappa + s_hx
     mu_x = pv[P_DX1] * (1.0 - pv[P_DX3] * _libm_pow(gamma, 2.0))
-    c_x = pv[P_CX1]
     d_x = mu_x * fz
-    e_x = pv[P_EX1]
-    k_x = fz * pv[P_KX1]
-    den = c_x * d_x
-    b_x = k_x / den if den != 0.0 else math.nan  # (uncompiled Python would raise at 0)
-    bk = b_x * kappa_x
-    return d_x * math.sin(c_x * math.atan(bk - e_x * (bk - math.atan(bk))) + s_vx), den
+    shape, den = _shape(pv[P_CX1], d_x, pv[P_EX1], fz * pv[P_KX1], kappa_x)
+    return d_x * math.sin(shape + s_vx), den
 
 
 @jit(inline="always")
@@ -288,15 +294,9 @@ def _pure_lateral(alpha, gamma, fz, pv):
     s_vy = sg * fz * (pv[P_VY1] + pv[P_VY3] * math.fabs(gamma))
     alpha_y = alpha + s_hy
     mu_y = pv[P_DY1] * (1.0 - pv[P_DY3] * _libm_pow(gamma, 2.0))
-    c_y = pv[P_CY1]
     d_y = mu_y * fz
-    e_y = pv[P_EY1]
-    k_y = fz * pv[P_KY1]
-    den = c_y * d_y
-    b_y = k_y / den if den != 0.0 else math.nan
-    ba = b_y * alpha_y
-    f_y = d_y * math.sin(c_y * math.atan(ba - e_y * (ba - math.atan(ba)))) + s_vy
-    return f_y, mu_y, den
+    shape, den = _shape(pv[P_CY1], d_y, pv[P_EY1], fz * pv[P_KY1], alpha_y)
+    return d_y * math.sin(shape) + s_vy, mu_y, den
 
 
 @jit(inline="always")
