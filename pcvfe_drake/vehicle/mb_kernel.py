@@ -258,6 +258,21 @@ def _sign(y):
 
 
 @jit(inline="always")
+def _unsprung_roll_moment(F_sl, F_sr, T, F_ra, h_ra, R_w, F_zl, F_zr, F_yl, F_yr, K_lt, phi):
+    """An axle's unsprung roll moment [N m] from its suspension forces ``F_sl``, ``F_sr`` [N],
+    track ``T`` [m], anti-roll force ``F_ra`` [N] at height ``h_ra`` [m], the tyres' loads and
+    lateral forces [N] and the axle's roll ``phi`` [rad], without the term of the axle's
+    lateral force, which the caller subtracts (the package's order of operations)."""
+    return (
+        0.5 * F_sr * T
+        - 0.5 * F_sl * T
+        - F_ra * (h_ra - R_w)
+        + F_zl * (R_w * math.sin(phi) + 0.5 * T * math.cos(phi) - K_lt * F_yl)
+        - F_zr * (-R_w * math.sin(phi) + 0.5 * T * math.cos(phi) + K_lt * F_yr)
+    )
+
+
+@jit(inline="always")
 def _shape(c, d, e, k, x):
     """The magic formula's ``C atan(B x - E (B x - atan(B x)))`` at slip ``x`` with the
     stiffness factor ``B = k / (C D)``, and the denominator ``C D`` (B NaN where it is 0: the
@@ -526,22 +541,13 @@ def mb_derivative(x, steer_rate, accel, pv, out):
     )
 
     # sums on the unsprung masses
-    sumL_uf = (
-        0.5 * F_SRF * T_f
-        - 0.5 * F_SLF * T_f
-        - F_RAF * (h_raf - R_w)
-        + F_z_LF * (R_w * math.sin(x[13]) + 0.5 * T_f * math.cos(x[13]) - K_lt * F_y_LF)
-        - F_z_RF * (-R_w * math.sin(x[13]) + 0.5 * T_f * math.cos(x[13]) + K_lt * F_y_RF)
-        - ((F_y_LF + F_y_RF) * cos_d + (F_x_LF + F_x_RF) * sin_d) * (R_w - x[16])
-    )
-    sumL_ur = (
-        0.5 * F_SRR * T_r
-        - 0.5 * F_SLR * T_r
-        - F_RAR * (h_rar - R_w)
-        + F_z_LR * (R_w * math.sin(x[18]) + 0.5 * T_r * math.cos(x[18]) - K_lt * F_y_LR)
-        - F_z_RR * (-R_w * math.sin(x[18]) + 0.5 * T_r * math.cos(x[18]) + K_lt * F_y_RR)
-        - (F_y_LR + F_y_RR) * (R_w - x[21])
-    )
+    front_lateral = (F_y_LF + F_y_RF) * cos_d + (F_x_LF + F_x_RF) * sin_d
+    sumL_uf = _unsprung_roll_moment(
+        F_SLF, F_SRF, T_f, F_RAF, h_raf, R_w, F_z_LF, F_z_RF, F_y_LF, F_y_RF, K_lt, x[13]
+    ) - front_lateral * (R_w - x[16])
+    sumL_ur = _unsprung_roll_moment(
+        F_SLR, F_SRR, T_r, F_RAR, h_rar, R_w, F_z_LR, F_z_RR, F_y_LR, F_y_RR, K_lt, x[18]
+    ) - (F_y_LR + F_y_RR) * (R_w - x[21])
     sumZ_uf = F_z_LF + F_z_RF + F_RAF * sin_roll - (F_SLF + F_SRF) * cos_roll
     sumZ_ur = F_z_LR + F_z_RR + F_RAR * sin_roll - (F_SLR + F_SRR) * cos_roll
     sumY_uf = (
