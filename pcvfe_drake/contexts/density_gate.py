@@ -47,6 +47,17 @@ def fit_hdbscan(
         return model.fit_predict(x).astype(int)
 
 
+def _kth_smallest(d2: np.ndarray, k: int) -> np.ndarray:
+    """The k-th smallest entry (1-based) of each row of ``d2``."""
+    return np.partition(d2, k - 1, axis=1)[:, k - 1]
+
+
+def _scaled_quantile(kth: np.ndarray, params: ClusteringParams) -> float:
+    """``gate_scale`` times the ``gate_quantile`` of the k-th-neighbour distances ``kth``: the
+    outlier gate without its rounding floor."""
+    return params.gate_scale * float(np.quantile(kth, params.gate_quantile))
+
+
 def kth_member_distances(members: np.ndarray, k: int) -> np.ndarray:
     """Leave-one-out distance of each row of ``members`` (M, d) to its k-th nearest other row."""
     m = members.shape[0]
@@ -59,13 +70,13 @@ def kth_member_distances(members: np.ndarray, k: int) -> np.ndarray:
     for s in range(0, m, block):
         d2 = sq[s : s + block, None] - 2.0 * members[s : s + block] @ members.T + sq[None, :]
         d2[np.arange(d2.shape[0]), np.arange(s, s + d2.shape[0])] = np.inf
-        out[s : s + block] = np.partition(d2, k - 1, axis=1)[:, k - 1]
+        out[s : s + block] = _kth_smallest(d2, k)
     return np.sqrt(np.maximum(out, 0.0))
 
 
 def gate_radius(kth: np.ndarray, params: ClusteringParams, scale_sq: float) -> float:
     """Gate of a context from its members' k-th-neighbour distances (with a rounding floor)."""
-    gate = params.gate_scale * float(np.quantile(kth, params.gate_quantile)) if kth.size else 0.0
+    gate = _scaled_quantile(kth, params) if kth.size else 0.0
     return max(gate, 1e-6 * (1.0 + math.sqrt(scale_sq)))
 
 
@@ -93,7 +104,7 @@ def detach_small_groups(
         if kk < 1:
             continue
         np.fill_diagonal(d2, np.inf)
-        kth = np.sqrt(np.partition(d2, kk - 1, axis=1)[:, kk - 1])
+        kth = np.sqrt(_kth_smallest(d2, kk))
         gate = gate_radius(kth, params, float(sq.max()))
         n_comp, comp = connected_components(csr_matrix(d2 <= gate * gate), directed=False)
         keep = np.ones(idx.size, dtype=bool)
@@ -108,10 +119,9 @@ def detach_small_groups(
     return out
 
 
-def _reach_sq(d2: np.ndarray, k: int) -> np.ndarray:
+def _reach_sq(d2: np.ndarray, core: np.ndarray) -> np.ndarray:
     """Squared mutual reachability distances of ``d2`` (squared distances, diagonal inf) with
-    the leave-one-out k-th-neighbour distance as each point's core distance."""
-    core = np.partition(d2, k - 1, axis=1)[:, k - 1]
+    ``core`` (each point's squared leave-one-out k-th-neighbour distance) as core distances."""
     return np.maximum(d2, np.maximum(core[:, None], core[None, :]))
 
 
@@ -167,8 +177,7 @@ def _gate_of(d2: np.ndarray, rows: np.ndarray, params: ClusteringParams) -> floa
     """Outlier gate (without the rounding floor) of the points ``rows`` of ``d2`` (squared
     distances, diagonal inf) among themselves."""
     k = min(params.gate_neighbours, rows.size - 1)
-    kth = np.partition(d2[np.ix_(rows, rows)], k - 1, axis=1)[:, k - 1]
-    return params.gate_scale * float(np.quantile(np.sqrt(kth), params.gate_quantile))
+    return _scaled_quantile(np.sqrt(_kth_smallest(d2[np.ix_(rows, rows)], k)), params)
 
 
 def detach_pockets(d2: np.ndarray, weights: np.ndarray, params: ClusteringParams) -> np.ndarray:
@@ -197,9 +206,10 @@ def detach_pockets(d2: np.ndarray, weights: np.ndarray, params: ClusteringParams
     k = min(params.gate_neighbours, m - 1)
     if k < 1 or m <= params.gate_neighbours:
         return pocket
-    child, via, weight = _spanning_tree(_reach_sq(d2, k))
+    core = _kth_smallest(d2, k)
+    child, via, weight = _spanning_tree(_reach_sq(d2, core))
     order = np.argsort(weight)[::-1]
-    kth = np.sqrt(np.partition(d2, k - 1, axis=1)[:, k - 1])
+    kth = np.sqrt(core)
     ends = (child, via)
     far, span = _subtrees(m, ends)
     mcs = params.min_cluster_size
@@ -213,7 +223,7 @@ def detach_pockets(d2: np.ndarray, weights: np.ndarray, params: ClusteringParams
         n = int((~pocket).sum())
         half = int((np.cumsum(np.sort(weights[~pocket])) <= total / 2).sum())
         least = np.sort(kth[~pocket])[: max(1, n - half)]
-        floor = params.gate_scale * float(np.quantile(least, params.gate_quantile))
+        floor = _scaled_quantile(least, params)
         live = ~pocket[child] & ~pocket[via]
         found = None
         for e in order:
@@ -228,7 +238,7 @@ def detach_pockets(d2: np.ndarray, weights: np.ndarray, params: ClusteringParams
             rest = ~small & ~pocket
             if small.sum() < params.gate_neighbours or weights[rest].sum() < mcs:
                 continue
-            bound = params.gate_scale * float(np.quantile(kth[rest], params.gate_quantile))
+            bound = _scaled_quantile(kth[rest], params)
             if weight[e] <= bound * bound:
                 continue
             gate = _gate_of(d2, np.flatnonzero(rest), params)
@@ -293,7 +303,7 @@ class GateIndex:
             rows = np.flatnonzero(cand == cid)
             s, e = self.bounds[int(cid)]
             kk = min(self.k, e - s)
-            kth = np.partition(d2[rows, s:e], kk - 1, axis=1)[:, kk - 1]
+            kth = _kth_smallest(d2[rows, s:e], kk)
             out[rows] = np.where(kth <= self.gate_sq[int(cid)], cid, NOISE)
         return out
 
