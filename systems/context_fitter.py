@@ -5,11 +5,18 @@ from __future__ import annotations
 import math
 from concurrent.futures import ThreadPoolExecutor
 from copy import deepcopy
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import BasicVector, Context, EventStatus, LeafSystem, State
+from pydrake.systems.framework import (
+    BasicVector,
+    Context,
+    EventStatus,
+    InputPort,
+    LeafSystem,
+    State,
+)
 
 from pcvfe_drake.contexts.cluster_table import FrameLabels
 from pcvfe_drake.estimation.context_estimator import ContextEstimator, EstimateTable
@@ -29,20 +36,39 @@ _TIME_EPS_S = 1e-9
 """Event times closer than this are the same time [s]."""
 
 
-def sample_row(context: Context, state, actuation, context_id, frame_labels) -> np.ndarray:
-    """The fitter's sample at the context's time from its input ports: (t, state, actuation,
-    context id, frame-labels version; -inf where ``frame_labels`` is None or has no value)."""
-    row = np.empty(_ROW)
-    row[0] = context.get_time()
-    row[1 : 1 + NX] = state.Eval(context)
-    row[1 + NX : 1 + NX + NU] = actuation.Eval(context)
-    row[1 + NX + NU] = context_id.Eval(context)[0]
-    row[-1] = (
-        frame_labels.Eval(context).version
-        if frame_labels is not None and frame_labels.HasValue(context)
-        else -math.inf
-    )
-    return row
+@dataclass(frozen=True)
+class _SampleInputs:
+    """The input ports a fitter's sample is read from, declared alike by the fitter and by
+    :class:`HeldSamples` (state, actuation, context id, the optional frame labels)."""
+
+    state: InputPort
+    actuation: InputPort
+    context_id: InputPort
+    frame_labels: InputPort
+
+    @staticmethod
+    def declare(system: LeafSystem) -> _SampleInputs:
+        return _SampleInputs(
+            system.DeclareVectorInputPort("state", NX),
+            system.DeclareVectorInputPort("actuation", NU),
+            system.DeclareVectorInputPort("context_id", 1),
+            system.DeclareAbstractInputPort("frame_labels", AbstractValue.Make(FrameLabels())),
+        )
+
+    def row(self, context: Context, relabel: bool) -> np.ndarray:
+        """The sample at the context's time: (t, state, actuation, context id, frame-labels
+        version; -inf without ``relabel`` or where the labels have no value)."""
+        row = np.empty(_ROW)
+        row[0] = context.get_time()
+        row[1 : 1 + NX] = self.state.Eval(context)
+        row[1 + NX : 1 + NX + NU] = self.actuation.Eval(context)
+        row[1 + NX + NU] = self.context_id.Eval(context)[0]
+        row[-1] = (
+            self.frame_labels.Eval(context).version
+            if relabel and self.frame_labels.HasValue(context)
+            else -math.inf
+        )
+        return row
 
 
 def samples_per_period(period_s, sample_period_s: float) -> int:
@@ -203,12 +229,8 @@ class ContextFitter(LeafSystem):
         self._sample_period_s = float(sample_period_s)
         estimator = ContextEstimator(params, self._config, planner_mu_share=planner_mu_share)
 
-        self._state_port = self.DeclareVectorInputPort("state", NX)
-        self._actuation_port = self.DeclareVectorInputPort("actuation", NU)
-        self._context_id_port = self.DeclareVectorInputPort("context_id", 1)
-        self._frame_labels_port = self.DeclareAbstractInputPort(
-            "frame_labels", AbstractValue.Make(FrameLabels())
-        )
+        self._inputs = _SampleInputs.declare(self)
+        self._frame_labels_port = self._inputs.frame_labels
         self._estimator_index = self.DeclareAbstractState(AbstractValue.Make(estimator))
         self._theta_index = self.DeclareDiscreteState(BasicVector(estimator.prior_theta))
         schedule = np.array([-math.inf, self._period_s])
@@ -287,15 +309,6 @@ class ContextFitter(LeafSystem):
         """Rows the ``held_samples`` input holds (a decision's samples and one more)."""
         return self._per_decision + 1
 
-    def _sample_row(self, context: Context) -> np.ndarray:
-        return sample_row(
-            context,
-            self._state_port,
-            self._actuation_port,
-            self._context_id_port,
-            self._frame_labels_port if self._config.relabel else None,
-        )
-
     def _held(self, context: Context) -> tuple[np.ndarray, float, float]:
         """The held samples the estimator has not taken (time order), the time of the last it
         took and of the next refit [s]."""
@@ -346,7 +359,7 @@ class ContextFitter(LeafSystem):
         estimator = state.get_mutable_abstract_state(self._estimator_index).get_mutable_value()
         rows, last, next_refit = self._held(context)
         if self._held_port is None:
-            rows = self._sample_row(context)[None, :]
+            rows = self._inputs.row(context, self._config.relabel)[None, :]
         for row in rows:
             next_refit = self._take(context, estimator, row, next_refit, live=True)
         if len(rows):
@@ -438,12 +451,7 @@ class HeldSamples(LeafSystem):
             raise ValueError(f"HeldSamples: capacity must be an int >= 1, got {capacity!r}")
         self._capacity = capacity
         self._relabel = bool(relabel)
-        self._state_port = self.DeclareVectorInputPort("state", NX)
-        self._actuation_port = self.DeclareVectorInputPort("actuation", NU)
-        self._context_id_port = self.DeclareVectorInputPort("context_id", 1)
-        self._frame_labels_port = self.DeclareAbstractInputPort(
-            "frame_labels", AbstractValue.Make(FrameLabels())
-        )
+        self._inputs = _SampleInputs.declare(self)
         rows = np.zeros((capacity, _ROW))
         rows[:, 0] = -math.inf  # empty
         self._rows_index = self.DeclareDiscreteState(BasicVector(rows.ravel()))
@@ -456,12 +464,6 @@ class HeldSamples(LeafSystem):
         rows = context.get_discrete_state(self._rows_index).get_value()
         new = np.empty_like(rows)
         new[:-_ROW] = rows[_ROW:]
-        new[-_ROW:] = sample_row(
-            context,
-            self._state_port,
-            self._actuation_port,
-            self._context_id_port,
-            self._frame_labels_port if self._relabel else None,
-        )
+        new[-_ROW:] = self._inputs.row(context, self._relabel)
         state.get_mutable_discrete_state(self._rows_index).SetFromVector(new)
         return EventStatus.Succeeded()
