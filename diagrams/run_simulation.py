@@ -31,6 +31,7 @@ writer finishes; the interrupt is noted in the summary).
 from __future__ import annotations
 
 import dataclasses
+import gc
 import signal
 import threading
 import time
@@ -435,6 +436,11 @@ def run_simulation(
     loop_priority.enter_context(
         scheduling.control_priority(control_priority, "hardware.control_priority")
     )
+    # What exists now (the diagram, its models, the imported modules: some hundred thousand
+    # objects) lives through the loop: frozen, the cyclic collector's full passes during the
+    # loop skip it instead of walking all of it again. Unfrozen when the loop ends.
+    gc.freeze()
+    loop_priority.callback(gc.unfreeze)
     try:
         with _signals("raise", received):
             simulator.Initialize()
