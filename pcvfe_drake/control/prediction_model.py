@@ -94,10 +94,17 @@ def expm_batched(m: np.ndarray) -> np.ndarray:
     a = m / 2.0**s
     eye = np.eye(m.shape[-1])
     e = eye + a / 12.0
+    # e = eye + (a @ e) / k and e = e @ e, in two buffers used in turn (the same operations,
+    # the sum's operands swapped, which IEEE addition does not see), without new arrays.
+    spare = np.empty_like(e)
     for k in range(11, 0, -1):
-        e = eye + (a @ e) / k
+        np.matmul(a, e, out=spare)
+        spare /= k
+        spare += eye
+        e, spare = spare, e
     for _ in range(s):
-        e = e @ e
+        np.matmul(e, e, out=spare)
+        e, spare = spare, e
     return e
 
 
