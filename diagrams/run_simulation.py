@@ -237,13 +237,18 @@ def truth_singular_failure(exc: MbSingularity, course: Course | None, t_s: float
 
 
 def _first_termination(monitors):
-    """One ``set_monitor`` callback from several: the first that ends the run wins."""
+    """One ``set_monitor`` callback from several: the first that ends the run wins (a single
+    monitor is returned as it is: the simulator calls it after every step)."""
+    if len(monitors) == 1:
+        return monitors[0]
+    ends = EventStatus.Severity.kReachedTermination
+    nothing = EventStatus.DidNothing()
 
     def monitor(context) -> EventStatus:
-        status = EventStatus.DidNothing()
+        status = nothing
         for m in monitors:
             status = m(context)
-            if status.severity() == EventStatus.Severity.kReachedTermination:
+            if status.severity() == ends:
                 return status
         return status
 

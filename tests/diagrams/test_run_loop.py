@@ -275,3 +275,26 @@ def test_the_objects_built_before_the_loop_are_frozen_for_the_loop_only(tmp_path
     assert gc.get_freeze_count() == 0
     run_simulation(short(duration_s=0.5), RunFolder(tmp_path / "run"), progress=False)
     assert seen == {"nmpc": {True}, "outputs": 0} and gc.get_freeze_count() == 0
+
+
+def test_the_first_monitor_that_ends_the_run_wins():
+    from pydrake.systems.framework import EventStatus
+
+    calls = []
+
+    def watching(name, status):
+        def m(context):
+            calls.append(name)
+            return status
+
+        return m
+
+    quiet = watching("quiet", EventStatus.Succeeded())
+    assert run_module._first_termination([quiet]) is quiet  # called by the simulator directly
+    ends = EventStatus.Severity.kReachedTermination
+    both = run_module._first_termination(
+        [quiet, watching("ends", EventStatus.ReachedTermination(None, "goal")), quiet]
+    )
+    assert both(None).severity() == ends and calls == ["quiet", "ends"]
+    calm = run_module._first_termination([quiet, quiet])
+    assert calm(None).severity() == EventStatus.Severity.kSucceeded
