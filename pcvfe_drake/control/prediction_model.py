@@ -94,17 +94,10 @@ def expm_batched(m: np.ndarray) -> np.ndarray:
     a = m / 2.0**s
     eye = np.eye(m.shape[-1])
     e = eye + a / 12.0
-    # e = eye + (a @ e) / k and e = e @ e, in two buffers used in turn (the same operations,
-    # the sum's operands swapped, which IEEE addition does not see), without new arrays.
-    spare = np.empty_like(e)
     for k in range(11, 0, -1):
-        np.matmul(a, e, out=spare)
-        spare /= k
-        spare += eye
-        e, spare = spare, e
+        e = eye + (a @ e) / k
     for _ in range(s):
-        np.matmul(e, e, out=spare)
-        e, spare = spare, e
+        e = e @ e
     return e
 
 
