@@ -99,8 +99,6 @@ class ContextClusterer:
         self._dim: int | None = None
         cap = self.params.max_stored
         self._x = np.zeros((0, 0))
-        # Whether _x may be shared with a copy (copy-on-write, see __deepcopy__).
-        self._x_shared = False
         self._t = np.zeros(cap)
         self._w = np.zeros(cap)
         self._label = np.full(cap, NOISE, dtype=int)
@@ -130,13 +128,9 @@ class ContextClusterer:
         # An independent clusterer, copying only what its methods write into: the store's
         # arrays (written row by row), the records (their fields are updated), the counts and
         # the random generator. The parameters and the gate index are never written (the index
-        # is rebuilt whole), so the copies share them. The stored features (_x, the largest
-        # array) are copied on write: both keep the array, marked shared, and the first of them
-        # to store a frame writes into its own copy (Drake copies this state twice per frame,
-        # and most frames store none or one row).
+        # is rebuilt whole), so the copies share them.
         other = shallow_copy(self)
-        self._x_shared = other._x_shared = True
-        for name in ("_t", "_w", "_label", "_used"):
+        for name in ("_x", "_t", "_w", "_label", "_used"):
             setattr(other, name, getattr(self, name).copy())
         other._count = dict(self._count)
         other._records = {k: shallow_copy(r) for k, r in self._records.items()}
@@ -271,7 +265,6 @@ class ContextClusterer:
         if self._dim is None:
             self._dim = z.size
             self._x = np.zeros((self.params.max_stored, self._dim))
-            self._x_shared = False
         self._n_frames += 1
         context_id = int(self._index.labels(z[None, :])[0])
         if context_id == NOISE and self._continues_visit(z):
@@ -323,7 +316,6 @@ class ContextClusterer:
             return int(free[0])
         grow = max(64, self._used.size // 4)
         self._x = np.vstack([self._x, np.zeros((grow, self._x.shape[1]))])
-        self._x_shared = False
         self._t = np.concatenate([self._t, np.zeros(grow)])
         self._w = np.concatenate([self._w, np.zeros(grow)])
         self._label = np.concatenate([self._label, np.full(grow, NOISE, dtype=int)])
@@ -331,9 +323,6 @@ class ContextClusterer:
         return int(self._used.size - grow)
 
     def _put(self, slot: int, z: np.ndarray, t_s: float, label: int, weight: float) -> None:
-        if self._x_shared:  # copy on write (__deepcopy__)
-            self._x = self._x.copy()
-            self._x_shared = False
         self._x[slot] = z
         self._t[slot] = t_s
         self._w[slot] = weight

@@ -284,25 +284,3 @@ def test_epsilon_decides_between_same_id_and_new_id():
     tiny = tables["tiny"]
     assert tiny.ids == [0, 1, 2, 3] and tiny.active_ids == [2, 3]
     assert not tiny.record(0).active and tiny.record(0).size > 200
-
-
-def test_stored_features_are_copied_on_the_first_write_after_a_copy():
-    """Copies share the stored features until one of them stores a frame: then that one writes
-    into its own array and the other keeps what it had (both ways, over several copies)."""
-    stream = synthetic_feature_stream(n_laps=1, late_terrain_from_lap=1, seed=3)
-    clusterer = ContextClusterer(ClusteringParams(max_stored=200))
-    for t, z in zip(stream.t_s[:150], stream.z[:150], strict=True):
-        clusterer.assign_frame(z, t)
-    twin = copy.deepcopy(clusterer)
-    assert twin._x is clusterer._x  # shared until a write
-    before = clusterer._x.copy()
-    for t, z in zip(stream.t_s[150:400], stream.z[150:400], strict=True):
-        twin.assign_frame(z, t)
-    assert twin._x is not clusterer._x and np.array_equal(clusterer._x, before)
-    third = copy.deepcopy(twin)
-    kept = twin._x.copy()
-    for t, z in zip(stream.t_s[150:400], stream.z[150:400], strict=True):
-        clusterer.assign_frame(z, t)
-        third.assign_frame(z, t + 100.0)
-    assert np.array_equal(twin._x, kept) and np.array_equal(clusterer._x, twin._x)
-    assert third._x is not twin._x and not np.array_equal(third._x, twin._x)
