@@ -31,6 +31,7 @@ writer finishes; the interrupt is noted in the summary).
 from __future__ import annotations
 
 import dataclasses
+import gc
 import signal
 import threading
 import time
@@ -236,13 +237,18 @@ def truth_singular_failure(exc: MbSingularity, course: Course | None, t_s: float
 
 
 def _first_termination(monitors):
-    """One ``set_monitor`` callback from several: the first that ends the run wins."""
+    """One ``set_monitor`` callback from several: the first that ends the run wins (a single
+    monitor is returned as it is: the simulator calls it after every step)."""
+    if len(monitors) == 1:
+        return monitors[0]
+    ends = EventStatus.Severity.kReachedTermination
+    nothing = EventStatus.DidNothing()
 
     def monitor(context) -> EventStatus:
-        status = EventStatus.DidNothing()
+        status = nothing
         for m in monitors:
             status = m(context)
-            if status.severity() == EventStatus.Severity.kReachedTermination:
+            if status.severity() == ends:
                 return status
         return status
 
@@ -435,6 +441,11 @@ def run_simulation(
     loop_priority.enter_context(
         scheduling.control_priority(control_priority, "hardware.control_priority")
     )
+    # What exists now (the diagram, its models, the imported modules: some hundred thousand
+    # objects) lives through the loop: frozen, the cyclic collector's full passes during the
+    # loop skip it instead of walking all of it again. Unfrozen when the loop ends.
+    gc.freeze()
+    loop_priority.callback(gc.unfreeze)
     try:
         with _signals("raise", received):
             simulator.Initialize()

@@ -184,8 +184,7 @@ class VehiclePlant(LeafSystem):
         start with sx, sy)."""
         if self.terrain_map is None:
             return self.params.mu, -1
-        mu, k = self.terrain_map.mu_and_index_at(x[:2])
-        return float(mu), int(k)
+        return self.terrain_map.mu_and_index_at_point(x[0], x[1])
 
     def _mb_parameters(self, mu: float, k: int) -> np.ndarray:
         """The multi-body parameter vector (``MbTruth.parameter_vector_for_mu``) for friction

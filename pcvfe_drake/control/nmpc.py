@@ -124,6 +124,11 @@ class NmpcMemory:
     fallback_count: int = 0
     consecutive_fallbacks: int = 0
 
+    def __deepcopy__(self, memo) -> NmpcMemory:
+        # Immutable (frozen; an update builds a new memory and never writes into the arrays of
+        # the one it was given): Drake's copies of the abstract state at every update share it.
+        return self
+
 
 @dataclass(frozen=True)
 class NmpcDiagnostics:

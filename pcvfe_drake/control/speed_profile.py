@@ -10,6 +10,7 @@ Python loop), so the profile is cheap to recompute whenever the friction estimat
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -37,10 +38,17 @@ class SpeedProfile:
     def lap_time(self) -> float:
         return float(self.t[-1])
 
+    @cached_property
+    def _v_closed(self) -> np.ndarray:
+        """``v`` with its first sample repeated at the end (interpolation across s = length),
+        built once: the controller interpolates twice per update, and a copy of the whole
+        course's speeds each time cost more than the interpolation (``v`` is never written)."""
+        return np.append(self.v, self.v[0])
+
     def speed_at(self, s) -> np.ndarray:
         """Reference speed [m/s] at arc length(s) ``s`` (linear interpolation, wrapped)."""
         i, t = self.course.segment_at(s)
-        vc = np.append(self.v, self.v[0])
+        vc = self._v_closed
         return vc[i] + t * (vc[i + 1] - vc[i])
 
     def advance(self, s0: float, times) -> np.ndarray:
@@ -113,6 +121,7 @@ def speed_profile(
     bwd = (-2 * a_b * rev + np.minimum.accumulate((v3**2 + 2 * a_b * s3)[::-1]))[::-1]
     v3 = np.sqrt(np.maximum(np.minimum(v3**2, bwd), 0.0))
     v = v3[n : 2 * n]
+    v.flags.writeable = False  # SpeedProfile keeps a closed copy of it
     vc = np.append(v, v[0])
     dt = 2 * ds / np.maximum(vc[:-1] + vc[1:], 1e-6)
     t = np.concatenate([[0.0], np.cumsum(dt)])

@@ -16,6 +16,7 @@ unless the map was given an ``outside`` terrain, which is then used for them.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -145,9 +146,13 @@ class TerrainMap:
             raise ValueError(f"outside terrain {outside!r} is not one of {names}")
         self._mu = np.array([t.mu for t in terrains], dtype=float)
         self._names = np.array(names, dtype=object)
-        # Python-level copies for the single-point fast path (the plant calls it every step).
+        # Python-level copies for the single-point fast path (the plant calls it on every
+        # derivative evaluation): a memoryview reads one cell as a Python int without a numpy
+        # scalar, and the raster is read-only, so the view never goes stale.
         self._inv_res = 1.0 / self.resolution_m
         self._mu_list = self._mu.tolist()
+        self._cells = memoryview(self.labels)
+        self._rows, self._cols = rows, cols
         fields = list(mu_fields) if mu_fields is not None else [None] * len(terrains)
         if len(fields) != len(terrains):
             raise ValueError(f"mu_fields needs one entry per terrain, got {len(fields)}")
@@ -283,18 +288,30 @@ class TerrainMap:
         return out
 
     def _index_at_point(self, x: float, y: float) -> int:
-        if not (np.isfinite(x) and np.isfinite(y)):
+        """Terrain index at one world point (Python floats), the same cell and errors as
+        :meth:`index_at` on an (N, 2) array, without numpy on the way (math.floor of a finite
+        float equals numpy's floor)."""
+        if not (math.isfinite(x) and math.isfinite(y)):
             raise ValueError(f"xy = [{x}, {y}] is not finite")
-        col = int(np.floor((x - self.x_min_m) * self._inv_res))
-        row = int(np.floor((self.y_max_m - y) * self._inv_res))
-        rows, cols = self.labels.shape
-        inside = 0 <= row < rows and 0 <= col < cols
-        k = int(self.labels[row, col]) if inside else UNKNOWN
+        col = math.floor((x - self.x_min_m) * self._inv_res)
+        row = math.floor((self.y_max_m - y) * self._inv_res)
+        inside = 0 <= row < self._rows and 0 <= col < self._cols
+        k = self._cells[row, col] if inside else UNKNOWN
         if k == UNKNOWN:
             if self._outside_index < 0:
                 raise ValueError(self._unknown_message(x, y, inside))
             return self._outside_index
         return k
+
+    def mu_and_index_at_point(self, x: float, y: float) -> tuple[float, int]:
+        """(true mu, terrain index) at one world point ``(x, y)`` [m] given as two floats: the
+        values of :meth:`mu_and_index_at` on ``[x, y]``, for callers that look up one point at
+        a time (the plant, on every derivative evaluation)."""
+        k = self._index_at_point(float(x), float(y))
+        field = self.mu_fields[k] if self._any_field else None
+        if field is None:
+            return self._mu_list[k], k
+        return float(field.mu(self._mu_list[k], np.array([[x, y]], dtype=float))[0]), k
 
     def _unknown_message(self, x: float, y: float, inside: bool) -> str:
         if not inside:

@@ -143,14 +143,20 @@ def _numeric_column(
     """The column as float (NaN where missing/inf, reported unless ``missing_ok`` for missing),
     or None if it is not numeric."""
     raw = df[name]
-    values = pd.to_numeric(raw, errors="coerce")
-    not_numeric = values.isna() & raw.notna()
-    if not_numeric.any():
-        rows = np.flatnonzero(not_numeric.to_numpy())
-        examples = ", ".join(repr(raw.iloc[i]) for i in rows[:3])
-        problems.append(f"column '{name}': non-numeric values at {_rows(rows)} (e.g. {examples})")
-        return None
-    arr = values.to_numpy(dtype=float, copy=True)
+    if pd.api.types.is_numeric_dtype(raw.dtype):
+        # Numbers already (every chunk a run writes): nothing to coerce, nothing non-numeric.
+        arr = raw.to_numpy(dtype=float, copy=True)
+    else:
+        values = pd.to_numeric(raw, errors="coerce")
+        not_numeric = values.isna() & raw.notna()
+        if not_numeric.any():
+            rows = np.flatnonzero(not_numeric.to_numpy())
+            examples = ", ".join(repr(raw.iloc[i]) for i in rows[:3])
+            problems.append(
+                f"column '{name}': non-numeric values at {_rows(rows)} (e.g. {examples})"
+            )
+            return None
+        arr = values.to_numpy(dtype=float, copy=True)
     nan_rows = np.flatnonzero(np.isnan(arr))
     if nan_rows.size and not missing_ok:
         problems.append(f"column '{name}': NaN/missing at {_rows(nan_rows)}")

@@ -165,7 +165,10 @@ class RunLog:
 
     def add_sample(self, t_s: float, state: np.ndarray, actuation: np.ndarray) -> None:
         """Keep the state (7) and the input (2) read at ``t_s`` at the fitter's sampling rate."""
-        self._samples.append([float(t_s), *np.asarray(state, float), *np.asarray(actuation, float)])
+        # Python floats (tolist), not numpy scalars: cheaper to build and to keep, same values.
+        self._samples.append(
+            [float(t_s), *np.asarray(state, float).tolist(), *np.asarray(actuation, float).tolist()]
+        )
 
     def write_samples(self) -> None:
         """Write the samples to :data:`SAMPLES_FILE` beside the drive log (none: nothing);

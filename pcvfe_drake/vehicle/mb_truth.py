@@ -369,6 +369,8 @@ def st_state(x_mb) -> np.ndarray:
     """
     x = np.asarray(x_mb, dtype=float)
     single = x.ndim == 1
+    if single and x.shape[0] == NX_MB:
+        return _st_state_one(x)
     x2 = np.atleast_2d(x)
     if x2.shape[1] != NX_MB:
         raise ValueError(f"MB state must have {NX_MB} entries, got shape {x.shape}")
@@ -378,3 +380,13 @@ def st_state(x_mb) -> np.ndarray:
     beta = np.where(moving, np.arctan(vy / np.where(moving, vx, 1.0)), 0.0)
     out = np.stack([x2[:, 0], x2[:, 1], x2[:, 2], speed, x2[:, 4], x2[:, 5], beta], axis=1)
     return out[0] if single else out
+
+
+def _st_state_one(x: np.ndarray) -> np.ndarray:
+    """:func:`st_state` of one MB state (29,): the same operations on one-element slices (the
+    same numpy loops, so the same bits), without the batch's stacking (the plant's state
+    output calls this at every sensor sample)."""
+    vx, vy = x[VX : VX + 1], x[VY : VY + 1]
+    speed = np.hypot(vx, vy)[0] * (-1.0 if vx[0] < 0 else 1.0)
+    beta = np.arctan(vy / vx)[0] if abs(vx[0]) >= 0.1 else 0.0
+    return np.array([x[0], x[1], x[2], speed, x[4], x[5], beta])

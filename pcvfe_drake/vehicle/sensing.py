@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pcvfe_drake.vehicle.measurement_noise import MeasurementNoise
+from pcvfe_drake.vehicle.seed_streams import SeededNormals
 from pcvfe_drake.vehicle.single_track import NX, STATE_NAMES
 
 SENSING_MODELS = ("none", "ins")
@@ -108,6 +109,8 @@ class StateSensorModel:
         self.seed = int(seed)
         self._sigma = config.noise.sigma if config.enabled else np.zeros(NX)
         self._bias = np.asarray(config.bias, dtype=float) if config.enabled else np.zeros(NX)
+        self._noisy = bool(np.any(self._sigma))
+        self._normals = SeededNormals(self.seed, SENSING_STREAM)
 
     @property
     def sigma(self) -> np.ndarray:
@@ -120,10 +123,13 @@ class StateSensorModel:
 
     def noise(self, k: int) -> np.ndarray:
         """The noise of sample ``k`` (7,)."""
-        if not np.any(self._sigma):
+        if not self._noisy:
             return np.zeros(NX)
-        rng = np.random.default_rng([self.seed, SENSING_STREAM, max(int(k), 0)])
-        return rng.standard_normal(NX) * self._sigma
+        if self._normals.seed != self.seed:
+            self._normals = SeededNormals(self.seed, SENSING_STREAM)
+        # default_rng([seed, SENSING_STREAM, k]).standard_normal(NX), drawn without building
+        # the generator anew for each sample (pcvfe_drake.vehicle.seed_streams)
+        return self._normals.normals(max(int(k), 0), NX) * self._sigma
 
     def measure(self, x_delayed: np.ndarray, t_s: float) -> np.ndarray:
         """The measurement at ``t_s`` of the (already delayed) true state ``x_delayed``."""

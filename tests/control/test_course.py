@@ -187,3 +187,20 @@ def test_speed_profile_respects_friction_and_acceleration_limits():
     assert s[2] - s[0] == pytest.approx(c.length, rel=1e-6)
     with pytest.raises(ValueError, match="mu"):
         speed_profile(c, -0.1)
+
+
+def test_speed_at_interpolates_the_closed_profile_kept_from_the_first_call():
+    # speed_at keeps the closed copy of v (first sample repeated) from its first call; v is
+    # read-only, so the copy cannot go stale.
+    c = load_course("slalom")
+    prof = speed_profile(c, 0.5, v_max=12.0)
+    rng = np.random.default_rng(2)
+    s = np.concatenate([rng.uniform(-c.length, 2 * c.length, 300), [0.0, c.length, -1e-9]])
+    i, t = c.segment_at(s)
+    vc = np.append(prof.v, prof.v[0])
+    want = vc[i] + t * (vc[i + 1] - vc[i])
+    for _ in range(2):
+        assert np.array_equal(prof.speed_at(s), want)
+        assert prof.speed_at(s[5]) == want[5]
+    with pytest.raises(ValueError, match="read-only"):
+        prof.v[0] = 1.0

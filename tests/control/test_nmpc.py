@@ -1,5 +1,6 @@
 """Tracking NMPC core: discretisation, QP assembly, fallback, short closed loops."""
 
+import copy
 import dataclasses
 
 import numpy as np
@@ -138,6 +139,29 @@ def test_first_solution_satisfies_the_linearised_dynamics(course, params):
     for _ in range(10):
         nxt = rk4_step(nxt, plan_u[0], params, 0.005)
     np.testing.assert_allclose(nxt[:2], plan_x[1, :2], atol=5e-3)
+
+
+def test_an_update_never_writes_into_the_memory_it_was_given(course, params):
+    # Drake's copies of the controller's abstract state share the memory (its __deepcopy__
+    # returns it), which is right only while no update, solved or fallback, writes into it.
+    ctrl = NmpcController(course, params, dataclasses.replace(CFG, horizon=10))
+    x = offset_start(course, params, lateral_m=0.3)
+    memory = ctrl.memory
+    for _ in range(3):
+        _, nxt, _ = ctrl.step(x, params.theta, memory)
+        before = copy.deepcopy(dataclasses.asdict(memory))
+        ctrl.step(x + 0.01, params.theta, memory)  # solved from the same memory
+        ctrl._solver.update_settings(max_iter=1)
+        ctrl.step(x, params.theta, memory)  # a fallback from it
+        ctrl._solver.update_settings(max_iter=CFG.max_iter)
+        after = dataclasses.asdict(memory)
+        for name, value in before.items():
+            if isinstance(value, np.ndarray):
+                assert np.array_equal(after[name], value, equal_nan=True), name
+            else:
+                assert after[name] == value, name
+        assert copy.deepcopy(memory) is memory
+        memory = nxt
 
 
 def test_fallback_shifted_plan_then_braking_never_raises(course, params):

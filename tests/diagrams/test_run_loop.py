@@ -251,3 +251,50 @@ def test_the_control_priority_holds_for_the_loop_thread_only_while_it_runs(tmp_p
     run_simulation(short(duration_s=0.5), folder, progress=False, control_priority=4)
     assert seen["nmpc"] == {(threading.get_native_id(), os.SCHED_FIFO, 4)}
     assert seen["outputs"] == before == policy()
+
+
+def test_the_objects_built_before_the_loop_are_frozen_for_the_loop_only(tmp_path, monkeypatch):
+    """The loop runs with what was built before it frozen out of the cyclic collector (its
+    full passes would walk the diagram and the modules again), and unfreezes it before the
+    outputs are written."""
+    import gc
+
+    seen = {"nmpc": set(), "outputs": None}
+    real_step, real_write = NmpcController.step, run_module.write_run_outputs
+
+    def step(self, x, theta, memory):
+        seen["nmpc"].add(gc.get_freeze_count() > 0)
+        return real_step(self, x, theta, memory)
+
+    def write_run_outputs(*args, **kwargs):
+        seen["outputs"] = gc.get_freeze_count()
+        return real_write(*args, **kwargs)
+
+    monkeypatch.setattr(NmpcController, "step", step)
+    monkeypatch.setattr(run_module, "write_run_outputs", write_run_outputs)
+    assert gc.get_freeze_count() == 0
+    run_simulation(short(duration_s=0.5), RunFolder(tmp_path / "run"), progress=False)
+    assert seen == {"nmpc": {True}, "outputs": 0} and gc.get_freeze_count() == 0
+
+
+def test_the_first_monitor_that_ends_the_run_wins():
+    from pydrake.systems.framework import EventStatus
+
+    calls = []
+
+    def watching(name, status):
+        def m(context):
+            calls.append(name)
+            return status
+
+        return m
+
+    quiet = watching("quiet", EventStatus.Succeeded())
+    assert run_module._first_termination([quiet]) is quiet  # called by the simulator directly
+    ends = EventStatus.Severity.kReachedTermination
+    both = run_module._first_termination(
+        [quiet, watching("ends", EventStatus.ReachedTermination(None, "goal")), quiet]
+    )
+    assert both(None).severity() == ends and calls == ["quiet", "ends"]
+    calm = run_module._first_termination([quiet, quiet])
+    assert calm(None).severity() == EventStatus.Severity.kSucceeded

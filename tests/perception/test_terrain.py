@@ -1,10 +1,12 @@
+import re
+
 import numpy as np
 import pytest
 from matplotlib.path import Path
 
 from pcvfe_drake.diagrams.world_io import load_world, world_terrain_map
 from pcvfe_drake.perception.ground_render import render_topdown
-from pcvfe_drake.perception.terrain import Terrain, TerrainMap
+from pcvfe_drake.perception.terrain import MuField, Terrain, TerrainMap
 from pcvfe_drake.perception.texture_library import TextureSet
 from pcvfe_drake.worlds.build import strip_polygon
 
@@ -123,6 +125,57 @@ def test_scalar_and_batch_lookups_agree(default_map):
         assert default_map.index_at(p) == k
         assert isinstance(default_map.mu_at(p), float)
         assert default_map.name_at(p) == default_map.terrains[k].name
+
+
+def _cell_edge_points(m: TerrainMap, rng, n: int) -> np.ndarray:
+    """Points exactly on cell edges and corners, on the map's border and just beyond it."""
+    rows, cols = m.labels.shape
+    col = rng.integers(-2, cols + 3, n)
+    row = rng.integers(-2, rows + 3, n)
+    x = m.x_min_m + col * m.resolution_m
+    y = m.y_max_m - row * m.resolution_m
+    return np.column_stack([x, y])
+
+
+@pytest.mark.parametrize("with_field", [False, True])
+def test_single_point_lookup_equals_the_batch_lookup(with_field):
+    # The plant looks up one point per derivative evaluation through mu_and_index_at_point;
+    # it must give the batch look-up's terrain, mu and errors everywhere: inside, on cell
+    # edges and corners, on the border, outside, on uncovered cells.
+    a, b, void = Terrain("a", 0.5, "ta"), Terrain("b", 0.7, "tb"), Terrain("v", 1.0, "tv")
+    rng = np.random.default_rng(3)
+    labels = rng.choice(np.array([0, 1, 255], dtype=np.uint8), size=(30, 40), p=[0.45, 0.45, 0.1])
+    field = MuField(rng.normal(0, 0.1, (6, 7)), x0_m=-3.0, y0_m=1.0, spacing_m=1.7)
+    placement = dict(x_min_m=-2.3, y_min_m=1.1, resolution_m=0.25)
+    strict = TerrainMap(
+        labels, [a, b], **placement, mu_fields=[field, None] if with_field else None
+    )
+    lenient = TerrainMap(
+        labels,
+        [a, b, void],
+        **placement,
+        outside="v",
+        mu_fields=[field, None, None] if with_field else None,
+    )
+    x0, x1, y0, y1 = strict.bounds_m
+    inside = rng.uniform([x0, y0], [x1, y1], size=(400, 2))
+    around = rng.uniform([x0 - 2, y0 - 2], [x1 + 2, y1 + 2], size=(400, 2))
+    points = np.vstack([inside, around, _cell_edge_points(strict, rng, 400)])
+    for m in (strict, lenient):
+        for p in points:
+            try:
+                want_mu, want_k = m.mu_and_index_at(p[None, :])
+            except ValueError as exc:
+                with pytest.raises(ValueError, match=re.escape(str(exc))):
+                    m.mu_and_index_at_point(p[0], p[1])
+                continue
+            mu, k = m.mu_and_index_at_point(p[0], p[1])
+            assert type(mu) is float and type(k) is int
+            assert (mu, k) == (float(want_mu[0]), int(want_k[0]))
+            assert m.index_at(p) == k and m.mu_at(p) == mu
+    for bad in ([np.nan, 2.0], [0.0, np.inf]):
+        with pytest.raises(ValueError, match="not finite"):
+            strict.mu_and_index_at_point(*bad)
 
 
 def test_polygon_rasterisation_matches_exact_point_in_polygon():

@@ -86,6 +86,26 @@ def test_every_problem_is_reported_at_once(log):
     assert isinstance(err, ValueError)
 
 
+def test_numeric_columns_are_checked_alike_whatever_their_dtype(log):
+    # Columns of a numeric dtype skip the coercion text columns go through; both must report
+    # the same problems (NaN, inf, ranges) in the same words.
+    bad = log.copy()
+    bad.loc[5, "psi_dot"] = np.nan
+    bad.loc[9, "sx"] = -np.inf
+    bad["delta"] = np.degrees(bad["delta"]) * 30.0
+    bad["context"] = 0  # an int column
+    as_text = bad.astype({c: object for c in ("psi_dot", "sx", "delta", "v", "context")})
+    problems = []
+    for table in (bad, as_text):
+        with pytest.raises(DriveLogError) as info:
+            validate_drive_log(table)
+        problems.append(info.value.problems)
+    assert problems[0] == problems[1] and len(problems[0]) == 3
+    as_text.loc[7, "v"] = "fast"
+    with pytest.raises(DriveLogError, match=r"'v': non-numeric values at row 7 \(e.g. 'fast'\)"):
+        validate_drive_log(as_text)
+
+
 def test_psi_in_degrees_is_detected_by_consistency(log):
     bad = log.copy()
     bad["psi"] = np.degrees(bad["psi"])  # no range limit on psi: found through psi_dot
