@@ -82,6 +82,9 @@ class RunFrames:
     """(N,) terrain under the car at the frame (str)."""
     mu: np.ndarray
     """(N,) true friction under the car."""
+    speed_mps: np.ndarray | None
+    """(N,) the car's (measured) speed when the frame was taken, as the clustering system reads
+    it from the state; None: the replay passes no speed (the clustering before it took one)."""
     logged: np.ndarray
     """(N,) context id the run logged for the frame."""
     params: ClusteringParams
@@ -164,6 +167,7 @@ def load_run(folder: Path) -> RunFrames:
         z=log[cols].to_numpy(float)[first],
         terrain=log["terrain"].astype(str).to_numpy()[at],
         mu=log["mu_true"].to_numpy(float)[at],
+        speed_mps=log["v"].to_numpy(float)[at] if "v" in log.columns else None,
         logged=np.where(np.isfinite(ctx[first]), ctx[first], NOISE).astype(int),
         params=params,
         period_s=float(rates.get("recluster_period_s", 10.0)),
@@ -206,12 +210,13 @@ def replay(run: RunFrames) -> Replay:
     home = np.full(run.t_s.size, "", dtype=object)
     comp: dict[int, Counter] = defaultdict(Counter)
     next_recluster_s = run.period_s
+    speeds = [None] * run.t_s.size if run.speed_mps is None else run.speed_mps
     for i, (t, z) in enumerate(zip(run.t_s, run.z, strict=True)):
         while t > next_recluster_s + 1e-9:
             clusterer.recluster(next_recluster_s)
             comp = _composition(clusterer, terrain_at)
             next_recluster_s += run.period_s
-        k, kept = clusterer.assign_frame(z, float(t))
+        k, kept = clusterer.assign_frame(z, float(t), speeds[i])
         if kept:
             comp = _composition(clusterer, terrain_at)
         ids[i] = k
@@ -278,14 +283,17 @@ def score(run: RunFrames, result: Replay) -> dict:
     }
 
 
-def replay_folder(folder: Path, settings: dict | None = None) -> dict:
+def replay_folder(folder: Path, settings: dict | None = None, speed: bool = True) -> dict:
     """Replay and score one run folder (``usable`` False with the reason when it cannot be),
-    with the run's clustering settings changed by ``settings`` (field: value)."""
+    with the run's clustering settings changed by ``settings`` (field: value); ``speed`` False:
+    no speed is passed to the clustering."""
     row: dict = {"run": str(folder)}
     try:
         run = load_run(folder)
         if settings:
             run = replace(run, params=replace(run.params, **settings))
+        if not speed:
+            run = replace(run, speed_mps=None)
     except (ValueError, TypeError) as err:
         return {**row, "usable": False, "reason": str(err)}
     start = time.perf_counter()
@@ -400,6 +408,11 @@ def main(argv: list[str] | None = None) -> int:
         help="replay with this clustering setting changed (YAML value, e.g. "
         "continuation_hold_s=null); repeatable",
     )
+    ap.add_argument(
+        "--without-speed",
+        action="store_true",
+        help="pass no speed to the clustering (as the code before the blur rule)",
+    )
     args = ap.parse_args(argv)
     settings = {}
     for item in args.set:
@@ -417,7 +430,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("give run folders, or --compare BEFORE AFTER")
     rows = []
     for folder in run_folders(args.paths):
-        row = replay_folder(folder, settings)
+        row = replay_folder(folder, settings, speed=not args.without_speed)
         rows.append(row)
         if row["usable"]:
             print(
