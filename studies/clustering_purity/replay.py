@@ -17,6 +17,10 @@ Per run (frame by frame, at the camera rate):
   clustering hands on more grip than there is. ``carried_terrain_s``: of those, the frames on
   a terrain (not a transition strip). ``longest_carried_s``: the longest unbroken run of
   carried frames.
+- ``carried_continued_s``: of the carried frames, those whose id came from the continuation
+  (the widened gate), not from the context's own gate. ``unexplained_frames``: frames that would
+  have continued or held a visit but that the car's speed did not let blur explain
+  (``ContextClusterer.last_evidence``).
 - ``purity``: over terrain frames given a context, the share whose terrain is their context's
   majority terrain (over the whole run).
 - ``noise_fraction``: terrain frames given no context (-1). ``known_noise_fraction``: the same
@@ -185,6 +189,8 @@ class Replay:
     """(N,) context id given to each frame."""
     home: np.ndarray
     """(N,) majority terrain of that context just before the frame ('' for none or noise)."""
+    evidence: np.ndarray
+    """(N,) how each frame got its id (``ContextClusterer.last_evidence``)."""
 
 
 def _composition(clusterer: ContextClusterer, terrain_at: dict[float, str]) -> dict:
@@ -208,6 +214,7 @@ def replay(run: RunFrames) -> Replay:
     terrain_at = {float(t): str(n) for t, n in zip(run.t_s, run.terrain, strict=True)}
     ids = np.full(run.t_s.size, NOISE, dtype=int)
     home = np.full(run.t_s.size, "", dtype=object)
+    evidence = np.full(run.t_s.size, "", dtype=object)
     comp: dict[int, Counter] = defaultdict(Counter)
     next_recluster_s = run.period_s
     speeds = [None] * run.t_s.size if run.speed_mps is None else run.speed_mps
@@ -220,11 +227,12 @@ def replay(run: RunFrames) -> Replay:
         if kept:
             comp = _composition(clusterer, terrain_at)
         ids[i] = k
+        evidence[i] = clusterer.last_evidence
         if k >= 0 and comp[k]:
             home[i] = comp[k].most_common(1)[0][0]
         if k >= 0 and not kept:
             comp[k][str(run.terrain[i])] += 1
-    return Replay(ids=ids, home=home)
+    return Replay(ids=ids, home=home, evidence=evidence)
 
 
 def _runs_of(mask: np.ndarray) -> np.ndarray:
@@ -272,6 +280,10 @@ def score(run: RunFrames, result: Replay) -> dict:
         "carried_s": round(float(carried.sum() * dt), 2),
         "carried_terrain_s": round(float((carried & on_terrain).sum() * dt), 2),
         "longest_carried_s": round(float(runs.max(initial=0) * dt), 2),
+        "carried_continued_s": round(
+            float((carried & (result.evidence == "continued")).sum() * dt), 2
+        ),
+        "unexplained_frames": int(np.sum(result.evidence == "unexplained")),
         "purity": float(own[given].mean()) if given.any() else math.nan,
         "noise_fraction": float(np.mean(ids[on_terrain] < 0)) if n_terrain else math.nan,
         "known_noise_fraction": float(np.mean(ids[named] < 0)) if named.any() else math.nan,
