@@ -122,6 +122,7 @@ def _add_friction_source(
             ),
         )
         builder.Connect(features, clustering.GetInputPort("features"))
+        builder.Connect(station.GetOutputPort("state"), clustering.GetInputPort("state"))
         takers = [fitter]
         if fitter.decision_period_s > rates.fitter_sample_period_s:
             held = builder.AddNamedSystem(

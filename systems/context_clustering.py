@@ -16,6 +16,10 @@ from pcvfe_drake.contexts.clustering import (
     FrameLabels,
     StoredFeatures,
 )
+from pcvfe_drake.vehicle.single_track import NX
+
+SPEED_INDEX = 3
+"""Index of the speed v [m/s] in the single-track state [sx, sy, delta, v, psi, psi_dot, beta]."""
 
 
 class ContextClustering(LeafSystem):
@@ -27,6 +31,7 @@ class ContextClustering(LeafSystem):
         name: ContextClustering
         input_ports:
         - features
+        - state (optional)
         output_ports:
         - context_id
         - cluster_table
@@ -34,6 +39,10 @@ class ContextClustering(LeafSystem):
         - frame_labels
 
     - ``features``: vector of ``feature_dim`` numbers, z(t) from ClipFeatures (any backend).
+    - ``state`` (optional): the measured single-track state (7-vector, SI units); its speed
+      tells whether the camera's motion blur can explain a frame that continues a visit
+      beyond its context's gate (``ContextClusterer.assign``, docs/clustering.md, "Continuing
+      a visit"). Left unconnected, the speed is unknown and no frame is judged by it.
     - ``context_id``: 1-element vector, the current context id (an integer; -1 = noise or a
       terrain not seen before). From state: a zero-order hold at the frame rate, no feedthrough.
     - ``cluster_table``: abstract :class:`pcvfe_drake.contexts.clustering.ClusterTable` (id,
@@ -99,6 +108,7 @@ class ContextClustering(LeafSystem):
         self._recluster_period_s = float(recluster_period_s)
 
         self._features_port = self.DeclareVectorInputPort("features", self._feature_dim)
+        self._state_port = self.DeclareVectorInputPort("state", NX)
         self._clusterer_index = self.DeclareAbstractState(
             AbstractValue.Make(ContextClusterer(self._params))
         )
@@ -160,7 +170,10 @@ class ContextClustering(LeafSystem):
     def _on_frame(self, context: Context, state: State) -> EventStatus:
         z = np.asarray(self._features_port.Eval(context), dtype=float)
         clusterer = state.get_mutable_abstract_state(self._clusterer_index).get_mutable_value()
-        context_id, _ = clusterer.assign_frame(z, context.get_time())
+        speed = None
+        if self._state_port.HasValue(context):
+            speed = float(self._state_port.Eval(context)[SPEED_INDEX])
+        context_id, _ = clusterer.assign_frame(z, context.get_time(), speed)
         state.get_mutable_discrete_state(self._id_index).SetAtIndex(0, float(context_id))
         return EventStatus.Succeeded()
 

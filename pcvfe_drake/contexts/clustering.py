@@ -100,6 +100,7 @@ class ContextClusterer:
         cap = self.params.max_stored
         self._x = np.zeros((0, 0))
         self._t = np.zeros(cap)
+        self._v = np.full(cap, math.nan)  # the car's speed when each frame was taken [m/s]
         self._w = np.zeros(cap)
         self._label = np.full(cap, NOISE, dtype=int)
         self._used = np.zeros(cap, dtype=bool)
@@ -121,16 +122,21 @@ class ContextClusterer:
         self._visit = NOISE
         self._continued_frames = 0
         self._visit_seen_s = -math.inf  # when the visit's context was last reported
+        self._evidence = "noise"
+        self._left = False  # a frame of the visit was beyond even the widened gate (held)
+        # Fastest speed [m/s] at which a member of each context the gate measures against was
+        # taken (NaN: some member's speed unknown); set with the index.
+        self._member_speed: dict[int, float] = {}
         # Assignment index: stored members of the active contexts and their gates.
         self._index = GateIndex(np.zeros((0, 1)), np.zeros(0, dtype=int), self.params)
 
     def __deepcopy__(self, memo) -> ContextClusterer:
         # An independent clusterer, copying only what its methods write into: the store's
         # arrays (written row by row), the records (their fields are updated), the counts and
-        # the random generator. The parameters and the gate index are never written (the index
-        # is rebuilt whole), so the copies share them.
+        # the random generator. The parameters, the gate index and the members' speeds are never
+        # written (they are rebuilt whole), so the copies share them.
         other = shallow_copy(self)
-        for name in ("_x", "_t", "_w", "_label", "_used"):
+        for name in ("_x", "_t", "_v", "_w", "_label", "_used"):
             setattr(other, name, getattr(self, name).copy())
         other._count = dict(self._count)
         other._records = {k: shallow_copy(r) for k, r in self._records.items()}
@@ -167,7 +173,7 @@ class ContextClusterer:
     @property
     def stored_bytes(self) -> int:
         """Memory held by the store and the assignment index [bytes]."""
-        arrays = (self._x, self._t, self._w, self._label, self._used, self._index.x)
+        arrays = (self._x, self._t, self._v, self._w, self._label, self._used, self._index.x)
         return int(sum(a.nbytes for a in arrays))
 
     def table(self) -> ClusterTable:
@@ -238,15 +244,19 @@ class ContextClusterer:
             out[rows] = self._index.labels(z[rows])
         return out
 
-    def assign(self, z: np.ndarray, t_s: float) -> int:
-        """Give frame ``z`` (taken at time ``t_s`` [s]) a context id at once and store it.
+    def assign(self, z: np.ndarray, t_s: float, speed_mps: float | None = None) -> int:
+        """Give frame ``z`` (taken at time ``t_s`` [s], the car at ``speed_mps`` [m/s]) a
+        context id at once and store it.
 
         A corrupt frame (a non-finite vector, or a component beyond ``MAX_ABS_FEATURE``) gets -1
-        and is not stored; the first one beyond the bound warns.
+        and is not stored; the first one beyond the bound warns. The speed decides whether a
+        frame the gate rejects may continue the visit (:meth:`_blur_explains`); None: unknown.
         """
         z = self._check_vector(z, "z")
         if not math.isfinite(t_s):
             raise ValueError(f"t_s must be finite, got {t_s!r}")
+        v = math.nan if speed_mps is None else float(speed_mps)
+        self._evidence = "corrupt"
         if not np.isfinite(z).all():
             self._n_rejected += 1
             return NOISE
@@ -267,24 +277,52 @@ class ContextClusterer:
             self._x = np.zeros((self.params.max_stored, self._dim))
         self._n_frames += 1
         context_id = int(self._index.labels(z[None, :])[0])
-        if context_id == NOISE and self._continues_visit(z):
-            self._continued_frames += 1
-            self._visit_seen_s = t_s
-            self._store_noise(z, t_s)
-            return self._visit
-        if context_id == NOISE and self._visit_held(z, t_s):
-            self._store_noise(z, t_s)  # noise, but the visit stays open for the next frames
-            return NOISE
+        self._evidence = "gate" if context_id >= 0 else "noise"
+        if context_id == NOISE and self._visit >= 0:
+            continues = self._continues_visit(z)
+            held = not continues and self._visit_held(z, t_s)
+            if (held or (continues and self._left)) and not self._blur_explains(v):
+                self._evidence = "unexplained"  # noise, and the visit ends
+            elif continues:
+                self._continued_frames += 1
+                self._visit_seen_s = t_s
+                self._store_noise(z, t_s, v)
+                self._evidence = "continued"
+                return self._visit
+            elif held:
+                self._left = True
+                self._store_noise(z, t_s, v)  # noise, but the visit stays open
+                self._evidence = "held"
+                return NOISE
         self._visit = context_id
+        self._left = False
         self._visit_seen_s = t_s
         if context_id >= 0:
             rec = self._records[context_id]
             rec.size += 1.0
             rec.last_seen_s = max(rec.last_seen_s, t_s)
-            self._store_in_context(z, t_s, context_id)
+            self._store_in_context(z, t_s, v, context_id)
         else:
-            self._store_noise(z, t_s)
+            self._store_noise(z, t_s, v)
         return context_id
+
+    def _blur_explains(self, v: float) -> bool:
+        """Whether the camera's motion blur can explain a frame of the visit's context that
+        its gate rejects: the car (at ``v`` [m/s]) is faster than every member the gate
+        measures against was taken at. Blur grows with speed; at a speed the members cover,
+        the gate already holds frames as blurred, so a frame beyond it may be other ground,
+        and its friction must not be handed as the context's (less friction at once). True
+        where a speed is unknown (the frame's or a member's): no evidence either way."""
+        bound = self._member_speed.get(self._visit, math.nan)
+        return not (math.isfinite(v) and math.isfinite(bound)) or v > bound
+
+    @property
+    def last_evidence(self) -> str:
+        """How the latest frame got its id: ``gate`` (its context's gate), ``continued``
+        (the widened gate, :meth:`_continues_visit`), ``held`` (noise, the visit held open),
+        ``unexplained`` (it would have continued or held the visit, but blur cannot explain
+        it at the car's speed: noise, the visit ends), ``noise`` or ``corrupt``."""
+        return self._evidence
 
     def _continues_visit(self, z: np.ndarray) -> bool:
         """A frame the gate rejects continues the visit of the previous frame's context when it
@@ -317,14 +355,18 @@ class ContextClusterer:
         grow = max(64, self._used.size // 4)
         self._x = np.vstack([self._x, np.zeros((grow, self._x.shape[1]))])
         self._t = np.concatenate([self._t, np.zeros(grow)])
+        self._v = np.concatenate([self._v, np.full(grow, math.nan)])
         self._w = np.concatenate([self._w, np.zeros(grow)])
         self._label = np.concatenate([self._label, np.full(grow, NOISE, dtype=int)])
         self._used = np.concatenate([self._used, np.zeros(grow, dtype=bool)])
         return int(self._used.size - grow)
 
-    def _put(self, slot: int, z: np.ndarray, t_s: float, label: int, weight: float) -> None:
+    def _put(
+        self, slot: int, z: np.ndarray, t_s: float, label: int, weight: float, v: float
+    ) -> None:
         self._x[slot] = z
         self._t[slot] = t_s
+        self._v[slot] = v
         self._w[slot] = weight
         self._label[slot] = label
         self._used[slot] = True
@@ -333,24 +375,24 @@ class ContextClusterer:
         n_active = sum(1 for r in self._records.values() if r.active)
         return max(self.params.min_reservoir, self._capacity // max(1, n_active))
 
-    def _store_in_context(self, z: np.ndarray, t_s: float, context_id: int) -> None:
+    def _store_in_context(self, z: np.ndarray, t_s: float, v: float, context_id: int) -> None:
         """Algorithm R: a uniform sample of all frames ever assigned to the context."""
         self._count[context_id] = self._count.get(context_id, 0.0) + 1.0
         slots = np.flatnonzero(self._used & (self._label == context_id))
         if slots.size < self._reservoir_capacity():
-            self._put(self._free_slot(), z, t_s, context_id, 1.0)
+            self._put(self._free_slot(), z, t_s, context_id, 1.0, v)
             return
         if self._rng.random() * self._count[context_id] < slots.size:
-            self._put(int(slots[self._rng.integers(slots.size)]), z, t_s, context_id, 1.0)
+            self._put(int(slots[self._rng.integers(slots.size)]), z, t_s, context_id, 1.0, v)
 
-    def _store_noise(self, z: np.ndarray, t_s: float) -> None:
+    def _store_noise(self, z: np.ndarray, t_s: float, v: float) -> None:
         """First-in-first-out window of the newest unclustered frames."""
         slots = np.flatnonzero(self._used & (self._label == NOISE))
         if slots.size >= self.params.noise_capacity:
             slot = int(slots[self._t[slots].argmin()])
         else:
             slot = self._free_slot()
-        self._put(slot, z, t_s, NOISE, 1.0)
+        self._put(slot, z, t_s, NOISE, 1.0, v)
 
     # ----------------------------------------------------------------------------------------
     # Re-clustering
@@ -410,17 +452,21 @@ class ContextClusterer:
         self.__dict__.update(trial.__dict__)
         return True
 
-    def assign_frame(self, z: np.ndarray, t_s: float) -> tuple[int, bool]:
-        """A camera frame as the clustering system handles it: :meth:`assign`, and where the
+    def assign_frame(
+        self, z: np.ndarray, t_s: float, speed_mps: float | None = None
+    ) -> tuple[int, bool]:
+        """A camera frame as the clustering system handles it: :meth:`assign` (the car at
+        ``speed_mps`` [m/s], None: unknown), and where the
         frame is noise and the novelty trigger is due (:meth:`novelty_due`), a triggered
         re-clustering (:meth:`recluster_if_novel`) whose kept result names the frame anew.
 
         Returns:
             (the frame's context id, whether a triggered re-clustering was kept).
         """
-        context_id = self.assign(z, t_s)
+        context_id = self.assign(z, t_s, speed_mps)
         if context_id == NOISE and self.novelty_due(t_s) and self.recluster_if_novel(t_s):
             self._visit = int(self.predict(z)[0])
+            self._left = False
             return self._visit, True
         return context_id, False
 
@@ -568,6 +614,10 @@ class ContextClusterer:
         """Exemplars (stored members of active contexts) and per-context gates."""
         members = self._used & (self._label >= 0)
         self._index = GateIndex(self._x[members], self._label[members], self.params)
+        labels, speeds = self._label[members], self._v[members]
+        self._member_speed = {
+            int(cid): float(speeds[labels == cid].max()) for cid in np.unique(labels)
+        }  # NaN where a member's speed is unknown (max propagates it)
 
     def _finish_recluster(self, t_s: float, start: float) -> None:
         self._recluster_time_s = float(t_s)

@@ -69,6 +69,11 @@ class ClusteringParams:
             the visit open while its nearest member is of the visit's context and that context
             was reported within this many seconds; a later frame within the widened gate then
             continues the visit (one blurred frame just beyond it would end a visit for good).
+            With the car's speed given (``ContextClusterer.assign``), the hold, and after it every
+            frame that would continue the visit until one passes the context's own gate, needs
+            the camera's blur to explain it: the car faster than every member of the context
+            was taken at; else the frame is noise and ends the visit (a strip, then other ground
+            within the widened gate, must not be handed the context's friction).
     """
 
     frame_rate_hz: float = 10.0

@@ -17,6 +17,10 @@ Per run (frame by frame, at the camera rate):
   clustering hands on more grip than there is. ``carried_terrain_s``: of those, the frames on
   a terrain (not a transition strip). ``longest_carried_s``: the longest unbroken run of
   carried frames.
+- ``carried_continued_s``: of the carried frames, those whose id came from the continuation
+  (the widened gate), not from the context's own gate. ``unexplained_frames``: frames that would
+  have continued or held a visit but that the car's speed did not let blur explain
+  (``ContextClusterer.last_evidence``).
 - ``purity``: over terrain frames given a context, the share whose terrain is their context's
   majority terrain (over the whole run).
 - ``noise_fraction``: terrain frames given no context (-1). ``known_noise_fraction``: the same
@@ -82,6 +86,9 @@ class RunFrames:
     """(N,) terrain under the car at the frame (str)."""
     mu: np.ndarray
     """(N,) true friction under the car."""
+    speed_mps: np.ndarray | None
+    """(N,) the car's (measured) speed when the frame was taken, as the clustering system reads
+    it from the state; None: the replay passes no speed (the clustering before it took one)."""
     logged: np.ndarray
     """(N,) context id the run logged for the frame."""
     params: ClusteringParams
@@ -164,6 +171,7 @@ def load_run(folder: Path) -> RunFrames:
         z=log[cols].to_numpy(float)[first],
         terrain=log["terrain"].astype(str).to_numpy()[at],
         mu=log["mu_true"].to_numpy(float)[at],
+        speed_mps=log["v"].to_numpy(float)[at] if "v" in log.columns else None,
         logged=np.where(np.isfinite(ctx[first]), ctx[first], NOISE).astype(int),
         params=params,
         period_s=float(rates.get("recluster_period_s", 10.0)),
@@ -181,6 +189,8 @@ class Replay:
     """(N,) context id given to each frame."""
     home: np.ndarray
     """(N,) majority terrain of that context just before the frame ('' for none or noise)."""
+    evidence: np.ndarray
+    """(N,) how each frame got its id (``ContextClusterer.last_evidence``)."""
 
 
 def _composition(clusterer: ContextClusterer, terrain_at: dict[float, str]) -> dict:
@@ -204,22 +214,25 @@ def replay(run: RunFrames) -> Replay:
     terrain_at = {float(t): str(n) for t, n in zip(run.t_s, run.terrain, strict=True)}
     ids = np.full(run.t_s.size, NOISE, dtype=int)
     home = np.full(run.t_s.size, "", dtype=object)
+    evidence = np.full(run.t_s.size, "", dtype=object)
     comp: dict[int, Counter] = defaultdict(Counter)
     next_recluster_s = run.period_s
+    speeds = [None] * run.t_s.size if run.speed_mps is None else run.speed_mps
     for i, (t, z) in enumerate(zip(run.t_s, run.z, strict=True)):
         while t > next_recluster_s + 1e-9:
             clusterer.recluster(next_recluster_s)
             comp = _composition(clusterer, terrain_at)
             next_recluster_s += run.period_s
-        k, kept = clusterer.assign_frame(z, float(t))
+        k, kept = clusterer.assign_frame(z, float(t), speeds[i])
         if kept:
             comp = _composition(clusterer, terrain_at)
         ids[i] = k
+        evidence[i] = clusterer.last_evidence
         if k >= 0 and comp[k]:
             home[i] = comp[k].most_common(1)[0][0]
         if k >= 0 and not kept:
             comp[k][str(run.terrain[i])] += 1
-    return Replay(ids=ids, home=home)
+    return Replay(ids=ids, home=home, evidence=evidence)
 
 
 def _runs_of(mask: np.ndarray) -> np.ndarray:
@@ -267,6 +280,10 @@ def score(run: RunFrames, result: Replay) -> dict:
         "carried_s": round(float(carried.sum() * dt), 2),
         "carried_terrain_s": round(float((carried & on_terrain).sum() * dt), 2),
         "longest_carried_s": round(float(runs.max(initial=0) * dt), 2),
+        "carried_continued_s": round(
+            float((carried & (result.evidence == "continued")).sum() * dt), 2
+        ),
+        "unexplained_frames": int(np.sum(result.evidence == "unexplained")),
         "purity": float(own[given].mean()) if given.any() else math.nan,
         "noise_fraction": float(np.mean(ids[on_terrain] < 0)) if n_terrain else math.nan,
         "known_noise_fraction": float(np.mean(ids[named] < 0)) if named.any() else math.nan,
@@ -278,14 +295,17 @@ def score(run: RunFrames, result: Replay) -> dict:
     }
 
 
-def replay_folder(folder: Path, settings: dict | None = None) -> dict:
+def replay_folder(folder: Path, settings: dict | None = None, speed: bool = True) -> dict:
     """Replay and score one run folder (``usable`` False with the reason when it cannot be),
-    with the run's clustering settings changed by ``settings`` (field: value)."""
+    with the run's clustering settings changed by ``settings`` (field: value); ``speed`` False:
+    no speed is passed to the clustering."""
     row: dict = {"run": str(folder)}
     try:
         run = load_run(folder)
         if settings:
             run = replace(run, params=replace(run.params, **settings))
+        if not speed:
+            run = replace(run, speed_mps=None)
     except (ValueError, TypeError) as err:
         return {**row, "usable": False, "reason": str(err)}
     start = time.perf_counter()
@@ -400,6 +420,11 @@ def main(argv: list[str] | None = None) -> int:
         help="replay with this clustering setting changed (YAML value, e.g. "
         "continuation_hold_s=null); repeatable",
     )
+    ap.add_argument(
+        "--without-speed",
+        action="store_true",
+        help="pass no speed to the clustering (as the code before the blur rule)",
+    )
     args = ap.parse_args(argv)
     settings = {}
     for item in args.set:
@@ -417,7 +442,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("give run folders, or --compare BEFORE AFTER")
     rows = []
     for folder in run_folders(args.paths):
-        row = replay_folder(folder, settings)
+        row = replay_folder(folder, settings, speed=not args.without_speed)
         rows.append(row)
         if row["usable"]:
             print(

@@ -4,14 +4,43 @@ min_samples is larger than min_cluster_size."""
 
 from __future__ import annotations
 
+import copy
+import math
+
 import numpy as np
 import pytest
 
 from pcvfe_drake.contexts.clustering import NOISE, ClusteringParams, ContextClusterer
+from pcvfe_drake.estimation.estimate_table import ContextEstimate
+from pcvfe_drake.handing.config import HandingConfig, Probe, StatedFloor
+from pcvfe_drake.handing.handing import Handing
+from pcvfe_drake.vehicle.params import ford_escort
 
 A = np.array([1.0, 0.0, 0.0])
 B = np.array([0.0, 1.0, 0.0])
 FAR = np.array([0.0, 0.0, 1.0])
+VP = ford_escort()
+
+
+def fit(ident: int, mu: float) -> ContextEstimate:
+    """An identified context fitted at ``mu``."""
+    return ContextEstimate(
+        ident, (mu, VP.C_Sf, VP.C_Sr), (0.01, math.nan, math.nan), fits=1, identifiable=True
+    )
+
+
+def handing(**cfg) -> Handing:
+    return Handing(HandingConfig(**cfg), tuple(VP.theta), VP)
+
+
+def drive(h: Handing, fits: dict, t: float, ids: list[int]) -> tuple[list[float], float]:
+    """Feed frames ``ids`` (one per 0.1 s); the mu handed after each."""
+    mus = []
+    for ident in ids:
+        t += 0.1
+        h.observe(t, ident, ident in fits)
+        mus.append(float(h.theta(fits)[0]))
+    return mus, t
 
 
 def two_terrains(scale: float | None) -> tuple[ContextClusterer, int, int]:
@@ -144,3 +173,51 @@ def two_terrains_into(clusterer: ContextClusterer) -> tuple[ContextClusterer, in
     clusterer.recluster(t)
     ids = clusterer.predict(np.array([A, B]))
     return clusterer, int(ids[0]), int(ids[1])
+
+
+def two_terrains_at_speed(speed_mps: float) -> tuple[ContextClusterer, int]:
+    """Terrains A and B driven at ``speed_mps`` (10 s each), with the widened gate and the
+    hold (``paper_eval``'s continuation); the clusterer and A's id."""
+    clusterer = ContextClusterer(
+        ClusteringParams(frame_rate_hz=10.0, continuation_gate_scale=3.0, continuation_hold_s=1.0)
+    )
+    rng = np.random.default_rng(4)
+    t = 0.0
+    for centre in (A, B):
+        for _ in range(100):
+            clusterer.assign(centre + 0.01 * rng.standard_normal(3), t, speed_mps)
+            t += 0.1
+    clusterer.recluster(t)
+    return clusterer, int(clusterer.predict(A)[0])
+
+
+def test_other_ground_after_a_held_gap_is_not_handed_the_context_friction():
+    """Brick's visit, a strip beyond even the widened gate (held), then another terrain within
+    brick's widened gate: at a speed brick's members were taken at, blur cannot explain those
+    frames, so they are noise and the handing gives the unknown value, not brick's friction.
+    Faster than every member (the camera's blur), the same frames continue the visit."""
+    strip = A + 0.3 * (FAR - A)  # nearest to A's members, beyond 3 gates: held
+    clusterer, a = two_terrains_at_speed(8.0)
+    other = shifted(clusterer, A, FAR)  # just outside A's gate, inside the widened one
+
+    def frames(c: ContextClusterer, speed: float) -> list[int]:
+        ids = [c.assign(A, 20.0, speed)]
+        ids += [c.assign(strip, 20.1 + 0.1 * k, speed) for k in range(3)]
+        return ids + [c.assign(other, 20.4 + 0.1 * k, speed) for k in range(20)]
+
+    ids = frames(copy.deepcopy(clusterer), 7.5)
+    assert ids == [a] + [NOISE] * 23
+    fits = {a: fit(a, 0.8)}
+    h = handing(unknown=StatedFloor(), unidentified=Probe(), floor_mu=0.2)
+    mus, t = drive(h, fits, 0.0, [a] * 20)
+    assert mus[-1] == pytest.approx(0.8)
+    mus, _ = drive(h, fits, t, ids[1:])
+    assert mus == pytest.approx([0.2] * 23)  # never brick's 0.8 on the other ground
+    unexplained = copy.deepcopy(clusterer)
+    unexplained.assign(A, 20.0, 7.5)
+    unexplained.assign(strip, 20.1, 7.5)
+    assert unexplained.last_evidence == "unexplained"
+    # faster than every member: the blur can explain it, the visit goes on as before
+    assert frames(copy.deepcopy(clusterer), 11.0) == [a] + [NOISE] * 3 + [a] * 20
+    # no speed known (a caller without the state): the continuation as before
+    assert frames(copy.deepcopy(clusterer), None) == [a] + [NOISE] * 3 + [a] * 20

@@ -145,10 +145,12 @@ def test_frame_offset_assigns_the_frame_of_the_same_period(offset_s, age_s):
         def __init__(self, params):
             super().__init__(params)
             self.seen: list[tuple[float, float]] = []
+            self.speeds: list[float | None] = []
 
-        def assign(self, z, t_s):
+        def assign(self, z, t_s, speed_mps=None):
             self.seen.append((float(t_s), float(z[0])))
-            return super().assign(z, t_s)
+            self.speeds.append(speed_mps)
+            return super().assign(z, t_s, speed_mps)
 
     builder = DiagramBuilder()
     camera = builder.AddSystem(_FrameStamp.make())
@@ -157,11 +159,13 @@ def test_frame_offset_assigns_the_frame_of_the_same_period(offset_s, age_s):
     diagram = builder.Build()
     root = diagram.CreateDefaultContext()
     params = clustering.params
-    clustering.GetMyMutableContextFromRoot(root).get_mutable_abstract_state(0).set_value(
-        Recording(params)
-    )
+    mine = clustering.GetMyMutableContextFromRoot(root)
+    mine.get_mutable_abstract_state(0).set_value(Recording(params))
+    # the measured state's speed (index 3) reaches every frame's assignment
+    clustering.GetInputPort("state").FixValue(mine, [0.0, 0.0, 0.0, 7.5, 0.0, 0.0, 0.0])
     simulator = Simulator(diagram, root)
     simulator.AdvanceTo(1.05)
+    assert clustering.clusterer(clustering.GetMyContextFromRoot(root)).speeds == [7.5] * 11
     seen = np.array(clustering.clusterer(clustering.GetMyContextFromRoot(root)).seen)
     assert len(seen) == 11
     np.testing.assert_allclose(seen[:, 0], np.arange(11) * 0.1 + offset_s, atol=1e-9)
