@@ -76,13 +76,22 @@ def robust_noise_sigmas(y: np.ndarray, max_stride: int = 1) -> np.ndarray:
     differences and medians of all columns taken in one array operation each (the context
     fitter estimates the noise of its whole buffer at every refit)."""
     y = np.asarray(y, dtype=float)
+    # The differences and medians run along the rows of the transposed, contiguous copy: the
+    # same elementwise arithmetic and the same order statistics as along ``y``'s columns (so
+    # the same numbers), at a fraction of the cost of partitioning strided columns.
+    yt = np.ascontiguousarray(y.T)
     estimates = []
     for stride in range(1, max(1, int(max_stride)) + 1):
-        d4 = y[stride * 4 :] - 4 * y[stride * 3 : -stride] + 6 * y[stride * 2 : -2 * stride]
-        d4 = d4 - 4 * y[stride : -3 * stride] + y[: -4 * stride]
-        if d4.shape[0] < 5:
+        d4 = (
+            yt[:, stride * 4 :]
+            - 4 * yt[:, stride * 3 : -stride]
+            + 6 * yt[:, stride * 2 : -2 * stride]
+        )
+        d4 = d4 - 4 * yt[:, stride : -3 * stride] + yt[:, : -4 * stride]
+        if d4.shape[1] < 5:
             break
-        mad = np.median(np.abs(d4 - np.median(d4, axis=0)), axis=0)
+        dev = np.abs(d4 - np.median(d4, axis=1, keepdims=True))
+        mad = np.median(dev, axis=1, overwrite_input=True)
         estimates.append(1.4826 * mad / np.sqrt(70.0))
     if not estimates:
         out = np.std(y, axis=0)
