@@ -55,6 +55,7 @@ from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 from pcvfe_drake.estimation.probe import DEFAULT_PROBE_USE_FRACTION, wheel_peak_share
 from pcvfe_drake.estimation.sample_store import NOISE, SampleStore, labels_from_frames
 from pcvfe_drake.handing.handing import Handing
+from pcvfe_drake.models.data import NoiseScaleCache
 from pcvfe_drake.shallow_copy import shallow_copy
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import NU, NX
@@ -77,6 +78,8 @@ class _ContextSlot:
     fit_info: WindowInformation | None = None
     """The effect fit's stored window information (``incremental_fit``; None: none yet, the
     next refit is a batch fit; after a relabelling it keeps the estimate and no window)."""
+    noise_cache: NoiseScaleCache = field(default_factory=NoiseScaleCache)
+    """Its buffer's noise scales, kept between refits (``models.data.NoiseScaleCache``)."""
 
 
 def _discarded(old: ContextEstimate, samples: int, t_now: float, what: str) -> ContextEstimate:
@@ -377,6 +380,7 @@ class ContextEstimator:
             mine.estimate = replace(theirs.estimate, samples=mine.samples)
             mine.changes_at_fit = theirs.changes_at_fit
             mine.fit_info = theirs.fit_info
+            mine.noise_cache = theirs.noise_cache
             mine.estimate_data_end_s = theirs.estimate_data_end_s
             mine.delay_counts = theirs.delay_counts
         self.handing.adopt_exploration(worker.handing)
@@ -490,10 +494,12 @@ class ContextEstimator:
         try:
             if cfg.effect_incremental:
                 result, slot.fit_info = self._effect_fitter.refit(
-                    t, states, inputs, slot.fit_info, self._prior[0], previous
+                    t, states, inputs, slot.fit_info, self._prior[0], previous, slot.noise_cache
                 )
             else:
-                result = self._effect_fitter(t, states, inputs, previous, self._prior[0])
+                result = self._effect_fitter(
+                    t, states, inputs, previous, self._prior[0], noise_cache=slot.noise_cache
+                )
         except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
             slot.fit_info = None
             slot.estimate = _discarded(old, samples, t_now, f"failed ({type(exc).__name__}: {exc})")
