@@ -33,6 +33,7 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from pcvfe_drake.estimation.effect_fit import EffectFitter, identifiability
 from pcvfe_drake.estimation.estimate_latency import add_waits, wait_quantiles
@@ -398,10 +399,15 @@ class ContextEstimator:
         """
         self.update_probe(t_now)
         done = []
-        for ident in self.pending()[: self.config.max_contexts_per_update]:
-            self._refit_one(ident, t_now, fit, data_until_s)
-            done.append(ident)
-            self._next_rr = ident + 1
+        # One BLAS thread, as the clustering's re-clustering: the fits' products are small
+        # (a refit's largest is a dot product of ~10^5 entries), and a threaded BLAS spends
+        # several times their CPU in its threads' hand-overs, worse on a loaded machine; a
+        # threaded dot product's sum also depends on how many threads the machine gives it.
+        with threadpool_limits(limits=1, user_api="blas"):
+            for ident in self.pending()[: self.config.max_contexts_per_update]:
+                self._refit_one(ident, t_now, fit, data_until_s)
+                done.append(ident)
+                self._next_rr = ident + 1
         return done
 
     def _refit_one(self, ident: int, t_now: float, fit, data_until_s=None) -> None:
