@@ -33,6 +33,7 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from pcvfe_drake.estimation.effect_fit import EffectFitter, identifiability
 from pcvfe_drake.estimation.estimate_latency import add_waits, wait_quantiles
@@ -55,6 +56,7 @@ from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 from pcvfe_drake.estimation.probe import DEFAULT_PROBE_USE_FRACTION, wheel_peak_share
 from pcvfe_drake.estimation.sample_store import NOISE, SampleStore, labels_from_frames
 from pcvfe_drake.handing.handing import Handing
+from pcvfe_drake.models.data import NoiseScaleCache
 from pcvfe_drake.shallow_copy import shallow_copy
 from pcvfe_drake.vehicle.params import VehicleParams
 from pcvfe_drake.vehicle.single_track import NU, NX
@@ -77,6 +79,8 @@ class _ContextSlot:
     fit_info: WindowInformation | None = None
     """The effect fit's stored window information (``incremental_fit``; None: none yet, the
     next refit is a batch fit; after a relabelling it keeps the estimate and no window)."""
+    noise_cache: NoiseScaleCache = field(default_factory=NoiseScaleCache)
+    """Its buffer's noise scales, kept between refits (``models.data.NoiseScaleCache``)."""
 
 
 def _discarded(old: ContextEstimate, samples: int, t_now: float, what: str) -> ContextEstimate:
@@ -187,7 +191,8 @@ class ContextEstimator:
         self.handing.observe(t, ident, slot is not None and slot.estimate.fitted)
         if math.isfinite(t):
             self.last_sample_time_s = t
-        if not (math.isfinite(t) and np.all(np.isfinite(state)) and np.all(np.isfinite(inputs))):
+        # the arrays' own ``all`` (not ``np.all``'s dispatch): the same test, cheaper per sample
+        if not (math.isfinite(t) and np.isfinite(state).all() and np.isfinite(inputs).all()):
             self.rejected_samples += 1
             return -1
         self._store.append(t, state, inputs, ident)
@@ -376,6 +381,7 @@ class ContextEstimator:
             mine.estimate = replace(theirs.estimate, samples=mine.samples)
             mine.changes_at_fit = theirs.changes_at_fit
             mine.fit_info = theirs.fit_info
+            mine.noise_cache = theirs.noise_cache
             mine.estimate_data_end_s = theirs.estimate_data_end_s
             mine.delay_counts = theirs.delay_counts
         self.handing.adopt_exploration(worker.handing)
@@ -393,10 +399,15 @@ class ContextEstimator:
         """
         self.update_probe(t_now)
         done = []
-        for ident in self.pending()[: self.config.max_contexts_per_update]:
-            self._refit_one(ident, t_now, fit, data_until_s)
-            done.append(ident)
-            self._next_rr = ident + 1
+        # One BLAS thread, as the clustering's re-clustering: the fits' products are small
+        # (a refit's largest is a dot product of ~10^5 entries), and a threaded BLAS spends
+        # several times their CPU in its threads' hand-overs, worse on a loaded machine; a
+        # threaded dot product's sum also depends on how many threads the machine gives it.
+        with threadpool_limits(limits=1, user_api="blas"):
+            for ident in self.pending()[: self.config.max_contexts_per_update]:
+                self._refit_one(ident, t_now, fit, data_until_s)
+                done.append(ident)
+                self._next_rr = ident + 1
         return done
 
     def _refit_one(self, ident: int, t_now: float, fit, data_until_s=None) -> None:
@@ -489,10 +500,12 @@ class ContextEstimator:
         try:
             if cfg.effect_incremental:
                 result, slot.fit_info = self._effect_fitter.refit(
-                    t, states, inputs, slot.fit_info, self._prior[0], previous
+                    t, states, inputs, slot.fit_info, self._prior[0], previous, slot.noise_cache
                 )
             else:
-                result = self._effect_fitter(t, states, inputs, previous, self._prior[0])
+                result = self._effect_fitter(
+                    t, states, inputs, previous, self._prior[0], noise_cache=slot.noise_cache
+                )
         except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
             slot.fit_info = None
             slot.estimate = _discarded(old, samples, t_now, f"failed ({type(exc).__name__}: {exc})")

@@ -47,6 +47,7 @@ from pcvfe_drake.estimation.incremental_fit import (
 from pcvfe_drake.models.data import (
     NOISE_STRIDE_S,
     DriveData,
+    NoiseScaleCache,
     denoised_delta_sigma,
     initial_state_estimates,
     robust_noise_sigmas,
@@ -196,10 +197,17 @@ def friction_used(
     return float(np.quantile(used[use] / G_MPS2, quantile))
 
 
-def drive_data_from_arrays(t: np.ndarray, states: np.ndarray, inputs: np.ndarray, source: str):
+def drive_data_from_arrays(
+    t: np.ndarray,
+    states: np.ndarray,
+    inputs: np.ndarray,
+    source: str,
+    noise_cache: NoiseScaleCache | None = None,
+):
     """A one-context :class:`~pcvfe_drake.models.data.DriveData` from buffer arrays (time
     gaps allowed: the initial-state smoothing runs per gap-free segment, windows never span a
-    gap), noise scales estimated as ``pcvfe diagnose`` does."""
+    gap), noise scales estimated as ``pcvfe diagnose`` does (with ``noise_cache``, the
+    buffer's cache of them: the same numbers, only the new samples' work)."""
     t = np.asarray(t, dtype=float)
     x = np.asarray(states, dtype=float).copy()
     u = np.asarray(inputs, dtype=float)
@@ -211,7 +219,10 @@ def drive_data_from_arrays(t: np.ndarray, states: np.ndarray, inputs: np.ndarray
         x0[seg] = initial_state_estimates(x[seg], u[seg], dt)
     longest = max(np.split(np.arange(t.size), breaks), key=len)
     strides = max(1, int(round(NOISE_STRIDE_S / dt)))
-    sigma = robust_noise_sigmas(x[longest], strides)
+    if noise_cache is None:
+        sigma = robust_noise_sigmas(x[longest], strides)
+    else:
+        sigma = noise_cache.sigmas(t[longest], x[longest], strides)
     sigma = np.maximum(sigma, 1e-4 * np.maximum(np.ptp(x, axis=0), 1e-6))
     return DriveData(
         t,
@@ -341,7 +352,14 @@ class EffectFitter:
         return starts[-self.max_windows :], horizon, burn_in
 
     def __call__(
-        self, t, states, inputs, previous=None, mu_start=None, with_information: bool = False
+        self,
+        t,
+        states,
+        inputs,
+        previous=None,
+        mu_start=None,
+        with_information: bool = False,
+        noise_cache: NoiseScaleCache | None = None,
     ):
         """Fit the buffer (the batch fit); None when it holds fewer than ``min_windows``
         windows; with ``with_information`` a pair ``(result, WindowInformation)`` (the windows'
@@ -350,11 +368,12 @@ class EffectFitter:
         A warm refit (``previous``: the context's last full vector) runs ``max_iterations``;
         the first fit of a context (cold) starts from the best of ``COLD_MU_FACTORS`` x
         ``mu_start`` (with a peak tyre the nominal mu is rarely near the peak; the costs of the
-        starts are residual-only rollouts) and runs ``COLD_ITERATION_FACTOR`` x as many."""
+        starts are residual-only rollouts) and runs ``COLD_ITERATION_FACTOR`` x as many.
+        ``noise_cache``: the buffer's noise scales cache (``drive_data_from_arrays``)."""
 
         if len(t) < 10:
             return None
-        data = drive_data_from_arrays(t, states, inputs, "context buffer")
+        data = drive_data_from_arrays(t, states, inputs, "context buffer", noise_cache)
         starts, horizon, burn_in = self.windows(data)
         if starts.size < self.min_windows:
             return None
@@ -415,12 +434,13 @@ class EffectFitter:
     def _window_keys(data, starts) -> np.ndarray:
         return np.round(data.t[starts] / data.dt).astype(np.int64)
 
-    def refit(self, t, states, inputs, info=None, mu_start=None, previous=None):
+    def refit(self, t, states, inputs, info=None, mu_start=None, previous=None, noise_cache=None):
         """An incremental refit (``pcvfe_drake.estimation.incremental_fit``): ``(result,
         information)``, the result None when the buffer holds fewer than ``min_windows``
         windows (the information then unchanged). Without stored ``info`` (a context's first
         fit, or its samples relabelled) the batch fit (:meth:`__call__`, warm from
-        ``previous``) runs and seeds it."""
+        ``previous``) runs and seeds it. ``noise_cache``: the buffer's noise scales cache
+        (``drive_data_from_arrays``)."""
         from pcvfe_drake.models.estimate import (
             FIT_STATES,
             FitResult,
@@ -429,11 +449,11 @@ class EffectFitter:
         )
 
         if info is None or info.estimate.size != self.model.n_params:
-            out = self(t, states, inputs, previous, mu_start, with_information=True)
+            out = self(t, states, inputs, previous, mu_start, True, noise_cache)
             return (None, info) if out is None else out
         if len(t) < 10:
             return None, info
-        data = drive_data_from_arrays(t, states, inputs, "context buffer")
+        data = drive_data_from_arrays(t, states, inputs, "context buffer", noise_cache)
         starts, horizon, burn_in = self.windows(data)
         if starts.size < self.min_windows:
             return None, info

@@ -335,3 +335,23 @@ def test_short_noise_keeps_the_last_context_estimate_then_falls_back_to_the_prio
     est.add_sample(0.6, state, [0.0, 0.0], [-1])  # 0.6 s: the prior
     np.testing.assert_allclose(est.theta_for(), est.prior_theta)
     assert est.theta_for(-1)[0] == params.mu  # an explicit noise id is always the prior
+
+
+def test_a_refit_runs_with_one_blas_thread(params, drives):
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    t, S, U = drives
+    est = ContextEstimator(params, LiveFitConfig())
+    for k in range(300):
+        est.add_sample(t[k], S[2, k], U[2, k], 4.0)
+    seen = []
+
+    def recording(data, params_, theta0, options):
+        seen.append([p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"])
+        return fit_gauss_newton(data, params_, theta0, options)
+
+    with threadpool_limits(limits=2, user_api="blas"):
+        assert est.refit(3.0, fit=recording) == [4]
+        outside = [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
+    assert seen and all(n == 1 for n in seen[0])
+    assert outside and all(n == 2 for n in outside)  # restored after the refit

@@ -175,3 +175,34 @@ def test_trials_with_their_jacobian_reach_the_same_fit(drive):
     together = fit(model, drive, starts, 25, jacobian_at_trials=True, **kwargs)
     assert together.theta == pytest.approx(apart.theta, abs=1e-9)
     assert together.std == pytest.approx(apart.std, rel=1e-6, nan_ok=True)  # k_s held: NaN
+
+
+def _noise_sigmas_along_columns(y, max_stride):
+    """The noise scales computed along ``y``'s (strided) columns, the form the contiguous
+    rows of :func:`robust_noise_sigmas` replace."""
+    estimates = []
+    for s in range(1, max_stride + 1):
+        d4 = y[s * 4 :] - 4 * y[s * 3 : -s] + 6 * y[s * 2 : -2 * s]
+        d4 = d4 - 4 * y[s : -3 * s] + y[: -4 * s]
+        if d4.shape[0] < 5:
+            break
+        mad = np.median(np.abs(d4 - np.median(d4, axis=0)), axis=0)
+        estimates.append(1.4826 * mad / np.sqrt(70.0))
+    if not estimates:
+        out = np.std(y, axis=0)
+        return np.where(out == 0.0, 1.0, out)
+    top = np.max(estimates, axis=0)
+    return np.where(top > CORRELATED_NOISE_RATIO * estimates[0], top, estimates[0])
+
+
+@pytest.mark.parametrize("n", [6, 25, 2000, 2001])
+def test_noise_scales_along_contiguous_rows_are_bit_identical_to_along_columns(n):
+    rng = np.random.default_rng(n)
+    y = np.cumsum(rng.standard_normal((n, 7)), axis=0) * 0.01
+    y[:, 2] = np.repeat(y[::3, 2], 3)[:n]  # runs of equal values: ties in the medians
+    for arr in (y, np.asfortranarray(y), y[:, :1]):
+        np.testing.assert_array_equal(
+            robust_noise_sigmas(arr, 10), _noise_sigmas_along_columns(arr, 10)
+        )
+    y[n // 2, 4] = np.nan
+    np.testing.assert_array_equal(robust_noise_sigmas(y, 10), _noise_sigmas_along_columns(y, 10))
