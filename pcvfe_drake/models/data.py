@@ -88,6 +88,13 @@ def robust_noise_sigmas(y: np.ndarray, max_stride: int = 1) -> np.ndarray:
         dev = np.abs(d4 - np.median(d4, axis=1, keepdims=True))
         mad = np.median(dev, axis=1, overwrite_input=True)
         estimates.append(1.4826 * mad / np.sqrt(70.0))
+    return combine_stride_estimates(estimates, y)
+
+
+def combine_stride_estimates(estimates: list, y: np.ndarray) -> np.ndarray:
+    """The noise scales from the per-stride estimates (stride 1 first): the largest where it
+    exceeds stride 1's by ``CORRELATED_NOISE_RATIO`` (correlated noise), else stride 1's; with
+    no estimate (too few samples) the columns' standard deviations (1 where constant)."""
     if not estimates:
         out = np.std(y, axis=0)
         return np.where(out == 0.0, 1.0, out)
@@ -177,8 +184,7 @@ class NoiseScaleCache:
             ]
         self._last = (t.copy(), yt, max_stride, ordered)
         estimates = [1.4826 * _sorted_mads(values) / np.sqrt(70.0) for values in ordered]
-        top = np.max(estimates, axis=0)
-        return np.where(top > CORRELATED_NOISE_RATIO * estimates[0], top, estimates[0])
+        return combine_stride_estimates(estimates, y)
 
 
 def _continued(last: tuple | None, t: np.ndarray, yt: np.ndarray, max_stride: int) -> int | None:

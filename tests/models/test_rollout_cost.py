@@ -9,7 +9,12 @@ import numpy as np
 import pytest
 
 from pcvfe_drake.models.chassis_effects import wheel_slip_offsets
-from pcvfe_drake.models.data import CORRELATED_NOISE_RATIO, robust_noise_sigmas, window_starts
+from pcvfe_drake.models.data import (
+    CORRELATED_NOISE_RATIO,
+    combine_stride_estimates,
+    robust_noise_sigmas,
+    window_starts,
+)
 from pcvfe_drake.models.estimate import fit, training_cost, training_costs
 from pcvfe_drake.models.model import WorkbenchModel
 from pcvfe_drake.vehicle.params import ford_escort
@@ -188,11 +193,7 @@ def _noise_sigmas_along_columns(y, max_stride):
             break
         mad = np.median(np.abs(d4 - np.median(d4, axis=0)), axis=0)
         estimates.append(1.4826 * mad / np.sqrt(70.0))
-    if not estimates:
-        out = np.std(y, axis=0)
-        return np.where(out == 0.0, 1.0, out)
-    top = np.max(estimates, axis=0)
-    return np.where(top > CORRELATED_NOISE_RATIO * estimates[0], top, estimates[0])
+    return combine_stride_estimates(estimates, y)
 
 
 @pytest.mark.parametrize("n", [6, 25, 2000, 2001])
