@@ -36,7 +36,7 @@ import numpy as np
 
 from pcvfe_drake.estimation.fit_dataset import WindowDataset
 from pcvfe_drake.estimation.fit_options import FitOptions
-from pcvfe_drake.models.data import EXCITATION_NOISE_FACTOR
+from pcvfe_drake.models.data import EXCITATION_NOISE_FACTOR, sigma_from_fourth_difference_mad
 from pcvfe_drake.vehicle.params import THETA_NAMES, VehicleParams
 from pcvfe_drake.vehicle.single_track import BETA, NTHETA, NX, PSI_DOT, STATE_NAMES
 
@@ -58,7 +58,7 @@ def noise_sigma(data: WindowDataset) -> np.ndarray:
         return np.full(NX, np.nan)
     d4 = np.diff(data.X, 4, axis=1).reshape(-1, NX)
     mad = np.median(np.abs(d4 - np.median(d4, axis=0)), axis=0)
-    return 1.4826 * mad / math.sqrt(70.0)
+    return sigma_from_fourth_difference_mad(mad)
 
 
 def _fit_percent(error: np.ndarray, signal: np.ndarray) -> float:

@@ -87,8 +87,15 @@ def robust_noise_sigmas(y: np.ndarray, max_stride: int = 1) -> np.ndarray:
             break
         dev = np.abs(d4 - np.median(d4, axis=1, keepdims=True))
         mad = np.median(dev, axis=1, overwrite_input=True)
-        estimates.append(1.4826 * mad / np.sqrt(70.0))
+        estimates.append(sigma_from_fourth_difference_mad(mad))
     return combine_stride_estimates(estimates, y)
+
+
+def sigma_from_fourth_difference_mad(mad):
+    """White noise's standard deviation from the median absolute deviation of its 4th
+    differences: the MAD of a normal variable is 1/1.4826 of its std, and the 4th difference
+    of white noise of std s has std ``s sqrt(70)``."""
+    return 1.4826 * mad / np.sqrt(70.0)
 
 
 def combine_stride_estimates(estimates: list, y: np.ndarray) -> np.ndarray:
@@ -183,7 +190,7 @@ class NoiseScaleCache:
                 for s in range(1, max_stride + 1)
             ]
         self._last = (t.copy(), yt, max_stride, ordered)
-        estimates = [1.4826 * _sorted_mads(values) / np.sqrt(70.0) for values in ordered]
+        estimates = [sigma_from_fourth_difference_mad(_sorted_mads(v)) for v in ordered]
         return combine_stride_estimates(estimates, y)
 
 

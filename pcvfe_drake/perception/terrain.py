@@ -308,10 +308,15 @@ class TerrainMap:
         values of :meth:`mu_and_index_at` on ``[x, y]``, for callers that look up one point at
         a time (the plant, on every derivative evaluation)."""
         k = self._index_at_point(float(x), float(y))
+        return float(self._point_mu(k, x, y)), k
+
+    def _point_mu(self, k: int, x: float, y: float):
+        """The true mu at one point ``(x, y)`` [m] of terrain ``k``: the terrain's mu, or its
+        :class:`MuField` there."""
         field = self.mu_fields[k] if self._any_field else None
         if field is None:
-            return self._mu_list[k], k
-        return float(field.mu(self._mu_list[k], np.array([[x, y]], dtype=float))[0]), k
+            return self._mu_list[k]
+        return field.mu(self._mu_list[k], np.array([[x, y]], dtype=float))[0]
 
     def _unknown_message(self, x: float, y: float, inside: bool) -> str:
         if not inside:
@@ -332,11 +337,8 @@ class TerrainMap:
         """(true mu, terrain index) at world points (shapes as :meth:`mu_at`)."""
         k = self.index_at(xy)
         if isinstance(k, int):
-            field = self.mu_fields[k] if self._any_field else None
-            if field is None:
-                return self._mu_list[k], k
             xy_arr = np.asarray(xy, dtype=float)
-            return field.mu(self._mu_list[k], xy_arr[None, :])[0], k
+            return self._point_mu(k, xy_arr[0], xy_arr[1]), k
         mu = self._mu[k]
         if self._any_field:
             xy_arr = np.asarray(xy, dtype=float)

@@ -361,6 +361,11 @@ class MbTruth:
         return st_state(x_mb), x_mb
 
 
+MOVING_VX_MPS = 0.1
+"""``|v_x|`` [m/s] from which :func:`st_state` forms the side-slip angle (the package's own
+kinematic threshold; below it beta is 0)."""
+
+
 def st_state(x_mb) -> np.ndarray:
     """Single-track state(s) ``[sx, sy, delta, v, psi, psi_dot, beta]`` of MB state(s).
 
@@ -375,7 +380,7 @@ def st_state(x_mb) -> np.ndarray:
     if x2.shape[1] != NX_MB:
         raise ValueError(f"MB state must have {NX_MB} entries, got shape {x.shape}")
     vx, vy = x2[:, VX], x2[:, VY]
-    moving = np.abs(vx) >= 0.1
+    moving = np.abs(vx) >= MOVING_VX_MPS
     speed = np.hypot(vx, vy) * np.where(vx < 0, -1.0, 1.0)
     beta = np.where(moving, np.arctan(vy / np.where(moving, vx, 1.0)), 0.0)
     out = np.stack([x2[:, 0], x2[:, 1], x2[:, 2], speed, x2[:, 4], x2[:, 5], beta], axis=1)
@@ -388,5 +393,5 @@ def _st_state_one(x: np.ndarray) -> np.ndarray:
     output calls this at every sensor sample)."""
     vx, vy = x[VX : VX + 1], x[VY : VY + 1]
     speed = np.hypot(vx, vy)[0] * (-1.0 if vx[0] < 0 else 1.0)
-    beta = np.arctan(vy / vx)[0] if abs(vx[0]) >= 0.1 else 0.0
+    beta = np.arctan(vy / vx)[0] if abs(vx[0]) >= MOVING_VX_MPS else 0.0
     return np.array([x[0], x[1], x[2], speed, x[4], x[5], beta])

@@ -13,6 +13,7 @@ from pcvfe_drake.models.data import (
     CORRELATED_NOISE_RATIO,
     combine_stride_estimates,
     robust_noise_sigmas,
+    sigma_from_fourth_difference_mad,
     window_starts,
 )
 from pcvfe_drake.models.estimate import fit, training_cost, training_costs
@@ -192,7 +193,7 @@ def _noise_sigmas_along_columns(y, max_stride):
         if d4.shape[0] < 5:
             break
         mad = np.median(np.abs(d4 - np.median(d4, axis=0)), axis=0)
-        estimates.append(1.4826 * mad / np.sqrt(70.0))
+        estimates.append(sigma_from_fourth_difference_mad(mad))
     return combine_stride_estimates(estimates, y)
 
 
