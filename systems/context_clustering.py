@@ -16,10 +16,7 @@ from pcvfe_drake.contexts.clustering import (
     FrameLabels,
     StoredFeatures,
 )
-from pcvfe_drake.vehicle.single_track import NX
-
-SPEED_INDEX = 3
-"""Index of the speed v [m/s] in the single-track state [sx, sy, delta, v, psi, psi_dot, beta]."""
+from pcvfe_drake.vehicle.single_track import NX, V
 
 
 class ContextClustering(LeafSystem):
@@ -172,7 +169,7 @@ class ContextClustering(LeafSystem):
         clusterer = state.get_mutable_abstract_state(self._clusterer_index).get_mutable_value()
         speed = None
         if self._state_port.HasValue(context):
-            speed = float(self._state_port.Eval(context)[SPEED_INDEX])
+            speed = float(self._state_port.Eval(context)[V])
         context_id, _ = clusterer.assign_frame(z, context.get_time(), speed)
         state.get_mutable_discrete_state(self._id_index).SetAtIndex(0, float(context_id))
         return EventStatus.Succeeded()
