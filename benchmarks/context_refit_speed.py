@@ -39,8 +39,9 @@ STATES = ["sx", "sy", "delta", "v", "psi", "psi_dot", "beta"]
 def drive(est: ContextEstimator, t, S, U) -> dict:
     cpu = []
     last = t[0]
+    read = np.vstack([U[:1], U[:-1]])  # what a sample reads: the input applied before it
     for k in range(t.size):
-        est.add_sample(t[k], S[k], U[k], 0)
+        est.add_sample(t[k], S[k], read[k], 0)
         if t[k] - last >= 1.0 - 1e-9:
             last = t[k]
             c0 = time.process_time()

@@ -301,6 +301,7 @@ def _estimate_table(diagram, context) -> list[dict]:
             "mu_is_peak": bool(e.mu_is_peak),
             "model_params": {n: float(v) for n, v, _ in e.model_params},
             "sample_to_estimate_s": [float(v) for v in e.sample_to_estimate_s],
+            "sample_to_refit_s": [float(v) for v in e.sample_to_refit_s],
         }
         for e in table.entries
         if int(e.context_id) >= 0

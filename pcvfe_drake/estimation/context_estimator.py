@@ -76,6 +76,8 @@ class _ContextSlot:
     """The newest sample time its published fit used [s] (NaN: none)."""
     delay_counts: np.ndarray | None = None
     """Histogram of its samples' waits from sample to published fit (``estimate_latency``)."""
+    refit_delay_counts: np.ndarray | None = None
+    """The same for the samples a later fit published (newer than its first fit's data)."""
     fit_info: WindowInformation | None = None
     """The effect fit's stored window information (``incremental_fit``; None: none yet, the
     next refit is a batch fit; after a relabelling it keeps the estimate and no window)."""
@@ -296,6 +298,7 @@ class ContextEstimator:
                 # The samples its fit used were used: they do not wait again under the new id.
                 slot.estimate_data_end_s = mine.estimate_data_end_s
                 slot.delay_counts = mine.delay_counts
+                slot.refit_delay_counts = mine.refit_delay_counts
             self.handing.renamed(ident, heir)
 
     @property
@@ -384,6 +387,7 @@ class ContextEstimator:
             mine.noise_cache = theirs.noise_cache
             mine.estimate_data_end_s = theirs.estimate_data_end_s
             mine.delay_counts = theirs.delay_counts
+            mine.refit_delay_counts = theirs.refit_delay_counts
         self.handing.adopt_exploration(worker.handing)
         self._next_rr = worker._next_rr
         self.refit_started_s = math.nan
@@ -565,19 +569,21 @@ class ContextEstimator:
     def _published(self, slot: _ContextSlot, t: np.ndarray, data_end_s: float, t_now: float):
         """A fit using the samples up to ``data_end_s`` is published at ``t_now``: the samples
         newer than the previous fit's data waited ``t_now - t_sample``; the entry gets
-        ``data_end_s`` and the waits' p50 and p99."""
+        ``data_end_s`` and the waits' p50 and p99, over all samples and over those a refit
+        published (after the context's first fit: what the refits' cadence costs, without the
+        wait for the first fit's data)."""
         previous = slot.estimate_data_end_s
-        new = (
-            t[(t > previous) & (t <= data_end_s + 1e-9)]
-            if math.isfinite(previous)
-            else t[t <= data_end_s + 1e-9]
-        )
+        refit = math.isfinite(previous)
+        new = t[(t > previous) & (t <= data_end_s + 1e-9)] if refit else t[t <= data_end_s + 1e-9]
         slot.delay_counts = add_waits(slot.delay_counts, t_now - new)
+        if refit:
+            slot.refit_delay_counts = add_waits(slot.refit_delay_counts, t_now - new)
         slot.estimate_data_end_s = float(data_end_s)
         slot.estimate = replace(
             slot.estimate,
             data_end_s=float(data_end_s),
             sample_to_estimate_s=wait_quantiles(slot.delay_counts),
+            sample_to_refit_s=wait_quantiles(slot.refit_delay_counts),
         )
 
     def _identifiability(

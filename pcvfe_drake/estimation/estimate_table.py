@@ -64,6 +64,8 @@ class ContextEstimate:
         sample_to_estimate_s: ``(p50, p99, samples)``: how long [s] the context's samples
             waited, from their time to the publication of the first fit that used them
             (samples newer than the previous fit's data; ``ContextEstimator``).
+        sample_to_refit_s: the same over the samples a refit published, after the context's
+            first fit (the refits' cadence, without the wait for enough data for a first fit).
 
     The reported 95 % interval of mu is :attr:`mu_interval_95`.
     """
@@ -77,6 +79,7 @@ class ContextEstimate:
     first_fit_s: float = float("nan")
     data_end_s: float = float("nan")
     sample_to_estimate_s: tuple[float, float, int] = (float("nan"), float("nan"), 0)
+    sample_to_refit_s: tuple[float, float, int] = (float("nan"), float("nan"), 0)
     status: str = "prior"
     fits: int = 0
     diverged: int = 0

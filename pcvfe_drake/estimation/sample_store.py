@@ -22,7 +22,8 @@ from pcvfe_drake.shallow_copy import shallow_copy
 from pcvfe_drake.vehicle.single_track import NU, NX
 
 ROW = 1 + NX + NU
-"""Numbers per row: t [s], state (7, project order), input [steer_rate rad/s, accel m/s^2]."""
+"""Numbers per row: t [s], state (7, project order), input [steer_rate rad/s, accel m/s^2]
+applied from the row's time to the next row's (:meth:`SampleStore.append`)."""
 NOISE = -1
 TIME_TOL_S = 1e-6
 """Tolerance on time comparisons [s] (sample and frame times from different periodic events)."""
@@ -51,7 +52,22 @@ class SampleStore:
         self._tail_n = 0
 
     def append(self, t: float, state: np.ndarray, inputs: np.ndarray, label: int) -> None:
-        """Add a row; ``t`` must not be earlier than the last row's (time order)."""
+        """Add a row; ``t`` must not be earlier than the last row's (time order).
+
+        ``inputs`` is the input read at ``t``. A controller's held output read at a sample
+        instant is the one applied *before* it: the sample's update and the controller's
+        update at the same instant both read the state from before either (Drake's discrete
+        updates; a replay's ``actuation_before`` and the UKF's predict read it alike). So it is
+        the input applied since the previous sample: the previous row takes it as the input
+        applied from that row on, and this row holds it until the next sample brings the
+        input applied from ``t`` (the newest row's input starts no rollout: a window's last
+        state has no step after it)."""
+        if self._tail_n:
+            self._tail[self._tail_n - 1, 1 + NX :] = inputs
+        elif self._chunks:  # the previous row closed a shared read-only chunk: copy that one
+            last = self._chunks[-1].copy()
+            last[-1, 1 + NX :] = inputs
+            self._chunks = (*self._chunks[:-1], _read_only(last))
         row = self._tail[self._tail_n]
         row[0] = t
         row[1 : 1 + NX] = state

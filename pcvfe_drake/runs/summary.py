@@ -243,6 +243,7 @@ def mu_estimates(
                 "handing": entry.get("handing"),
                 "model_params": entry.get("model_params") or None,
                 "sample_to_estimate_s": _delays(entry.get("sample_to_estimate_s")),
+                "sample_to_refit_s": _delays(entry.get("sample_to_refit_s")),
                 "fits": entry.get("fits"),
             }
         else:

@@ -143,8 +143,9 @@ def test_estimator_effect_path_and_lower_bound(saturating_log):
                 model=EffectModel(effects=["tire_saturation"]), sample_period_s=0.02, **cfg
             ),
         )
+        read = np.vstack([U[:1], U[:-1]])  # a sample reads the input applied before it
         for k in range(t.size):
-            est.add_sample(t[k], S[k], U[k], 0)
+            est.add_sample(t[k], S[k], read[k], 0)
         est.refit(float(t[-1]))
         return est
 

@@ -170,6 +170,21 @@ def test_estimator_resets_on_relabel_and_publishes_after_the_declared_latency(dr
     assert entry.fitted and entry.data_end_s <= t[n - 1]
     p50, p99, count = entry.sample_to_estimate_s
     assert count > 0 and 0.3 <= p50 <= p99 <= t[n - 1] + 0.4
+    assert entry.sample_to_refit_s[2] == 0  # the first fit's samples waited for its data
+    # a refit 0.5 s later publishes the 0.2 s received after the first fit's start and more:
+    # those waits are counted over every sample and over the refits' alone
+    for k in range(n + 10, n + 25):
+        est.add_sample(t[k], S[k], U[k], 0)
+    assert est.start_refit(float(t[n + 24]))
+    assert est.finish_refit(float(t[n + 24]) + 0.3, latency_s=0.3) == [0]
+    later = est.table().get(0)
+    r50, r99, r_count = later.sample_to_refit_s
+    assert r_count == later.sample_to_estimate_s[2] - count == 25
+    published_s = float(t[n + 24]) + 0.3
+    # the newest waited the latency, the oldest since just after the first fit's data
+    assert 0.3 <= r50 <= r99 <= published_s - entry.data_end_s + 0.01 + 1e-9
+    assert r99 < p99
+    assert later.sample_to_estimate_s[1] >= r99  # over all samples: the first fit's wait too
     assert est._slots[0].fit_info is not None
     est.relabel(t[:n], np.full(n, -1), 0.02, version=1)  # the samples leave the context
     assert est._slots[0].fit_info.keys.size == 0  # every window re-evaluated next time

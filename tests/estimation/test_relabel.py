@@ -38,7 +38,8 @@ def test_store_keeps_time_order_and_labels_and_shares_full_chunks_between_copies
     np.testing.assert_array_equal(store.labels(), [2, 2, -1, -1, 5, 5, 5, 2, 2, -1])
     t, states, inputs = store.rows(np.flatnonzero(store.labels() == 2))
     np.testing.assert_allclose(t, [0.0, 0.01, 0.07, 0.08])
-    np.testing.assert_allclose(inputs[:, 1], [0, 1, 7, 8])
+    # each row holds the input read at the next sample: the one applied from the row on
+    np.testing.assert_allclose(inputs[:, 1], [1, 2, 8, 9])
     np.testing.assert_allclose(states[:, 3], 5.0 + np.array([0, 1, 7, 8]))
 
     # A copy (what Drake does at every update) shares the full chunks, copies the tail.
