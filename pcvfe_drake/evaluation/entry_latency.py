@@ -115,9 +115,11 @@ def _progress_m(log: pd.DataFrame, course) -> np.ndarray:
     return course.unwrap_progress(course.project(xy).s)
 
 
-def terrain_lag(run: Path, reference: Path) -> dict:
+def terrain_lag(run: Path, reference: Path, splits_s: Sequence[float] = ()) -> dict:
     """Seconds ``run`` lost to ``reference`` per terrain visit at the same arc length, and its
-    speed and lap time as fractions of the reference's."""
+    speed and lap time as fractions of the reference's. ``splits_s``: each visit also gets
+    ``lag_first_s``, the seconds lost in its first ``split`` seconds per split (keyed
+    ``f"{split:g}"``; a visit shorter than a split: its whole lag)."""
     logs, course, summaries = [], None, []
     for folder in (run, reference):
         summary, log, course_here = read_run(folder)
@@ -135,15 +137,23 @@ def terrain_lag(run: Path, reference: Path) -> dict:
         b = min(b, len(t) - 1)
         if p[b] > p_ref[-1]:  # beyond the reference's log
             continue
-        ref_s = float(np.interp(p[b], p_ref, t_ref) - np.interp(p[a], p_ref, t_ref))
-        visits.append(
-            {
-                "terrain": name,
-                "t_enter_s": round(float(t[a]), 2),
-                "run_s": round(float(t[b] - t[a]), 2),
-                "lag_s": round(float(t[b] - t[a]) - ref_s, 2),
+
+        def lag(i: int, j: int) -> float:
+            ref_s = float(np.interp(p[j], p_ref, t_ref) - np.interp(p[i], p_ref, t_ref))
+            return round(float(t[j] - t[i]) - ref_s, 2)
+
+        visit = {
+            "terrain": name,
+            "t_enter_s": round(float(t[a]), 2),
+            "run_s": round(float(t[b] - t[a]), 2),
+            "lag_s": lag(a, b),
+        }
+        if splits_s:
+            visit["lag_first_s"] = {
+                f"{x:g}": lag(a, min(a + int(np.searchsorted(t[a : b + 1], t[a] + x)), b))
+                for x in splits_s
             }
-        )
+        visits.append(visit)
     mine, theirs = summaries
     return {
         "reference": Path(reference).name,

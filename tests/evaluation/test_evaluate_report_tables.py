@@ -78,6 +78,14 @@ def test_entry_latency_and_the_time_lost_at_the_same_arc_length(tmp_path):
     assert lag["speed_ratio"] == 0.5
     sand = next(v for v in lag["visits"] if v["terrain"] == "sand")
     assert sand["lag_s"] == pytest.approx(sand["run_s"] / 2, abs=0.06)
+    assert "lag_first_s" not in sand  # only asked for with splits
+    # Cut in the visit's first seconds: half of them lost too; a split beyond the visit: all
+    split = terrain_lag(
+        runs / "paper_eval__pcvfe__s000", runs / "paper_eval__oracle__s000", [1, 99]
+    )
+    cut = next(v for v in split["visits"] if v["terrain"] == "sand")
+    assert cut["lag_first_s"]["1"] == pytest.approx(0.5, abs=0.06)
+    assert cut["lag_first_s"]["99"] == cut["lag_s"] == sand["lag_s"]
     result = experiment_entries(tmp_path / "exp", against="oracle")
     group = result["groups"]["paper_eval / pcvfe"]
     assert group["per_terrain"]["brick"]["within_mean_s"] == 4.0
