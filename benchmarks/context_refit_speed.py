@@ -29,6 +29,7 @@ import numpy as np
 
 from pcvfe_drake.estimation.context_estimator import ContextEstimator
 from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
+from pcvfe_drake.estimation.sample_store import inputs_as_read
 from pcvfe_drake.models.effect_model import EffectModel
 from pcvfe_drake.vehicle.params import ford_escort
 from pcvfe_drake.workbench import synth
@@ -39,7 +40,7 @@ STATES = ["sx", "sy", "delta", "v", "psi", "psi_dot", "beta"]
 def drive(est: ContextEstimator, t, S, U) -> dict:
     cpu = []
     last = t[0]
-    read = np.vstack([U[:1], U[:-1]])  # what a sample reads: the input applied before it
+    read = inputs_as_read(U)  # what a sample reads: the input applied before it
     for k in range(t.size):
         est.add_sample(t[k], S[k], read[k], 0)
         if t[k] - last >= 1.0 - 1e-9:

@@ -85,6 +85,21 @@ class _ContextSlot:
     """Its buffer's noise scales, kept between refits (``models.data.NoiseScaleCache``)."""
 
 
+def effect_fitter(params: VehicleParams, config: LiveFitConfig) -> EffectFitter:
+    """The effect-model fitter a context estimator with ``config`` refits its contexts with
+    (``config.effects``, its windows, iterations and model-error budget)."""
+    return EffectFitter(
+        params,
+        config.effects,
+        horizon_s=config.effect_horizon_s,
+        stride_s=config.effect_stride_s,
+        max_windows=config.effect_max_windows,
+        max_iterations=config.max_iterations,
+        min_windows=config.effect_min_windows,
+        model_error_rel=config.model_error_rel,
+    )
+
+
 def _discarded(old: ContextEstimate, samples: int, t_now: float, what: str) -> ContextEstimate:
     """The table entry after a refit that was thrown away (``what`` happened at ``t_now``):
     the last good estimate (or the prior) stays, counted as diverged."""
@@ -149,19 +164,9 @@ class ContextEstimator:
                 min_windows=self.config.min_windows,
                 model_error_rel=self.config.model_error_rel,
             )
-        self._effect_fitter = None
-        if self.config.effects:
-            cfg = self.config
-            self._effect_fitter = EffectFitter(
-                self.params,
-                cfg.effects,
-                horizon_s=cfg.effect_horizon_s,
-                stride_s=cfg.effect_stride_s,
-                max_windows=cfg.effect_max_windows,
-                max_iterations=cfg.max_iterations,
-                min_windows=cfg.effect_min_windows,
-                model_error_rel=cfg.model_error_rel,
-            )
+        self._effect_fitter = (
+            effect_fitter(self.params, self.config) if self.config.effects else None
+        )
 
     def __deepcopy__(self, memo) -> ContextEstimator:
         other = shallow_copy(self)

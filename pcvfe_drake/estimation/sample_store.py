@@ -29,6 +29,15 @@ TIME_TOL_S = 1e-6
 """Tolerance on time comparisons [s] (sample and frame times from different periodic events)."""
 
 
+def inputs_as_read(inputs: np.ndarray) -> np.ndarray:
+    """The inputs a simulation's samples read along a drive whose row k holds the input applied
+    from t_k on (a drive log's convention): each sample reads the input applied before its
+    instant, the previous row's (the first row its own). :meth:`SampleStore.append` turns
+    such readings back into the drive's inputs."""
+    inputs = np.asarray(inputs, dtype=float)
+    return np.vstack([inputs[:1], inputs[:-1]])
+
+
 def _read_only(a: np.ndarray) -> np.ndarray:
     a.flags.writeable = False
     return a

@@ -14,13 +14,14 @@ Last stdout line: one JSON object.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from pcvfe_drake.estimation.effect_fit import EffectFitter
+from pcvfe_drake.estimation.context_estimator import effect_fitter
 from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 from pcvfe_drake.models.effect_model import load_model_file, vehicle_model_path
 from pcvfe_drake.vehicle.params import load_vehicle
@@ -41,19 +42,10 @@ def main() -> None:
     labels = log["terrain"].to_numpy()[row]
     vp = load_vehicle(args.vehicle)
     model = load_model_file(vehicle_model_path(args.vehicle, "mb", args.mapping))
-    cfg = LiveFitConfig()
+    cfg = LiveFitConfig(model=model)
 
-    def fitter(iterations: int) -> EffectFitter:
-        return EffectFitter(
-            vp,
-            model.effects,
-            horizon_s=cfg.effect_horizon_s,
-            stride_s=cfg.effect_stride_s,
-            max_windows=cfg.effect_max_windows,
-            max_iterations=iterations,
-            min_windows=cfg.effect_min_windows,
-            model_error_rel=model.model_error_rel,
-        )
+    def fitter(iterations: int):  # the online fitter, at ``iterations`` per refit
+        return effect_fitter(vp, dataclasses.replace(cfg, max_iterations=iterations))
 
     out = {}
     for terrain in args.terrains.split(","):

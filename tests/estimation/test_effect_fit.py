@@ -20,6 +20,7 @@ from pcvfe_drake.estimation.effect_fit import (
     small_slip_stiffness,
 )
 from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
+from pcvfe_drake.estimation.sample_store import inputs_as_read
 from pcvfe_drake.handing.config import HandingConfig, LowerBound
 from pcvfe_drake.models.effect_model import EffectModel, FitterEffect, parse_effects
 from pcvfe_drake.runs.drivelog import write_drive_log
@@ -143,7 +144,7 @@ def test_estimator_effect_path_and_lower_bound(saturating_log):
                 model=EffectModel(effects=["tire_saturation"]), sample_period_s=0.02, **cfg
             ),
         )
-        read = np.vstack([U[:1], U[:-1]])  # a sample reads the input applied before it
+        read = inputs_as_read(U)  # a sample reads the input applied before it
         for k in range(t.size):
             est.add_sample(t[k], S[k], read[k], 0)
         est.refit(float(t[-1]))

@@ -11,7 +11,7 @@ import pytest
 from pcvfe_drake.estimation.context_estimator import ContextEstimator
 from pcvfe_drake.estimation.effect_fit import EffectFitter
 from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
-from pcvfe_drake.estimation.sample_store import SampleStore
+from pcvfe_drake.estimation.sample_store import SampleStore, inputs_as_read
 from pcvfe_drake.vehicle.params import ford_escort
 from pcvfe_drake.workbench import synth
 
@@ -51,7 +51,7 @@ def test_the_fitter_reads_its_inputs_applied_from_each_sample():
     )[0]
     t, S = df["t"].to_numpy(), df[STATES].to_numpy()
     U = df[["steer_rate", "accel"]].to_numpy()  # U[k] applied over [t_k, t_k+1)
-    read = np.vstack([U[:1], U[:-1]])  # what a sample at t_k reads: the input before t_k
+    read = inputs_as_read(U)  # what a sample at t_k reads: the input before t_k
     est = ContextEstimator(ford_escort(), LiveFitConfig(model=synth_model(), sample_period_s=0.02))
     for k in range(t.size):
         est.add_sample(t[k], S[k], read[k], 0)
