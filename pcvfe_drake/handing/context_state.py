@@ -51,9 +51,18 @@ class ModelError:
     (from a one-surface calibration ``low == high``, ``EffectModel.calibrated_mu``).
     Beyond them the error is assumed to grow in proportion to the distance, ``rel * max(mu /
     high, low / mu)``: a constant fitted at one friction says nothing about the sign of its
-    error at another, so the handing hands an identified estimate less the lower end of the
-    grown part's 95 % interval (:meth:`handed_mu`), and an over-estimate there is not handed as
+    error at another, so the handing hands an identified estimate less what the growth adds to
+    the error's 95 % bound (:meth:`handed_mu`), and an over-estimate there is not handed as
     certain. ``calibrated_mu`` None: no growth is known (the budget alone).
+
+    The error is a bias of the held model (the same at the same friction), bounded by ``rel``
+    inside the calibrated frictions and by the grown ``rel`` outside; the bound grows, so the
+    margin grows with it, linearly: the handed value stays as far above the grown bound's 95 %
+    lower end as an estimate inside is above the budget's. It is continuous in the estimate
+    with its slope, so the handed mu rises with the estimate on both sides of the calibrated
+    frictions (a quadrature sum of a budget and an independent grown part would have an
+    infinite slope at their ends: a little outside would cost far more than the growth, and a
+    higher estimate just above ``high`` would be handed less than one at ``high``).
     """
 
     rel: float = 0.0
@@ -81,12 +90,13 @@ class ModelError:
         return self.rel * max(mu / high, low / mu, 1.0)
 
     def extra_std(self, mu: float) -> float:
-        """The std [-] the growth adds beyond the budget the fit's std already holds."""
-        grown = self.rel_at(mu)
-        return mu * math.sqrt(max(grown * grown - self.rel * self.rel, 0.0))
+        """What the growth adds [-] to the budget's error bound at ``mu`` (``mu * (rel_at(mu) -
+        rel)``): 0 inside the calibrated frictions."""
+        return mu * max(self.rel_at(mu) - self.rel, 0.0)
 
     def handed_mu(self, mu: float) -> float:
-        """An identified estimate ``mu`` as handed: less the grown error's 95 % lower end."""
+        """An identified estimate ``mu`` as handed: less what the growth adds to the error's
+        95 % bound."""
         return mu - Z_95 * self.extra_std(mu)
 
 

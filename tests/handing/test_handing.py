@@ -142,11 +142,15 @@ def test_conservative_uses_the_lowest_lower_bound_but_never_below_the_friction_u
 def test_model_error_grows_away_from_the_calibrated_frictions():
     err = ModelError(0.11, (0.3, 0.8))
     assert err.handed_mu(0.6) == 0.6  # inside: the estimate as it is
-    # brick fitted 1.05: 1.05 / 0.8 times the budget; the growth's 95 % lower end is handed
+    # brick fitted 1.05: 1.05 / 0.8 times the budget; what the growth adds to the error's
+    # 95 % bound is handed off
     grown = 0.11 * 1.05 / 0.8
-    expected = 1.05 - 1.96 * 1.05 * math.sqrt(grown**2 - 0.11**2)
+    expected = 1.05 - 1.96 * 1.05 * (grown - 0.11)
     assert err.handed_mu(1.05) == pytest.approx(expected)
-    assert err.handed_mu(1.05) < 0.9  # an over-estimate of a 0.9 ground is not handed
+    # the handed value keeps the distance to the grown bound's lower end an estimate inside has
+    for mu in (0.12, 0.2, 0.29, 0.81, 1.05, 1.5):
+        lower = mu * (1 - 1.96 * err.rel_at(mu))
+        assert err.handed_mu(mu) - lower == pytest.approx(1.96 * 0.11 * mu)
     assert err.handed_mu(0.2) < 0.2 and err.rel_at(0.2) == pytest.approx(0.11 * 1.5)
     assert ModelError(0.11).handed_mu(1.05) == 1.05  # no calibration known: no growth
     # below the checked friction the grown error is never handed below the friction used
@@ -157,6 +161,27 @@ def test_model_error_grows_away_from_the_calibrated_frictions():
     h = Handing(HandingConfig(), PRIOR, VP, model_error=err)
     assert h.context_theta(fit(0, 1.05))[0] == pytest.approx(expected)
     assert h.context_theta(fit(0, 1.05, identifiable=False))[0] == 1.05  # !Estimate: the fit
+
+
+def test_the_handed_mu_rises_with_the_estimate_across_the_calibrated_ends():
+    """A higher estimate is never handed less, and a little outside costs a little: the margin
+    has a finite slope at both ends of the calibrated frictions (a quadrature sum of the budget
+    and the growth would hand an estimate just above ``high`` less than one at ``high``, and
+    take a step's worth off just below ``low``)."""
+    err = ModelError(0.164, (0.3147, 1.03))
+    mus = np.linspace(0.12, 1.6, 2000)
+    handed = np.array([err.handed_mu(m) for m in mus])
+    assert np.all(np.diff(handed) > 0)
+    for end in (0.3147, 1.03):
+        step = 1e-4 * end
+        slope_in = (err.handed_mu(end) - err.handed_mu(end - step if end > 1 else end + step))
+        slope_out = (err.handed_mu(end + step if end > 1 else end - step)) - err.handed_mu(end)
+        # outside the slope changes by at most the margin's own rate (1.96 rel per unit of g)
+        assert abs(slope_out - slope_in) <= 1.96 * 0.164 * 2 * step + 1e-12
+    # 3.5 % below the checked friction costs at most the growth of the bound there
+    mu = 0.3147 / 1.035
+    assert mu - err.handed_mu(mu) == pytest.approx(1.96 * 0.164 * (0.3147 - mu))
+    assert mu - err.handed_mu(mu) < 0.005
 
 
 def test_each_context_has_one_state():
