@@ -53,6 +53,12 @@ SWEEP_LEVEL = 0.5
 BRAKE_LEVELS = (0.3, 0.6)
 """Deceleration of the straight stops, in g (each at most 0.8 of the surface's mu)."""
 BRAKE_FROM_MPS = 14.0
+SPEED_BRAKE_MPS2, SPEED_DRIVE_MPS2 = 3.0, 2.0
+"""The speed loop's deceleration and acceleration limits [m/s^2] (outside the braking tests)."""
+SPEED_BRAKE_G, SPEED_DRIVE_G = 0.3, 0.2
+"""The same limits as shares of the surface's grip ``mu g``: about what 3 and 2 m/s^2 ask of dry
+asphalt. On a low-grip surface a driver changes speed as gently; at full 3 and 2 m/s^2 a
+rear-driven car at 0.3 spins leaving a circle near its limit."""
 BRAKE_TO_MPS = 5.0
 
 
@@ -132,6 +138,9 @@ def calibration_drive(
     first = {int(k) for k in starts[:-1]}
     wheelbase = vp.lf + vp.lr
     rate_max = 0.9 * min(abs(vp.delta_dot_min), vp.delta_dot_max)
+    # the speed loop's limits: a share of the surface's grip, as on dry asphalt
+    brake_max = min(SPEED_BRAKE_MPS2, SPEED_BRAKE_G * mu * vp.g)
+    drive_max = min(SPEED_DRIVE_MPS2, SPEED_DRIVE_G * mu * vp.g)
     x_mb = truth.initial_state(np.array([0.0, 0.0, 0.0, plan[0].v_mps, 0.0, 0.0, 0.0]))
     states = np.empty((n, 7))
     steer_log = np.empty(n)
@@ -145,7 +154,8 @@ def calibration_drive(
         states[k] = x
         delta, v, r = x[2], x[3], x[5]
         d_rate = 0.0
-        if seg.kind == "circle" or (seg.kind == "brake" and seg.curvature):
+        if seg.kind in ("circle", "cruise", "brake"):
+            # the path's yaw rate v kappa held by a PI loop (0 on a straight: the heading)
             kappa = seg.value if seg.kind == "circle" else seg.curvature
             error = v * kappa - r
             yaw_integral = float(np.clip(yaw_integral + 0.3 * error * dt, -0.2, 0.2))
@@ -166,7 +176,7 @@ def calibration_drive(
         if seg.kind == "brake":
             acc = -seg.value if v > seg.v_mps else float(np.clip(0.8 * (seg.v_mps - v), -1, 1))
         else:
-            acc = float(np.clip(0.8 * (seg.v_mps - v), -3.0, 2.0))
+            acc = float(np.clip(0.8 * (seg.v_mps - v), -brake_max, drive_max))
         steer_log[k], acc_log[k] = steer, acc
         if k < n - 1:
             x_mb = truth.integrate(x_mb, [steer, acc], mu, dt)
