@@ -2,7 +2,10 @@
 
 What a test driver does to learn a car's handling on a proving ground, in four parts, each a
 closed-loop driver on the car's state (as a driver sees it) with a proportional steering-angle
-loop and a proportional speed loop:
+loop and a proportional speed loop. Between the manoeuvres the driver holds the heading (the
+circles' yaw-rate loop at zero curvature: on a low-grip surface the car's yaw mode can be
+unstable at speed, and a driver who only catches a side slip lets it diverge) and changes
+speed within a share of the surface's grip (:data:`SPEED_BRAKE_G`, :data:`SPEED_DRIVE_G`):
 
 * **steady-state circles** at rising speed: a circle of :data:`CIRCLE_RADIUS_M` driven at
   lateral accelerations of :data:`CIRCLE_LEVELS` times ``mu g``, left then right (the
@@ -117,11 +120,13 @@ def calibration_drive(
     seed: int = 0,
     noise: MeasurementNoise | None = SURVEY_INS_NOISE,
     progress: Callable[[float], None] | None = None,
+    segments: list[Segment] | None = None,
 ) -> pd.DataFrame:
     """A drive log of the calibration programme on CommonRoad's multi-body model
     (``pcvfe_drake.vehicle.mb_truth.MbTruth``) on one surface of friction ``mu`` (default: the
     tyre's nominal peak), measured with ``noise``; ``progress(fraction)`` is called as it
-    drives."""
+    drives; ``segments``: another programme (default :func:`programme` for ``vehicle`` and
+    ``mu``)."""
     from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
     from pcvfe_drake.workbench.synth import _to_log
 
@@ -130,7 +135,7 @@ def calibration_drive(
     mu = truth.mu_nominal if mu is None else float(mu)
     if not (math.isfinite(mu) and mu > 0):
         raise ValueError(f"calibration surface mu={mu!r} must be > 0")
-    segments = programme(vehicle, mu)
+    segments = programme(vehicle, mu) if segments is None else list(segments)
     dt = 1.0 / rate_hz
     plan = [s for s in segments for _ in range(int(round(s.duration_s / dt)))]
     n = len(plan)
@@ -169,7 +174,7 @@ def calibration_drive(
             d_des = amp * math.sin(phase)
             d_rate = amp * 2.0 * math.pi * freq * math.cos(phase)
         else:
-            d_des = 0.0
+            raise ValueError(f"calibration programme: unknown segment kind {seg.kind!r}")
         d_des += 0.5 * x[6] if seg.kind in ("cruise", "brake") else 0.0  # catch a slide
         gain = 8.0 if seg.kind == "step" else 3.0
         steer = float(np.clip(d_rate + gain * (d_des - delta), -rate_max, rate_max))
