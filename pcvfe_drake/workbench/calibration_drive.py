@@ -2,7 +2,10 @@
 
 What a test driver does to learn a car's handling on a proving ground, in four parts, each a
 closed-loop driver on the car's state (as a driver sees it) with a proportional steering-angle
-loop and a proportional speed loop:
+loop and a proportional speed loop. Between the manoeuvres the driver holds the heading (the
+circles' yaw-rate loop at zero curvature: on a low-grip surface the car's yaw mode can be
+unstable at speed, and a driver who only catches a side slip lets it diverge) and changes
+speed within a share of the surface's grip (:data:`SPEED_BRAKE_G`, :data:`SPEED_DRIVE_G`):
 
 * **steady-state circles** at rising speed: a circle of :data:`CIRCLE_RADIUS_M` driven at
   lateral accelerations of :data:`CIRCLE_LEVELS` times ``mu g``, left then right (the
@@ -53,6 +56,12 @@ SWEEP_LEVEL = 0.5
 BRAKE_LEVELS = (0.3, 0.6)
 """Deceleration of the straight stops, in g (each at most 0.8 of the surface's mu)."""
 BRAKE_FROM_MPS = 14.0
+SPEED_BRAKE_MPS2, SPEED_DRIVE_MPS2 = 3.0, 2.0
+"""The speed loop's deceleration and acceleration limits [m/s^2] (outside the braking tests)."""
+SPEED_BRAKE_G, SPEED_DRIVE_G = 0.3, 0.2
+"""The same limits as shares of the surface's grip ``mu g``: about what 3 and 2 m/s^2 ask of dry
+asphalt. On a low-grip surface a driver changes speed as gently; at full 3 and 2 m/s^2 a
+rear-driven car at 0.3 spins leaving a circle near its limit."""
 BRAKE_TO_MPS = 5.0
 
 
@@ -111,11 +120,13 @@ def calibration_drive(
     seed: int = 0,
     noise: MeasurementNoise | None = SURVEY_INS_NOISE,
     progress: Callable[[float], None] | None = None,
+    segments: list[Segment] | None = None,
 ) -> pd.DataFrame:
     """A drive log of the calibration programme on CommonRoad's multi-body model
     (``pcvfe_drake.vehicle.mb_truth.MbTruth``) on one surface of friction ``mu`` (default: the
     tyre's nominal peak), measured with ``noise``; ``progress(fraction)`` is called as it
-    drives."""
+    drives; ``segments``: another programme (default :func:`programme` for ``vehicle`` and
+    ``mu``)."""
     from pcvfe_drake.vehicle.mb_truth import MbTruth, st_state
     from pcvfe_drake.workbench.synth import _to_log
 
@@ -124,7 +135,7 @@ def calibration_drive(
     mu = truth.mu_nominal if mu is None else float(mu)
     if not (math.isfinite(mu) and mu > 0):
         raise ValueError(f"calibration surface mu={mu!r} must be > 0")
-    segments = programme(vehicle, mu)
+    segments = programme(vehicle, mu) if segments is None else list(segments)
     dt = 1.0 / rate_hz
     plan = [s for s in segments for _ in range(int(round(s.duration_s / dt)))]
     n = len(plan)
@@ -132,6 +143,9 @@ def calibration_drive(
     first = {int(k) for k in starts[:-1]}
     wheelbase = vp.lf + vp.lr
     rate_max = 0.9 * min(abs(vp.delta_dot_min), vp.delta_dot_max)
+    # the speed loop's limits: a share of the surface's grip, as on dry asphalt
+    brake_max = min(SPEED_BRAKE_MPS2, SPEED_BRAKE_G * mu * vp.g)
+    drive_max = min(SPEED_DRIVE_MPS2, SPEED_DRIVE_G * mu * vp.g)
     x_mb = truth.initial_state(np.array([0.0, 0.0, 0.0, plan[0].v_mps, 0.0, 0.0, 0.0]))
     states = np.empty((n, 7))
     steer_log = np.empty(n)
@@ -145,7 +159,8 @@ def calibration_drive(
         states[k] = x
         delta, v, r = x[2], x[3], x[5]
         d_rate = 0.0
-        if seg.kind == "circle" or (seg.kind == "brake" and seg.curvature):
+        if seg.kind in ("circle", "cruise", "brake"):
+            # the path's yaw rate v kappa held by a PI loop (0 on a straight: the heading)
             kappa = seg.value if seg.kind == "circle" else seg.curvature
             error = v * kappa - r
             yaw_integral = float(np.clip(yaw_integral + 0.3 * error * dt, -0.2, 0.2))
@@ -159,14 +174,14 @@ def calibration_drive(
             d_des = amp * math.sin(phase)
             d_rate = amp * 2.0 * math.pi * freq * math.cos(phase)
         else:
-            d_des = 0.0
+            raise ValueError(f"calibration programme: unknown segment kind {seg.kind!r}")
         d_des += 0.5 * x[6] if seg.kind in ("cruise", "brake") else 0.0  # catch a slide
         gain = 8.0 if seg.kind == "step" else 3.0
         steer = float(np.clip(d_rate + gain * (d_des - delta), -rate_max, rate_max))
         if seg.kind == "brake":
             acc = -seg.value if v > seg.v_mps else float(np.clip(0.8 * (seg.v_mps - v), -1, 1))
         else:
-            acc = float(np.clip(0.8 * (seg.v_mps - v), -3.0, 2.0))
+            acc = float(np.clip(0.8 * (seg.v_mps - v), -brake_max, drive_max))
         steer_log[k], acc_log[k] = steer, acc
         if k < n - 1:
             x_mb = truth.integrate(x_mb, [steer, acc], mu, dt)

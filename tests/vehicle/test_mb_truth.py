@@ -141,6 +141,43 @@ def test_from_rest_with_lsoda(mb):
     assert np.all(x1[23:27] > 0.0)
 
 
+# A state of the Ford on peak_and_stiffness at mu 0.3147 (the calibration programme's check
+# drive, accelerating out of a circle at 7.7 m/s) where the lateral slip crosses zero.
+CHATTER_STATE = [
+    48.43990461715, -6.816982207423, -0.008855283525, 7.673319872162, 12.32617470644,
+    -0.033954044815, 0.003888077152, -0.000857231911, 0.000611553142, 7.9385374e-05,
+    0.001305118444, 0.015662437284, -0.000120707031, 0.000609374776, 0.001359092442,
+    -0.027063486654, 0.019078733694, -2.2954837e-05, 0.000407299309, -0.000929494389,
+    0.05283510646, 0.012607767634, 2.363155e-06, 22.610579548448, 22.735529014462,
+    22.220076103612, 22.362943951708, 0.003196721291, 0.002884565928,
+]  # fmt: skip
+
+
+def test_a_chattering_lsoda_interval_is_taken_in_rk4_substeps(monkeypatch):
+    """LSODA spent over a million evaluations on this 0.05 s interval; it is stopped at
+    ``LSODA_CHATTER_FACTOR`` times RK4's evaluations and the interval taken in RK4 substeps."""
+    from pcvfe_drake.vehicle import mb_truth
+
+    soft = MbTruth("ford_escort", friction_scaling="peak_and_stiffness")
+    x, u = np.array(CHATTER_STATE), [0.009875086809282417, 0.6174414]
+    calls = [0]
+    rhs = MbTruth.rhs
+
+    def counted(*args):
+        calls[0] += 1
+        return rhs(*args)
+
+    monkeypatch.setattr(MbTruth, "rhs", staticmethod(counted))
+    a = soft.integrate(x, u, 0.3147, 0.05)
+    assert calls[0] <= mb_truth.LSODA_CHATTER_FACTOR * 4 * 50 + 4 * 50 + 2
+    np.testing.assert_array_equal(a, soft.integrate(x, u, 0.3147, 0.05, method="rk4"))
+    # an interval that does not chatter is LSODA's own
+    calls[0] = 0
+    calm = soft.initial_state([0.0, 0.0, 0.0, 8.0, 0.0, 0.0, 0.0])
+    soft.integrate(calm, [0.0, 0.0], 0.3147, 0.05)
+    assert calls[0] < 1000
+
+
 def test_bad_input_is_named(mb):
     x = mb.initial_state([0.0, 0.0, 0.0, 5.0, 0.0, 0.0, 0.0])
     with pytest.raises(ValueError, match=r"input \[steer_rate, accel\]"):

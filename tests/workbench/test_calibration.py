@@ -253,3 +253,41 @@ def test_the_check_drive_bound_follows_the_calibration_drive():
     assert bounded_drive(lambda a, b=0: a + b, 5.0, 1, b=2) == 3
     with pytest.raises(FloatingPointError, match="overflow"):
         bounded_drive(lambda: (_ for _ in ()).throw(FloatingPointError("overflow")), 5.0)
+
+
+def test_the_driver_holds_the_heading_where_the_yaw_mode_is_unstable():
+    """Under ``peak_and_stiffness`` at the check surface's friction the Ford's yaw mode diverges
+    at 8 m/s (the whole tyre scaled to a third); a driver who only catches the side slip lets
+    the yaw rate grow until the truth's integration crawls. Holding the heading keeps it still."""
+    from pcvfe_drake.workbench.calibration_drive import Segment, calibration_drive
+
+    log = calibration_drive(
+        "ford_escort",
+        "peak_and_stiffness",
+        0.3147,
+        noise=None,
+        segments=[Segment("cruise", 3.0, 8.0)],
+    )
+    late = log[log.t >= 2.0]
+    assert late.psi_dot.abs().max() < 5e-4 and late.beta.abs().max() < 5e-4
+
+
+def test_the_driver_changes_speed_within_a_share_of_the_grip():
+    from pcvfe_drake.workbench.calibration_drive import (
+        SPEED_BRAKE_G,
+        SPEED_BRAKE_MPS2,
+        SPEED_DRIVE_G,
+        SPEED_DRIVE_MPS2,
+        Segment,
+        calibration_drive,
+    )
+
+    speed_up = [Segment("cruise", 1.0, 5.0), Segment("cruise", 2.0, 12.0)]
+    speed_up.append(Segment("cruise", 2.0, 3.0))
+    low = calibration_drive("ford_escort", "lateral_peak", 0.3, noise=None, segments=speed_up)
+    assert low.accel.max() == pytest.approx(SPEED_DRIVE_G * 0.3 * VP.g)
+    assert low.accel.min() == pytest.approx(-SPEED_BRAKE_G * 0.3 * VP.g)
+    dry = calibration_drive("ford_escort", "lateral_peak", 1.05, noise=None, segments=speed_up)
+    assert dry.accel.max() == SPEED_DRIVE_MPS2 and dry.accel.min() == -SPEED_BRAKE_MPS2
+    with pytest.raises(ValueError, match="unknown segment kind 'drift'"):
+        calibration_drive("ford_escort", "lateral_peak", 1.0, segments=[Segment("drift", 1.0, 5.0)])
