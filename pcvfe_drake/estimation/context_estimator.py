@@ -146,6 +146,7 @@ class ContextEstimator:
             planner_mu_share=self.planner_mu_share,
             identifiable_std=self.config.identifiable_std,
             model_error=self.config.model_error(),
+            stiffness_law=self.config.model.stiffness_law,
         )
         capacity = max(1, int(round(self.config.buffer_s / self.config.sample_period_s)))
         self._capacity = capacity

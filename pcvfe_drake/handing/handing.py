@@ -69,6 +69,9 @@ class Handing:
         identifiable_std: the fitter's std of an identifiable mu (a fit this tight but not
             identifiable is a level the probe rises to).
         model_error: the effect model's error and where it was calibrated.
+        stiffness_law: how the tyre's small-slip stiffness follows the friction in the car's
+            model (``EffectModel.stiffness_law``): the stiffness of a level handed before a
+            context has a fit (:func:`~pcvfe_drake.handing.unknown.with_friction`).
     """
 
     config: HandingConfig
@@ -77,6 +80,7 @@ class Handing:
     planner_mu_share: float = DEFAULT_PROBE_USE_FRACTION
     identifiable_std: float = 0.05
     model_error: ModelError = field(default_factory=ModelError)
+    stiffness_law: float = 0.0
     visit: VisitTracker = field(init=False)
     contexts: dict[int, ContextHanding] = field(default_factory=dict, init=False)
     unknown_probe: ProbeState = field(default_factory=ProbeState, init=False)
@@ -163,12 +167,12 @@ class Handing:
 
     def unfitted_theta(self, ident: int, fits: Mapping) -> np.ndarray:
         """The theta of context ``ident`` while it has no fit: its probe's level where it is
-        explored before its fit (:meth:`probes_before_fit`), with the prior's small-slip
-        stiffness as the unknown value keeps it; else the unknown value."""
+        explored before its fit (:meth:`probes_before_fit`), with the stiffness the car's model
+        states for that level, as the unknown value has it; else the unknown value."""
         state = self.contexts.get(ident)
         if state is None or not state.probe.started or not self.probes_before_fit():
             return self.unknown(fits)
-        return with_friction(self.prior_theta, state.probe.mu)
+        return with_friction(self.prior_theta, state.probe.mu, self.stiffness_law)
 
     def unknown(self, fits: Mapping) -> np.ndarray:
         """The theta while the terrain is unknown (``HandingConfig.unknown``), raised to the
@@ -184,9 +188,10 @@ class Handing:
             ],
             identified_mu=[float(self.context_theta(e)[0]) for e in fitted if e.identifiable],
             last_known_theta=None if last is None else last.theta,
+            stiffness_law=self.stiffness_law,
         )
         if self.unknown_probe.started and self.unknown_probe.mu > theta[0]:
-            theta = with_friction(theta, self.unknown_probe.mu)
+            theta = with_friction(theta, self.unknown_probe.mu, self.stiffness_law)
         return theta if np.all(np.isfinite(theta)) else np.array(self.prior_theta)
 
     def state(self, estimate) -> str:
@@ -260,8 +265,8 @@ class Handing:
             return t, states
 
         if not fitted:  # before its first fit (probes_before_fit): the same rules and evidence,
-            # the friction its data used as the demonstrated bound, the prior's small-slip
-            # stiffness (the unknown value's) as what the car drove with, no fit's interval
+            # the friction its data used as the demonstrated bound, the unknown value's
+            # small-slip stiffness at the level as what the car drove with, no fit's interval
             t_all, s_all = since(-math.inf)
             used = friction_used(t_all, s_all, lateral_only=True) if t_all.size else math.nan
             state.probe = probe_update(
@@ -323,6 +328,8 @@ class Handing:
             return t, states
 
         prior = np.array(self.prior_theta)
+        level = self.unknown_probe.mu if self.unknown_probe.started else self.config.floor_mu
+        law = (level / prior[0]) ** self.stiffness_law  # 1 where the stiffness is kept
         t_level, s_level = since(self.unknown_probe.last_step_s)
         used = friction_used(t_level, s_level, lateral_only=True) if t_level.size else math.nan
         self.unknown_probe = unknown_probe_update(
@@ -331,7 +338,7 @@ class Handing:
             self.probe_settings,
             self.vehicle,
             used,
-            prior[0] * prior[1:],  # the unknown value keeps the prior's small-slip stiffness
+            prior[0] * prior[1:] * law,  # the unknown value's small-slip stiffness
             since,
             prior[0],
         )

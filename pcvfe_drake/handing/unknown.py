@@ -13,9 +13,14 @@ friction meanwhile:
   at most ``floor_mu``.
 * ``!Prior``: the prior theta; ``!LastKnown``: the last fitted context's theta.
 
-Only the friction limit is lowered: in the single-track model the tyre's small-slip stiffness is
-``mu * C_S``, so C_Sf, C_Sr are scaled by ``prior_mu / mu`` (:func:`with_friction`). Lowering mu
-alone would tell the NMPC that the tyres are softer than they are, and it would steer too much.
+In the single-track model the tyre's small-slip stiffness is ``mu * C_S``; the handed C_Sf, C_Sr
+give it the stiffness the car's model states for that friction (:func:`with_friction`): the
+prior's stiffness times ``(mu / prior_mu)^k_s`` (``k_s``: ``peak_tyre``'s stiffness law, 0 for
+the shipped ``lateral_peak`` models and the bare single-track model, so only the friction limit
+moves; 1 where the whole tyre follows the friction). Lowering mu alone would tell the NMPC that
+the tyres are softer than they are, and it would steer too much; keeping the stiffness of a
+tyre that follows the friction would tell it they are stiffer, and a probe judging slip angles
+by it would read a soft tyre's larger slips as saturation.
 """
 
 from __future__ import annotations
@@ -31,12 +36,13 @@ MIN_MU = 0.05
 """The least mu ever handed (keeps the NMPC's speed profile defined)."""
 
 
-def with_friction(theta, mu: float) -> np.ndarray:
-    """``theta = [mu, C_Sf, C_Sr]`` with the friction ``mu`` and the single-track tyre's
-    small-slip stiffness ``mu * C_S`` kept (C_Sf, C_Sr scaled by ``theta[0] / mu``): only the
-    friction limit moves. A new array."""
+def with_friction(theta, mu: float, stiffness_law: float = 0.0) -> np.ndarray:
+    """``theta = [mu, C_Sf, C_Sr]`` at the friction ``mu``, its small-slip stiffness ``mu * C_S``
+    times ``(mu / theta[0])^stiffness_law`` (0: kept, only the friction limit moves). A new
+    array."""
     theta = np.array(theta, dtype=float)
-    theta[1:] *= theta[0] / mu
+    ratio = theta[0] / mu
+    theta[1:] *= ratio if stiffness_law == 0.0 else ratio ** (1.0 - stiffness_law)
     theta[0] = mu
     return theta
 
@@ -48,6 +54,7 @@ def unknown_theta(
     fitted: Iterable[tuple[float, float, float]] = (),
     identified_mu: Iterable[float] = (),
     last_known_theta=None,
+    stiffness_law: float = 0.0,
 ) -> np.ndarray:
     """theta [mu, C_Sf, C_Sr] while the context is unknown.
 
@@ -59,6 +66,7 @@ def unknown_theta(
             ``used``: a floor on the context's lower bound, NaN: none).
         identified_mu: the mu handed to every identified context (``!StatedFloor``).
         last_known_theta: the last fitted context's theta (``!LastKnown``; None: none yet).
+        stiffness_law: how the small-slip stiffness follows the friction (:func:`with_friction`).
     """
     theta = np.array(prior_theta, dtype=float).reshape(3)
     if isinstance(policy, Prior):
@@ -77,4 +85,4 @@ def unknown_theta(
                 mu = min(mu, max(lcb, used) if math.isfinite(used) else lcb)
     else:
         raise ValueError(f"HandingConfig.unknown: unknown policy {policy!r}")
-    return with_friction(theta, max(mu, MIN_MU))
+    return with_friction(theta, max(mu, MIN_MU), stiffness_law)

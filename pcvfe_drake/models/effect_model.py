@@ -197,6 +197,16 @@ class EffectModel:
         return (float(min(values)), float(max(values)))
 
     @property
+    def stiffness_law(self) -> float:
+        """How the tyre's small-slip stiffness follows the friction: ``peak_tyre``'s exponent
+        ``k_s`` (stiffness proportional to ``mu^k_s``), 0 for a model without ``peak_tyre``
+        (the handing then keeps the prior's small-slip stiffness at every friction)."""
+        for effect in self.effects:
+            if effect.name == "peak_tyre":
+                return float(effect.fixed.get("k_s", 0.0))
+        return 0.0
+
+    @property
     def single_track(self) -> bool:
         """True for the bare single-track model (no file, no effects)."""
         return not self.file and not self.effects

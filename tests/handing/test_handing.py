@@ -174,7 +174,7 @@ def test_the_handed_mu_rises_with_the_estimate_across_the_calibrated_ends():
     assert np.all(np.diff(handed) > 0)
     for end in (0.3147, 1.03):
         step = 1e-4 * end
-        slope_in = (err.handed_mu(end) - err.handed_mu(end - step if end > 1 else end + step))
+        slope_in = err.handed_mu(end) - err.handed_mu(end - step if end > 1 else end + step)
         slope_out = (err.handed_mu(end + step if end > 1 else end - step)) - err.handed_mu(end)
         # outside the slope changes by at most the margin's own rate (1.96 rel per unit of g)
         assert abs(slope_out - slope_in) <= 1.96 * 0.164 * 2 * step + 1e-12
@@ -199,3 +199,31 @@ def test_lower_bound_hands_the_friction_used_at_least_the_floor():
     assert h.context_theta(fit(0, 0.9, std=0.3, identifiable=False, used=0.5))[0] == 0.5
     assert h.context_theta(fit(0, 0.9, std=0.3, identifiable=False, used=0.2))[0] == 0.3
     assert h.context_theta(fit(0, 0.25, std=0.3, identifiable=False, used=0.2))[0] == 0.25
+
+
+def test_a_level_before_the_fit_has_the_stiffness_the_cars_model_states():
+    """Under a mapping whose whole tyre follows the friction (``peak_tyre.k_s = 1``) a level
+    handed without a fit has the small-slip stiffness of that friction, so the probe judges a
+    soft tyre's slip angles by its own stiffness; with ``k_s = 0`` it keeps the prior's."""
+    from pcvfe_drake.handing.unknown import with_friction
+    from pcvfe_drake.models.effect_model import load_model_file, vehicle_model_path
+
+    stiffness = PRIOR[0] * np.array(PRIOR[1:])
+    kept = with_friction(PRIOR, 0.3)
+    np.testing.assert_allclose(kept[0] * kept[1:], stiffness)
+    soft = with_friction(PRIOR, 0.3, 1.0)
+    np.testing.assert_allclose(soft[0] * soft[1:], stiffness * 0.3 / PRIOR[0])
+    half = with_friction(PRIOR, 0.3, 0.5)
+    np.testing.assert_allclose(half[0] * half[1:], stiffness * (0.3 / PRIOR[0]) ** 0.5)
+    # the same law twice: the floor's theta raised to a level is the prior's at that level
+    np.testing.assert_allclose(with_friction(soft, 0.42, 1.0), with_friction(PRIOR, 0.42, 1.0))
+    for law in (0.0, 1.0):
+        h = Handing(HandingConfig(floor_mu=0.3, unknown=StatedFloor()), PRIOR, VP,
+                    stiffness_law=law)  # fmt: skip
+        th = h.unknown({})
+        np.testing.assert_allclose(th[0] * th[1:], stiffness * (0.3 / PRIOR[0]) ** law)
+    laws = {
+        m: load_model_file(vehicle_model_path("ford_escort", "mb", m)).stiffness_law
+        for m in ("lateral_peak", "peak_and_stiffness")
+    }
+    assert laws == {"lateral_peak": 0.0, "peak_and_stiffness": 1.0}
