@@ -1,0 +1,66 @@
+"""The probe's slip test on a stored run's visits of one terrain: per 1 s window, the 90th
+percentile of each axle's kinematic slip angle (from the measured and from the true
+single-track states) against the test's limit at a handed friction.
+
+    python studies/probe_backoff/grass_slip.py RUN [--terrain patchy_grass] [--mu 0.3]
+
+``RUN`` is a run folder (its ``drive_log.parquet``, 20 Hz, with the true states); the limit is
+``SLIP_FRACTION`` of the peak slip of the car's prior small-slip stiffness at ``--mu`` (what
+the probe judges a level before its fit by, ``lateral_peak``). Prints a JSON object last.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+import pandas as pd
+
+from pcvfe_drake.estimation import probe as P
+from pcvfe_drake.vehicle.params import load_vehicle
+
+ST = ["sx", "sy", "delta", "v", "psi", "psi_dot", "beta"]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("run")
+    ap.add_argument("--terrain", default="patchy_grass")
+    ap.add_argument("--mu", type=float, default=0.3)
+    ap.add_argument("--vehicle", default="ford_escort")
+    args = ap.parse_args()
+    vp = load_vehicle(args.vehicle)
+    df = pd.read_parquet(f"{args.run}/drive_log.parquet")
+    limit = P.SLIP_FRACTION * P.peak_slip_rad(args.mu, vp.mu * np.array([vp.C_Sf, vp.C_Sr]))
+    g = df[df.terrain == args.terrain]
+    t = g.t.to_numpy()
+    measured = P.axle_slip_angles(g[ST].to_numpy(), vp.lf, vp.lr)
+    true = P.axle_slip_angles(g[["true_" + c for c in ST]].to_numpy(), vp.lf, vp.lr)
+    ay_g = np.abs(g.v.to_numpy() * g.psi_dot.to_numpy()) / vp.g
+    rows = []
+    for t0 in np.arange(t[0], t[-1], 1.0):
+        m = (t >= t0) & (t < t0 + 1.0)
+        if m.sum() < 5:
+            continue
+        row = {"t": round(float(t0), 1), "ay_g_max": round(float(ay_g[m].max()), 3)}
+        for name, (front, rear) in (("measured", measured), ("true", true)):
+            row[f"front_{name}"] = round(float(np.quantile(np.abs(front[m]), 0.9)), 4)
+            row[f"rear_{name}"] = round(float(np.quantile(np.abs(rear[m]), 0.9)), 4)
+        rows.append(row)
+    table = pd.DataFrame(rows)
+    print(table.to_string(index=False))
+    demand = P.DEFAULT_PROBE_USE_FRACTION * args.mu  # the planner's demand at the level [g]
+    bends = table[table.ay_g_max >= 0.6 * demand]
+    out = {
+        "limit_rad": [round(float(v), 4) for v in np.broadcast_to(limit, (2,))],
+        "windows_in_bends": int(len(bends)),
+        "front_true_p90_median_in_bends": round(float(bends.front_true.median()), 4),
+        "front_measured_p90_median_in_bends": round(float(bends.front_measured.median()), 4),
+        "ay_g_max_median_in_bends": round(float(bends.ay_g_max.median()), 3),
+    }
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()
