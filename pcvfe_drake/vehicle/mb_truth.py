@@ -74,6 +74,9 @@ from pcvfe_drake.vehicle.mb_kernel import SINGULAR, mb_derivative, mb_parameter_
 NX_MB = 29
 """Number of MB states."""
 VX, VY = 3, 10
+"""Indices of the body-frame longitudinal and lateral velocity [m/s] in the MB state."""
+WHEEL_SPEEDS = slice(23, 27)
+"""Indices of the four wheel angular speeds [rad/s] in the MB state."""
 LSODA_CHATTER_FACTOR = 50
 """An LSODA interval that needs this many times the right-hand-side evaluations of the same
 interval in fixed RK4 substeps is chattering (see :meth:`MbTruth.integrate`)."""
@@ -85,10 +88,6 @@ module docstring); below it a chattering interval stays with LSODA."""
 class _Chatter(Exception):
     """Raised inside LSODA's right-hand side to stop a chattering interval."""
 
-
-"""Indices of the body-frame longitudinal and lateral velocity [m/s] in the MB state."""
-WHEEL_SPEEDS = slice(23, 27)
-"""Indices of the four wheel angular speeds [rad/s] in the MB state."""
 
 WHEELS = ("front left", "front right", "rear left", "rear right")
 """The wheels in the package's order (wheel speeds ``x[23:27]``)."""
@@ -333,12 +332,13 @@ class MbTruth:
         ul = np.asarray(u, dtype=float).tolist()
         n_rk4 = max(1, math.ceil(duration_s / rk4_step_s - 1e-9))
         if method == "lsoda":
+            fast = abs(x[VX]) >= RK4_MIN_SPEED_MPS
+            cap = LSODA_CHATTER_FACTOR * 4 * n_rk4 if fast else math.inf
             calls = [0]
-            cap = LSODA_CHATTER_FACTOR * 4 * n_rk4 if abs(x[VX]) >= RK4_MIN_SPEED_MPS else 0
 
             def rhs(_t, y):
                 calls[0] += 1
-                if cap and calls[0] > cap:
+                if calls[0] > cap:
                     raise _Chatter
                 return self.rhs(y, ul, p)
 
@@ -346,24 +346,15 @@ class MbTruth:
                 sol = solve_ivp(
                     rhs, (0.0, float(duration_s)), x, method="LSODA", rtol=rtol, atol=atol
                 )
-            except _Chatter:
-                method, sol = "rk4", None  # the interval again, in fixed RK4 substeps
-            if sol is not None and not sol.success:
-                raise RuntimeError(f"MB integration failed: {sol.message}")
-            if sol is not None:
+            except _Chatter:  # the interval again, in fixed RK4 substeps
+                xn = self._rk4(x, ul, p, duration_s / n_rk4, n_rk4)
+            else:
+                if not sol.success:
+                    raise RuntimeError(f"MB integration failed: {sol.message}")
                 xn = sol.y[:, -1]
-        if method == "rk4":
-            n = n_rk4
-            h = duration_s / n
-            xn = x.copy()
-            for _ in range(n):
-                k1 = self.rhs(xn, ul, p)
-                k2 = self.rhs(xn + 0.5 * h * k1, ul, p)
-                k3 = self.rhs(xn + 0.5 * h * k2, ul, p)
-                k4 = self.rhs(xn + h * k3, ul, p)
-                xn = xn + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-                np.maximum(xn[WHEEL_SPEEDS], 0.0, out=xn[WHEEL_SPEEDS])
-        elif method != "lsoda":
+        elif method == "rk4":
+            xn = self._rk4(x, ul, p, duration_s / n_rk4, n_rk4)
+        else:
             raise ValueError(f"method={method!r}; choose 'lsoda' or 'rk4'")
         np.maximum(xn[WHEEL_SPEEDS], 0.0, out=xn[WHEEL_SPEEDS])
         if not np.all(np.isfinite(xn)):
@@ -371,6 +362,18 @@ class MbTruth:
                 f"MB integration produced a non-finite state (mu={mu}, u={ul}, "
                 f"from v_x={x[VX]:.3f} m/s)"
             )
+        return xn
+
+    def _rk4(self, x: np.ndarray, ul: list, p: np.ndarray, h: float, n: int) -> np.ndarray:
+        """``n`` fixed RK4 substeps of ``h`` [s] from ``x`` (wheel speeds kept >= 0)."""
+        xn = x.copy()
+        for _ in range(n):
+            k1 = self.rhs(xn, ul, p)
+            k2 = self.rhs(xn + 0.5 * h * k1, ul, p)
+            k3 = self.rhs(xn + 0.5 * h * k2, ul, p)
+            k4 = self.rhs(xn + h * k3, ul, p)
+            xn = xn + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+            np.maximum(xn[WHEEL_SPEEDS], 0.0, out=xn[WHEEL_SPEEDS])
         return xn
 
     def simulate(
