@@ -42,8 +42,8 @@ import time
 import warnings
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
+from pcvfe_drake.blas_threads import one_blas_thread
 from pcvfe_drake.contexts.cluster_table import (
     ClusterRecord,
     ClusterTable,
@@ -481,7 +481,7 @@ class ContextClusterer:
         """
         start = time.perf_counter()
         # Small matrices: one BLAS thread is faster, and avoids contention with other processes.
-        with threadpool_limits(limits=1, user_api="blas"):
+        with one_blas_thread():
             self._recluster()
         self._finish_recluster(t_s, start)
         return self.table()

@@ -33,8 +33,8 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
+from pcvfe_drake.blas_threads import one_blas_thread
 from pcvfe_drake.estimation.effect_fit import EffectFitter, identifiability
 from pcvfe_drake.estimation.estimate_latency import add_waits, wait_quantiles
 from pcvfe_drake.estimation.estimate_table import ContextEstimate, EstimateTable
@@ -49,7 +49,7 @@ from pcvfe_drake.estimation.fit_options import (
     joint_options,
     without_model_error,
 )
-from pcvfe_drake.estimation.fit_quality import peak_not_shown
+from pcvfe_drake.estimation.fit_quality import NoPeakSums, peak_check
 from pcvfe_drake.estimation.fitting import fit_gauss_newton
 from pcvfe_drake.estimation.incremental_fit import WindowInformation
 from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
@@ -83,6 +83,9 @@ class _ContextSlot:
     next refit is a batch fit; after a relabelling it keeps the estimate and no window)."""
     noise_cache: NoiseScaleCache = field(default_factory=NoiseScaleCache)
     """Its buffer's noise scales, kept between refits (``models.data.NoiseScaleCache``)."""
+    peak_sums: NoPeakSums | None = None
+    """The tyre without a peak on its windows, kept for the next peak evidence
+    (``fit_quality.peak_check``; forgotten with ``fit_info``'s windows)."""
 
 
 def effect_fitter(params: VehicleParams, config: LiveFitConfig) -> EffectFitter:
@@ -273,6 +276,7 @@ class ContextEstimator:
                     slot.changes += count
                     if slot.fit_info is not None:  # not an append: every window re-evaluated
                         slot.fit_info = slot.fit_info.forget_windows()
+                    slot.peak_sums = None
         self._follow_renamings(old, new, moved)
         return {k: v for k, v in gained.items() if v}
 
@@ -390,6 +394,7 @@ class ContextEstimator:
             mine.estimate = replace(theirs.estimate, samples=mine.samples)
             mine.changes_at_fit = theirs.changes_at_fit
             mine.fit_info = theirs.fit_info
+            mine.peak_sums = theirs.peak_sums
             mine.noise_cache = theirs.noise_cache
             mine.estimate_data_end_s = theirs.estimate_data_end_s
             mine.delay_counts = theirs.delay_counts
@@ -413,7 +418,7 @@ class ContextEstimator:
         # (a refit's largest is a dot product of ~10^5 entries), and a threaded BLAS spends
         # several times their CPU in its threads' hand-overs, worse on a loaded machine; a
         # threaded dot product's sum also depends on how many threads the machine gives it.
-        with threadpool_limits(limits=1, user_api="blas"):
+        with one_blas_thread():
             for ident in self.pending()[: self.config.max_contexts_per_update]:
                 self._refit_one(ident, t_now, fit, data_until_s)
                 done.append(ident)
@@ -517,7 +522,7 @@ class ContextEstimator:
                     t, states, inputs, previous, self._prior[0], noise_cache=slot.noise_cache
                 )
         except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
-            slot.fit_info = None
+            slot.fit_info, slot.peak_sums = None, None
             slot.estimate = _discarded(old, samples, t_now, f"failed ({type(exc).__name__}: {exc})")
             return
         if result is None:
@@ -531,7 +536,7 @@ class ContextEstimator:
             )
             return
         if not (np.all(np.isfinite(result.theta)) and math.isfinite(result.loss)):
-            slot.fit_info = None
+            slot.fit_info, slot.peak_sums = None, None
             slot.estimate = _discarded(old, samples, t_now, "diverged")
             return
         peak = result.mu_is_peak
@@ -545,7 +550,7 @@ class ContextEstimator:
         judged = self._identifiability(old, t, states, result.theta[0], result.std[0], peak, share)
         untrusted = ""  # a peak the data do not show is not identified (fit_quality)
         if peak and judged["identifiable"]:
-            untrusted = peak_not_shown(self._effect_fitter, result)
+            untrusted, slot.peak_sums = peak_check(self._effect_fitter, result, slot.peak_sums)
             judged["identifiable"] = not untrusted
         slot.estimate = ContextEstimate(
             context_id=old.context_id,

@@ -272,6 +272,9 @@ class EffectFitResult:
     """Batched rollouts of an incremental refit (0: a batch fit)."""
     data_end_s: float = math.nan
     """The newest sample time inside a fitted window [s]."""
+    ssr: float = math.nan
+    """An incremental refit's whitened sum of squared errors at the estimate: the windows'
+    quadratic models there (``incremental_fit.quadratic``; NaN: a batch fit)."""
     windows: tuple | None = field(default=None, repr=False, compare=False)
     """What the fit was made on, ``(DriveData, starts, horizon, burn_in)``, for checks of the
     same windows (``fit_quality.peak_not_shown``) without building the data again."""
@@ -518,7 +521,7 @@ class EffectFitter:
             cov,
         )
         result = to_result(model, res, starts.size, self.model_error_rel)
-        result.incremental, result.rollouts = True, out.rollouts
+        result.incremental, result.rollouts, result.ssr = True, out.rollouts, out.ssr
         result.data_end_s = float(data.t[starts[-1] + horizon])
         result.windows = (data, starts, horizon, burn_in)
         return result, out.info

@@ -31,6 +31,7 @@ trusted:
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -242,30 +243,148 @@ def peak_evidence(model, theta: np.ndarray, data, starts, horizon: int, burn_in:
     the fit settles there with a small std (the cost rises steeply below it) and looks near
     its limit by construction, yet the data as a whole barely prefer it to no peak at all.
     Data driven at the limit prefer their peak by orders of magnitude more."""
-    from pcvfe_drake.models.estimate import FIT_STATES, training_costs
-
     theta = np.asarray(theta, dtype=float)
-    n = len(starts)
-    if n < 1 or not (math.isfinite(theta[0]) and theta[0] > 0):
+    starts = np.asarray(starts)
+    if starts.size < 1 or not (math.isfinite(theta[0]) and theta[0] > 0):
         return math.nan
+    cost_fit, cost_no_peak, _ = _both_tyres(model, theta, data, starts, horizon, burn_in)
+    return evidence_ratio(cost_fit, cost_no_peak, starts.size, overlap)
+
+
+def evidence_ratio(cost_fit: float, cost_no_peak: float, n_windows: int, overlap) -> float:
+    """:func:`peak_evidence`'s ratio from the two whitened costs over ``n_windows`` windows
+    overlapping ``overlap`` times; NaN where a cost is not finite or the fit's is not > 0."""
+    n_eff = n_windows / max(float(overlap), 1.0) * len(_fit_states())
+    if not (math.isfinite(cost_fit) and math.isfinite(cost_no_peak) and cost_fit > 0):
+        return math.nan
+    return float((cost_no_peak - cost_fit) * n_eff / cost_fit)
+
+
+def _fit_states():
+    from pcvfe_drake.models.estimate import FIT_STATES
+
+    return FIT_STATES
+
+
+def _both_tyres(model, theta, data, starts, horizon, burn_in):
+    """The fitted tyre's and the tyre without a peak's whitened costs over the windows, from one
+    batched rollout (``models.estimate.training_costs``'s sums), and the no-peak tyre's squared
+    errors per window and fit state, unwhitened (W, S)."""
+    from pcvfe_drake.models.estimate import whitened_errors
+
+    n = starts.size
     rows = np.stack([theta, no_peak_theta(model, theta)])
-    cost = training_costs(model, rows, data, np.asarray(starts), horizon, burn_in)
-    n_eff = n / max(float(overlap), 1.0) * len(FIT_STATES)
-    if not (all(math.isfinite(c) for c in cost) and cost[0] > 0):
-        return math.nan
-    return float((cost[1] - cost[0]) * n_eff / cost[0])
+    e = whitened_errors(
+        model, np.repeat(rows, n, axis=0), data, np.tile(starts, 2), horizon, burn_in
+    )
+    flat = e.reshape(2, -1)
+    costs = [float(r @ r) for r in flat]
+    return costs[0], costs[1], _unwhitened_sums(e[n:], data)
+
+
+def _unwhitened_sums(e: np.ndarray, data) -> np.ndarray:
+    """Per window and fit state the sum over steps of the squared errors [state units^2] from
+    whitened errors ``e`` (W, steps, S)."""
+    sigma = data.sigma[list(_fit_states())]
+    return np.einsum("wks,wks->ws", e, e) * sigma**2
+
+
+@dataclass(frozen=True)
+class NoPeakSums:
+    """The tyre without a peak on a context's windows, kept between refits (the peak evidence
+    of an incremental refit; immutable, so the estimator's copies share it).
+
+    Attributes:
+        keys: window start times on the sample clock (``EffectFitter``'s window keys) (W,).
+        points: the fitted parameters each window was rolled out at (W, F).
+        ee: the no-peak tyre's squared errors per window and fit state, summed over the
+            window's steps, unwhitened [state units^2] (W, S).
+    """
+
+    keys: np.ndarray
+    points: np.ndarray
+    ee: np.ndarray
 
 
 def peak_not_shown(fitter, result) -> str:
     """Why the effect fit ``result`` of ``fitter`` (an ``EffectFitter`` with a peak tyre) does
     not show its friction peak on the windows it was fitted on (``result.windows``; "": it
-    does; see :func:`peak_evidence`)."""
+    does; see :func:`peak_evidence`): both tyres rolled out on every window."""
     data, starts, horizon, burn_in = result.windows
     overlap = fitter.horizon_s / fitter.stride_s
     ratio = peak_evidence(fitter.model, result.model_theta, data, starts, horizon, burn_in, overlap)
+    return _not_shown(ratio)
+
+
+def peak_check(fitter, result, kept: NoPeakSums | None):
+    """:func:`peak_not_shown` as the live estimator forms it: ``(reason, sums)``, ``kept`` the
+    last call's sums for this context (None: none, or forgotten with the refit's windows);
+    the ratio from :func:`kept_peak_evidence`."""
+    ratio, sums = kept_peak_evidence(fitter, result, kept)
+    return _not_shown(ratio), sums
+
+
+def kept_peak_evidence(fitter, result, kept: NoPeakSums | None):
+    """:func:`peak_evidence` of the fit ``result`` on its windows, ``(ratio, sums)``.
+
+    For an incremental refit (``result.incremental``) it does only new work, as the refit
+    does: the fitted tyre's cost is the refit's own (its windows' quadratic models at the
+    estimate, ``result.ssr``), and the tyre without a peak is rolled out only on the windows
+    that are new or whose point lies more than ``incremental_fit.RELINEARISE_SCALE`` of a
+    parameter's typical magnitude from the estimate (the rule the refit relinearises by);
+    windows that left the fit are dropped. After a batch fit both tyres are rolled out on
+    every window (:func:`peak_evidence`'s ratio), which seeds the sums."""
+    data, starts, horizon, burn_in = result.windows
+    overlap = fitter.horizon_s / fitter.stride_s
+    theta = np.asarray(result.model_theta, dtype=float)
+    if np.size(starts) < 1 or not (math.isfinite(theta[0]) and theta[0] > 0):
+        return math.nan, None
+    if result.incremental and math.isfinite(result.ssr):
+        cost_no_peak, sums = _no_peak_incremental(fitter, theta, result.windows, kept)
+        return evidence_ratio(result.ssr, cost_no_peak, starts.size, overlap), sums
+    cost_fit, cost_no_peak, ee = _both_tyres(fitter.model, theta, data, starts, horizon, burn_in)
+    points = np.tile(theta[~fitter.fixed], (starts.size, 1))
+    sums = NoPeakSums(fitter._window_keys(data, starts), points, ee)
+    return evidence_ratio(cost_fit, cost_no_peak, starts.size, overlap), sums
+
+
+def _not_shown(ratio: float) -> str:
     if math.isfinite(ratio) and ratio >= PEAK_SHOWN_CHI2:
         return ""
     return (
         f"the data do not show the peak: a tyre without one explains them nearly as well "
         f"(quasi-likelihood ratio {ratio:.3g} < {PEAK_SHOWN_CHI2:g})"
     )
+
+
+def _no_peak_incremental(fitter, theta, windows, kept: NoPeakSums | None):
+    """The no-peak tyre's whitened cost over ``windows`` at ``theta``, rolling out only the
+    windows ``kept`` does not hold near ``theta``; with the new sums."""
+    from pcvfe_drake.estimation.incremental_fit import RELINEARISE_SCALE
+    from pcvfe_drake.models.estimate import whitened_errors
+
+    data, starts, horizon, burn_in = windows
+    model, free = fitter.model, ~fitter.fixed
+    keys = fitter._window_keys(data, starts)
+    point = theta[free]
+    points = np.tile(point, (keys.size, 1))
+    ee = np.zeros((keys.size, len(_fit_states())))
+    stale = np.ones(keys.size, dtype=bool)
+    if kept is not None and kept.keys.size:
+        order = {int(k): i for i, k in enumerate(kept.keys)}
+        where = np.array([order.get(int(k), -1) for k in keys], dtype=int)
+        have = where >= 0
+        near = np.zeros(keys.size, dtype=bool)
+        near[have] = np.all(
+            np.abs(kept.points[where[have]] - point) <= RELINEARISE_SCALE * model.scales()[free],
+            axis=1,
+        )
+        points[near], ee[near] = kept.points[where[near]], kept.ee[where[near]]
+        stale = ~near
+    rows = np.flatnonzero(stale)
+    if rows.size:
+        flat = np.tile(no_peak_theta(model, theta), (rows.size, 1))
+        e = whitened_errors(model, flat, data, starts[rows], horizon, burn_in)
+        ee[rows] = _unwhitened_sums(e, data)
+    sigma = data.sigma[list(_fit_states())]
+    return float(np.sum(ee / sigma**2)), NoPeakSums(keys, points, ee)

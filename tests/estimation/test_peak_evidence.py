@@ -17,10 +17,13 @@ from pcvfe_drake.estimation.effect_fit import (
 )
 from pcvfe_drake.estimation.fit_quality import (
     PEAK_SHOWN_CHI2,
+    kept_peak_evidence,
     no_peak_theta,
+    peak_check,
     peak_evidence,
     peak_not_shown,
 )
+from pcvfe_drake.estimation.incremental_fit import RELINEARISE_SCALE
 from pcvfe_drake.vehicle.params import ford_escort
 from pcvfe_drake.workbench import synth
 
@@ -97,3 +100,65 @@ def test_too_few_windows_or_a_bad_fit_is_no_evidence(drives):
     _, horizon, burn_in = fitter.windows(data)
     empty = np.zeros(0, dtype=int)
     assert math.isnan(peak_evidence(fitter.model, theta, data, empty, horizon, burn_in, 2.0))
+
+
+@pytest.mark.parametrize("which", [0, 1])
+def test_an_incremental_refit_rolls_out_only_the_new_windows_of_the_tyre_without_a_peak(
+    drives, which
+):
+    """The live estimator's peak evidence does what the incremental refit does: after a batch
+    fit both tyres on every window; then the tyre without a peak only on the new windows (the
+    others kept, at the point they were rolled out at), the fitted tyre's cost the refit's own,
+    and the same verdict as the full evidence (near: shown, far: not)."""
+    import pcvfe_drake.models.estimate as estimate
+
+    fitter = EffectFitter(VP, PEAK_TYRE, max_windows=40)
+    t, x, u = drives[which]
+    n0 = np.searchsorted(t, 20.0)
+    first, info = fitter.refit(t[:n0], x[:n0], u[:n0], None, VP.mu)
+    ratio, sums = kept_peak_evidence(fitter, first, None)
+    data, starts, horizon, burn_in = first.windows
+    overlap = fitter.horizon_s / fitter.stride_s
+    assert ratio == peak_evidence(
+        fitter.model, first.model_theta, data, starts, horizon, burn_in, overlap
+    )
+    assert sums.keys.size == first.n_windows
+    rows_rolled = []
+    original = estimate.whitened_errors
+
+    def counting(model, theta_rows, *args, **kwargs):
+        rows_rolled.append(len(theta_rows))
+        return original(model, theta_rows, *args, **kwargs)
+
+    n = np.searchsorted(t, 23.0)
+    result, info = fitter.refit(t[:n], x[:n], u[:n], info, VP.mu)
+    assert result.incremental
+    estimate.whitened_errors = counting
+    try:
+        again, new_sums = kept_peak_evidence(fitter, result, sums)
+    finally:
+        estimate.whitened_errors = original
+    old = np.isin(new_sums.keys, sums.keys)
+    kept_rows = np.searchsorted(sums.keys, new_sums.keys[old])
+    point = result.model_theta[~fitter.fixed]
+    near = np.all(
+        np.abs(sums.points[kept_rows] - point)
+        <= RELINEARISE_SCALE * fitter.model.scales()[~fitter.fixed],
+        axis=1,
+    )
+    assert rows_rolled == [int((~old).sum() + (~near).sum())] and (~old).sum() >= 1
+    if which == 0:  # near its peak the estimate stays put: only the new windows
+        assert near.all()
+    np.testing.assert_array_equal(new_sums.ee[old][near], sums.ee[kept_rows][near])
+    data, starts, horizon, burn_in = result.windows
+    exact = peak_evidence(fitter.model, result.model_theta, data, starts, horizon, burn_in, overlap)
+    assert again == pytest.approx(exact, rel=0.05, abs=0.5)
+    reason, _ = peak_check(fitter, result, sums)
+    assert reason == peak_not_shown(fitter, result)
+    assert (reason == "") == (which == 0)
+    # a window far from the estimate is rolled out again
+    moved = type(sums)(sums.keys, sums.points + 1.0, sums.ee)
+    _, redone = kept_peak_evidence(fitter, result, moved)
+    np.testing.assert_allclose(
+        redone.points, np.tile(result.model_theta[~fitter.fixed], (redone.keys.size, 1))
+    )
