@@ -52,14 +52,16 @@ def main() -> None:
     held = held_constants(args.vehicle, args.mapping)
     stiffness = vp.mu * vp.C_Sf  # the prior's front small-slip stiffness per load [1/rad]
     pred_prior = front_slip(ay_g, args.mu, stiffness, 0.0, 0.0, vp.g)
-    pred_model = front_slip(
-        ay_g,
-        args.mu,
-        stiffness * held.get("axle_stiffness.k_f", 1.0),
-        held.get("roll_camber.f0", 0.0),
-        held.get("roll_camber.s0", 0.0),
-        vp.g,
-    )
+    k_f = stiffness * held.get("axle_stiffness.k_f", 1.0)
+    f0, s0 = held.get("roll_camber.f0", 0.0), held.get("roll_camber.s0", 0.0)
+    pred_model = front_slip(ay_g, args.mu, k_f, f0, s0, vp.g)
+    # the front axle's force in a transient bend: the lateral acceleration v (r + beta') (the
+    # side slip's rate included) and the yaw acceleration, F_yf = (m a_y lr + I_z r') / L, per
+    # its static load m g lr / L: a_y / g + I_z r' / (m g lr) (true states, central differences)
+    tv, tr, tb = (g[f"true_{c}"].to_numpy() for c in ("v", "psi_dot", "beta"))
+    a_y = tv * (tr + np.gradient(tb, t))
+    front_g = np.abs(a_y / vp.g + vp.I_z * np.gradient(tr, t) / (vp.m * vp.g * vp.lr))
+    pred_yaw = front_slip(front_g, args.mu, k_f, f0, s0, vp.g)
     rows = []
     for t0 in np.arange(t[0], t[-1], 1.0):
         m = (t >= t0) & (t < t0 + 1.0)
@@ -69,7 +71,11 @@ def main() -> None:
         for name, (front, rear) in (("measured", measured), ("true", true)):
             row[f"front_{name}"] = round(float(np.quantile(np.abs(front[m]), 0.9)), 4)
             row[f"rear_{name}"] = round(float(np.quantile(np.abs(rear[m]), 0.9)), 4)
-        for name, pred in (("pred_prior", pred_prior), ("pred_model", pred_model)):
+        for name, pred in (
+            ("pred_prior", pred_prior),
+            ("pred_model", pred_model),
+            ("pred_yaw", pred_yaw),
+        ):
             row[name] = round(float(np.nanquantile(pred[m], 0.9)), 4)
         rows.append(row)
     table = pd.DataFrame(rows)
@@ -84,6 +90,7 @@ def main() -> None:
         "ay_g_max_median_in_bends": round(float(bends.ay_g_max.median()), 3),
         "front_pred_prior_p90_median_in_bends": round(float(bends.pred_prior.median()), 4),
         "front_pred_model_p90_median_in_bends": round(float(bends.pred_model.median()), 4),
+        "front_pred_yaw_p90_median_in_bends": round(float(bends.pred_yaw.median()), 4),
         "held": held,
     }
     print(json.dumps(out))
