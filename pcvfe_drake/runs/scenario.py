@@ -79,8 +79,11 @@ class Rates:
     """Downward camera frame period (10 Hz); features and context ids follow each frame."""
     nmpc_period_s: float = 0.05
     """Controller update period (20 Hz); its actuation is held between updates."""
-    fitter_period_s: float = 1.0
-    """Context fitter refit period (1 Hz)."""
+    fitter_period_s: float = 0.5
+    """Context fitter refit period (2 Hz): a refit starts on the contexts whose data changed.
+    A sample waits for a window holding it to complete and then for the next refit; at the
+    effect fit's window stride (``fitter.effect_stride_s``, 0.5 s) each refit adds the window
+    that has just completed (docs/realtime.md)."""
     fitter_latency_s: float = 0.0
     """Declared latency of a refit [s]: a refit started at t on the data up to t is handed to
     the controller at t + this, in simulated time (docs/realtime.md); below
