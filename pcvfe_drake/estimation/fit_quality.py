@@ -360,7 +360,7 @@ def _not_shown(ratio: float) -> str:
 def _no_peak_incremental(fitter, theta, windows, kept: NoPeakSums | None):
     """The no-peak tyre's whitened cost over ``windows`` at ``theta``, rolling out only the
     windows ``kept`` does not hold near ``theta``; with the new sums."""
-    from pcvfe_drake.estimation.incremental_fit import RELINEARISE_SCALE
+    from pcvfe_drake.estimation.incremental_fit import far_from, stored_rows
     from pcvfe_drake.models.estimate import whitened_errors
 
     data, starts, horizon, burn_in = windows
@@ -371,14 +371,10 @@ def _no_peak_incremental(fitter, theta, windows, kept: NoPeakSums | None):
     ee = np.zeros((keys.size, len(_fit_states())))
     stale = np.ones(keys.size, dtype=bool)
     if kept is not None and kept.keys.size:
-        order = {int(k): i for i, k in enumerate(kept.keys)}
-        where = np.array([order.get(int(k), -1) for k in keys], dtype=int)
+        where = stored_rows(kept.keys, keys)
         have = where >= 0
         near = np.zeros(keys.size, dtype=bool)
-        near[have] = np.all(
-            np.abs(kept.points[where[have]] - point) <= RELINEARISE_SCALE * model.scales()[free],
-            axis=1,
-        )
+        near[have] = ~far_from(kept.points[where[have]], point, model.scales()[free])
         points[near], ee[near] = kept.points[where[near]], kept.ee[where[near]]
         stale = ~near
     rows = np.flatnonzero(stale)

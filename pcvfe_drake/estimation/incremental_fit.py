@@ -114,6 +114,18 @@ class WindowInformation:
         )
 
 
+def stored_rows(stored_keys: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """Each window of ``keys``' row in ``stored_keys`` (-1: not stored)."""
+    order = {int(k): i for i, k in enumerate(stored_keys)}
+    return np.array([order.get(int(k), -1) for k in keys], dtype=int)
+
+
+def far_from(points: np.ndarray, point: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """Which windows' points (W, F) lie more than ``RELINEARISE_SCALE`` typical magnitudes
+    ``scale`` (F,) from ``point`` in some parameter: their stored sums are evaluated again."""
+    return np.any(np.abs(points - point) > RELINEARISE_SCALE * scale, axis=1)
+
+
 def window_sums(r: np.ndarray, jac: np.ndarray, n_windows: int, sigma: np.ndarray, cols):
     """``(ee, ej, jj)`` per window and fit state from whitened residuals ``r`` and their
     Jacobian ``jac`` (window by window, steps then states), unwhitened with ``sigma`` (S,) and
@@ -230,8 +242,7 @@ def incremental_refit(
     free, sigma = problem.free, problem.sigma
     kept = np.isin(info.keys, keys)
     info = info.select(np.flatnonzero(kept))
-    order = {int(k): i for i, k in enumerate(info.keys)}
-    where = np.array([order.get(int(k), -1) for k in keys], dtype=int)
+    where = stored_rows(info.keys, keys)
     n_free = int(free.sum())
     # the store in the order of ``keys``; rows without information yet are evaluated below
     placeholder = np.zeros((keys.size, n_free))
@@ -267,7 +278,7 @@ def incremental_refit(
     iterations = 0
     rejections = 0
     while True:
-        far = np.any(np.abs(stored.theta - theta[free]) > RELINEARISE_SCALE * free_scale, axis=1)
+        far = far_from(stored.theta, theta[free], free_scale)
         rows = np.flatnonzero(missing | far)
         if rows.size:
             sums = evaluate(theta, rows)
