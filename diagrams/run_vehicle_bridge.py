@@ -16,6 +16,14 @@ the plant is integrated only from there, with the command already received, and 
 counts from there. A station that boots for seconds thus finds the car as the scenario starts
 it, not braked by the vehicle's watchdog to a crawl (which the station's first commands, held
 while states arrived late, then turned into reversing).
+
+Before it holds, :func:`warm_up` computes once, on a throwaway context, what the first step
+computes (the plant's derivatives, the state and camera messages): a process's first call of the
+compiled tyre model loads numba's machinery and the first frame is rendered from scratch, about
+a second together. Paid after the hold, that second stalls the car's clock: its state stamps
+fall behind the held ones by it and catch up only as fast as the bridge can run ahead of real
+time, and the station's watchdog, which judges each delay against the smallest seen, rejects
+every state as ``late`` until they do.
 """
 
 from __future__ import annotations
@@ -31,8 +39,8 @@ import numpy as np
 import pandas as pd
 from pydrake.lcm import DrakeLcmParams
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.lcm import LcmBuses
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.lcm import LcmBuses, LcmPublisherSystem
 from pydrake.systems.primitives import LogVectorOutput
 
 from pcvfe_drake.diagrams.lcm_buses import shared_drake_lcm
@@ -126,6 +134,7 @@ def run_vehicle_bridge(
     diagram.set_name("vehicle_bridge_run")
     simulator = Simulator(diagram)
     simulator.set_target_realtime_rate(hw.realtime_rate if realtime_rate is None else realtime_rate)
+    warm_up(diagram)
     stopped = "duration"
     w0 = time.perf_counter()
     start = 0.0
@@ -172,6 +181,31 @@ def run_vehicle_bridge(
         truth.to_csv(out_dir / "truth.csv", index=False)
         (out_dir / "bridge.json").write_text(json.dumps(result.to_dict(), indent=2))
     return result
+
+
+def warm_up(diagram, context=None) -> float:
+    """Evaluate, on a throwaway context of ``diagram``, its time derivatives and every
+    ``LcmPublisherSystem``'s input (the messages the first step sends), so that one-off costs of
+    a process's first evaluation (module and compiled-code loading, the renderer's first frame)
+    are paid before the car's clock starts. Publishes nothing. Returns the wall time it took
+    [s]."""
+    t0 = time.perf_counter()
+    context = diagram.CreateDefaultContext() if context is None else context
+    diagram.EvalTimeDerivatives(context)
+    for system in _subsystems(diagram):
+        if isinstance(system, LcmPublisherSystem):
+            # EvalAbstract: the C++ image message has no Python value type.
+            system.get_input_port().EvalAbstract(system.GetMyContextFromRoot(context))
+    return time.perf_counter() - t0
+
+
+def _subsystems(diagram):
+    """Every leaf system of ``diagram``, nested diagrams included."""
+    for system in diagram.GetSystems():
+        if isinstance(system, Diagram):
+            yield from _subsystems(system)
+        else:
+            yield system
 
 
 def hold_until_first_command(

@@ -269,3 +269,54 @@ def test_a_bridge_that_hears_no_command_stops_with_an_error_naming_the_field():
     scenario.hardware.first_command_timeout_s = 0.1
     with pytest.raises(RuntimeError, match=r"PCVFE_ACTUATION at memq://.*first_command_timeout_s"):
         run_vehicle_bridge(scenario, duration_s=1.0, lcm=DrakeLcm("memq://"))
+
+
+def test_the_bridge_warms_up_its_first_step_without_publishing():
+    """``warm_up`` computes, on a throwaway context, the plant's derivatives and every
+    publisher's message (the first step's one-off costs, paid before the car's clock starts)
+    and sends nothing; the bridge's own context is left as it was."""
+    from pydrake.systems.framework import BasicVector, LeafSystem
+    from pydrake.systems.lcm import LcmPublisherSystem
+
+    from pcvfe_drake.diagrams.run_vehicle_bridge import warm_up
+    from pcvfe_drake.systems.vehicle_state_sender import VehicleStateSender
+
+    calls = {"derivatives": 0, "state": 0}
+
+    class Rolling(LeafSystem):  # one continuous state, its output the ST state the sender packs
+        def __init__(self):
+            super().__init__()
+            self.DeclareContinuousState(1)
+            self.DeclareVectorOutputPort("state", 7, self._out)
+
+        def DoCalcTimeDerivatives(self, context, derivatives):
+            calls["derivatives"] += 1
+            derivatives.get_mutable_vector().SetAtIndex(0, 1.0)
+
+        def _out(self, context, output: BasicVector):
+            calls["state"] += 1
+            output.SetFromVector(np.full(7, context.get_continuous_state_vector()[0]))
+
+    lcm = DrakeLcm("memq://")
+    heard = []
+    lcm.Subscribe("WARM_STATE", heard.append)
+    builder = DiagramBuilder()
+    rolling = builder.AddSystem(Rolling())
+    sender = builder.AddSystem(VehicleStateSender())
+    publisher = builder.AddSystem(
+        LcmPublisherSystem.Make(
+            channel="WARM_STATE", lcm_type=lcmt_vehicle_state, lcm=lcm, publish_period=0.01
+        )
+    )
+    builder.Connect(rolling.get_output_port(), sender.GetInputPort("state"))
+    builder.Connect(sender.GetOutputPort("message"), publisher.get_input_port())
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    assert warm_up(diagram) >= 0.0
+    assert calls == {"derivatives": 1, "state": 1}
+    lcm.HandleSubscriptions(0)
+    assert heard == []  # nothing sent
+    assert simulator.get_context().get_time() == 0.0
+    simulator.AdvanceTo(0.015)  # the run itself publishes, from its own context
+    lcm.HandleSubscriptions(0)
+    assert len(heard) == 2
