@@ -113,9 +113,7 @@ def main() -> int:
         z = nxt[features].to_numpy(float)
         d = np.sqrt(((z[:, None, :] - members[None]) ** 2).sum(-1))
         kd = np.sort(d, axis=1)[:, params.gate_neighbours - 1]
-        print(
-            f"next {args.terrain} frames' {params.gate_neighbours}-th distance: {np.round(kd, 3)}"
-        )
+        print(f"next {args.terrain} frames' k-th-neighbour distance to them: {np.round(kd, 3)}")
         result["terrain_kth"] = [float(x) for x in kd]
     print(json.dumps(result))
     return 0
