@@ -54,8 +54,20 @@ def _kth_smallest(d2: np.ndarray, k: int) -> np.ndarray:
 
 def _scaled_quantile(kth: np.ndarray, params: ClusteringParams) -> float:
     """``gate_scale`` times the ``gate_quantile`` of the k-th-neighbour distances ``kth``: the
-    outlier gate without its rounding floor."""
-    return params.gate_scale * float(np.quantile(kth, params.gate_quantile))
+    outlier gate without its rounding floor.
+
+    Of M distances the quantile is taken at ``min(gate_quantile, 1 - (k - 1) / M)``, k =
+    ``gate_neighbours``: the k - 1 largest never set the gate. Of fewer than about 100 members
+    the high quantile is the largest one or two values, so a lone stray (a frame of another
+    terrain that a re-clustering joined) would set the gate and open it to its terrain; a group
+    of fewer than k members cannot pass a frame by nearness (:func:`detach_pockets` keeps them as
+    members), and now not by the width it gives the gate either. From ``(k - 1) / (1 -
+    gate_quantile)`` members on (200) it is the plain quantile."""
+    m = kth.size
+    q = params.gate_quantile
+    if m:
+        q = max(0.0, min(q, 1.0 - (params.gate_neighbours - 1) / m))
+    return params.gate_scale * float(np.quantile(kth, q))
 
 
 def kth_member_distances(members: np.ndarray, k: int) -> np.ndarray:

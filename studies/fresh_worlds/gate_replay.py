@@ -1,5 +1,5 @@
-"""The context clustering replayed open-loop from stored drive logs, with the outlier gate as
-shipped and with a gate that no group smaller than ``gate_neighbours`` can set.
+"""The context clustering replayed open-loop from stored drive logs, with the plain-quantile
+outlier gate and with a gate that no group smaller than ``gate_neighbours`` can set.
 
 A context's gate is ``gate_scale`` times the ``gate_quantile`` (0.99) of its members' own k-th-
 neighbour distances. Of fewer than about 100 members that quantile is the largest one or two
@@ -7,13 +7,13 @@ values: a lone stray sets it (studies/fresh_worlds/README.md, world 452). The va
 quantile at ``min(gate_quantile, 1 - (k - 1) / M)`` for M members, k = ``gate_neighbours``: the
 k - 1 largest distances never set the gate, as a group of fewer than k members cannot pass a
 frame by nearness either (``density_gate.detach_pockets``). Nothing else changes; for a context
-of 200 members or more it is the shipped gate.
+of 200 members or more it is the plain gate.
 
 Per run (the run's own scenario, its logged features, open-loop: the car's path is the logged
 one), for each gate: seconds of frames given a context whose majority true terrain (over the
 replayed lap) is another terrain, of those the seconds where that context's terrain has more
 friction than the frame's by more than 0.05 (what the handing could hand too high), and seconds
-of noise frames. The shipped gate's ids are checked against the logged ones.
+of noise frames. The plain gate's ids are checked against the logged ones (laps driven with it).
 
     python studies/fresh_worlds/gate_replay.py RESULTS_DIR[:SOURCE] [...] [--workers 2]
 
@@ -34,7 +34,10 @@ from pcvfe_drake.contexts import density_gate
 from pcvfe_drake.contexts.clustering import ContextClusterer
 from pcvfe_drake.diagrams.scenario_io import scenario_from_yaml_text
 
-SHIPPED = density_gate._scaled_quantile
+
+def plain_quantile(kth: np.ndarray, params) -> float:
+    """The gate before 2026-11-29 without its rounding floor: the plain quantile."""
+    return params.gate_scale * float(np.quantile(kth, params.gate_quantile))
 
 
 def few_cannot_set(kth: np.ndarray, params) -> float:
@@ -45,7 +48,7 @@ def few_cannot_set(kth: np.ndarray, params) -> float:
 
 
 def replay(run: Path, variant: bool) -> dict:
-    density_gate._scaled_quantile = few_cannot_set if variant else SHIPPED
+    density_gate._scaled_quantile = few_cannot_set if variant else plain_quantile
     scenario = scenario_from_yaml_text((run / "scenario.yaml").read_text(), str(run))
     rates = scenario.rates
     log = pd.read_parquet(run / "drive_log.parquet")
@@ -115,17 +118,17 @@ def main() -> int:
     with ProcessPoolExecutor(args.workers) as pool:
         results = list(pool.map(both, runs))
     rows = []
-    for shipped, variant in results:
+    for plain, variant in results:
         rows.append(
             {
-                "run": shipped["run"].replace("paper_eval-", "")[:60],
-                "confused_s": shipped["confused_s"],
+                "run": plain["run"].replace("paper_eval-", "")[:60],
+                "confused_s": plain["confused_s"],
                 "confused_s_variant": variant["confused_s"],
-                "too_grippy_s": shipped["too_grippy_s"],
+                "too_grippy_s": plain["too_grippy_s"],
                 "too_grippy_s_variant": variant["too_grippy_s"],
-                "noise_s": shipped["noise_s"],
+                "noise_s": plain["noise_s"],
                 "noise_s_variant": variant["noise_s"],
-                "ids_differing_from_log": shipped["ids_differing_from_log"],
+                "ids_differing_from_log": plain["ids_differing_from_log"],
             }
         )
     table = pd.DataFrame(rows)

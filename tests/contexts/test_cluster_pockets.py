@@ -133,3 +133,30 @@ def test_detach_pockets_marks_only_the_pocket():
     pocket = density_gate.detach_pockets(d2, np.ones(x.shape[0]), PARAMS)
     assert not pocket[:200].any()
     assert pocket[200:].sum() > 12 - PARAMS.gate_neighbours
+
+
+def test_a_lone_stray_does_not_open_a_small_contexts_gate():
+    # A context of 29 frames and one frame of another terrain that a re-clustering joined to it
+    # (studies/fresh_worlds, world 452): of 30 members the 0.99 quantile of the k-th-neighbour
+    # distances is the stray's own, which would open the gate to frames of the stray's terrain
+    # (their k-th nearest members are body frames as far away as the stray). The k - 1 largest
+    # distances never set the gate, so those frames are noise and the body's still pass.
+    rng = np.random.default_rng(8)
+    stray = np.zeros(DIM)
+    stray[0] = 0.8
+    x = np.vstack([body(rng, 29), stray])
+    labels = np.zeros(x.shape[0], dtype=int)
+    kth = density_gate.kth_member_distances(x, PARAMS.gate_neighbours)
+    index = GateIndex(x, labels, PARAMS)
+    gate = float(np.sqrt(index.gate_sq[0]))
+    assert gate / PARAMS.gate_scale <= np.sort(kth)[-2] < kth[-1]  # not set by the stray's
+    foreign = stray + rng.normal(0.0, 0.02, (50, DIM))
+    assert np.all(index.labels(foreign) == NOISE)
+    assert np.mean(index.labels(body(rng, 50)) == 0) >= 0.9
+    # From 200 members on, the gate is the plain quantile, as before.
+    big = body(rng, 240)
+    plain = PARAMS.gate_scale * np.quantile(
+        density_gate.kth_member_distances(big, PARAMS.gate_neighbours), PARAMS.gate_quantile
+    )
+    big_gate = np.sqrt(GateIndex(big, np.zeros(240, dtype=int), PARAMS).gate_sq[0])
+    assert big_gate == plain

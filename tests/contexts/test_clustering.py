@@ -274,9 +274,10 @@ def test_epsilon_decides_between_same_id_and_new_id():
         for t, z in zip(stream.t_s, stream.z, strict=True):
             clusterer.assign(z, t)
         clusterer.recluster(25.0)
-        # The same data again: centroids move by (much) less than a cluster radius.
+        # The same data again, shifted by 1e-4 (far less than a cluster radius): centroids move by
+        # much less than a cluster radius, but by more than the tiny epsilon.
         for t, z in zip(stream.t_s, stream.z, strict=True):
-            clusterer.assign(z, t + 30.0)
+            clusterer.assign(z + 1e-4, t + 30.0)
         tables[name] = clusterer.recluster(55.0)
     # Default epsilon: the two terrains keep ids 0 and 1.
     assert tables["default"].ids == [0, 1] and tables["default"].active_ids == [0, 1]
