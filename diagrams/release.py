@@ -26,20 +26,26 @@ REF_CYCLE_PEERS = "_pydrake_internal_ref_cycle_peers"
 """pydrake's attribute holding a Python object's ref-cycle peers (``pydrake.common.ref_cycle``)."""
 
 
+def all_systems(diagram: System):
+    """``diagram`` and every system inside it, nested diagrams and their systems included."""
+    stack = [diagram]
+    while stack:
+        system = stack.pop()
+        yield system
+        if isinstance(system, Diagram):
+            stack.extend(system.GetSystems())
+
+
 def release_diagram(diagram: System) -> int:
     """Free ``diagram`` and what its Python systems hold (see the module docstring); returns
     the number of Python leaf systems emptied. Neither the diagram nor any of its systems or
     ports may be used afterwards: drop every reference to them."""
     leaves = []
-    stack = [diagram]
-    while stack:
-        system = stack.pop()
+    for system in all_systems(diagram):
         peers = getattr(system, "__dict__", {}).get(REF_CYCLE_PEERS)
         if peers:
             peers.clear()
-        if isinstance(system, Diagram):
-            stack.extend(system.GetSystems())
-        elif isinstance(system, LeafSystem) and hasattr(system, "__dict__"):
+        if isinstance(system, LeafSystem) and hasattr(system, "__dict__"):
             leaves.append(system)
     for system in leaves:
         system.__dict__.clear()

@@ -39,11 +39,12 @@ import numpy as np
 import pandas as pd
 from pydrake.lcm import DrakeLcmParams
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.lcm import LcmBuses, LcmPublisherSystem
 from pydrake.systems.primitives import LogVectorOutput
 
 from pcvfe_drake.diagrams.lcm_buses import shared_drake_lcm
+from pcvfe_drake.diagrams.release import all_systems
 from pcvfe_drake.diagrams.vehicle_bridge import MakeVehicleBridge
 from pcvfe_drake.diagrams.world_io import scenario_world
 from pcvfe_drake.hardware.latency import LatencyRecorder
@@ -183,29 +184,20 @@ def run_vehicle_bridge(
     return result
 
 
-def warm_up(diagram, context=None) -> float:
+def warm_up(diagram) -> float:
     """Evaluate, on a throwaway context of ``diagram``, its time derivatives and every
     ``LcmPublisherSystem``'s input (the messages the first step sends), so that one-off costs of
     a process's first evaluation (module and compiled-code loading, the renderer's first frame)
     are paid before the car's clock starts. Publishes nothing. Returns the wall time it took
     [s]."""
     t0 = time.perf_counter()
-    context = diagram.CreateDefaultContext() if context is None else context
+    context = diagram.CreateDefaultContext()
     diagram.EvalTimeDerivatives(context)
-    for system in _subsystems(diagram):
+    for system in all_systems(diagram):
         if isinstance(system, LcmPublisherSystem):
             # EvalAbstract: the C++ image message has no Python value type.
             system.get_input_port().EvalAbstract(system.GetMyContextFromRoot(context))
     return time.perf_counter() - t0
-
-
-def _subsystems(diagram):
-    """Every leaf system of ``diagram``, nested diagrams included."""
-    for system in diagram.GetSystems():
-        if isinstance(system, Diagram):
-            yield from _subsystems(system)
-        else:
-            yield system
 
 
 def hold_until_first_command(
