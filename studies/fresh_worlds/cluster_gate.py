@@ -19,14 +19,61 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from pcvfe_drake.contexts import density_gate
 from pcvfe_drake.contexts.clustering import ContextClusterer
 from pcvfe_drake.contexts.density_gate import kth_member_distances
 from pcvfe_drake.diagrams.scenario_io import scenario_from_yaml_text
+
+
+def plain_quantile(kth: np.ndarray, params) -> float:
+    """The outlier gate before 2026-11-29 (without its rounding floor): ``gate_scale`` times the
+    plain ``gate_quantile`` of the members' k-th-neighbour distances, whatever their number.
+    Laps driven before then replay to their logged ids only with it (``--gate plain``)."""
+    return params.gate_scale * float(np.quantile(kth, params.gate_quantile))
+
+
+def replay_clustering(run: Path, until_s: float = math.inf):
+    """The lap's clustering in ``run`` replayed from its drive log up to ``until_s`` [s]:
+    ``(scenario, clusterer, frames)``, ``frames`` the log's rows holding each frame with the
+    replayed ``id``, how the frame got it (``evidence``) and whether it triggered a kept
+    re-clustering (``triggered``)."""
+    scenario = scenario_from_yaml_text((run / "scenario.yaml").read_text(), str(run))
+    rates = scenario.rates
+    log = pd.read_parquet(run / "drive_log.parquet")
+    z_all = log[[c for c in log.columns if c.startswith("f_")]].to_numpy(float)
+    times = log["t"].to_numpy(float)
+    clusterer = ContextClusterer(scenario.clustering_params())
+    next_recluster = rates.recluster_period_s
+    rows, ids, evidence, triggered = [], [], [], []
+    k = 0
+    while True:
+        taken = k * rates.camera_period_s
+        t_assign = taken + rates.clustering_frame_offset_s
+        while next_recluster <= taken + 1e-9:
+            clusterer.recluster(next_recluster)
+            next_recluster += rates.recluster_period_s
+        row = int(np.searchsorted(times, taken + 1e-6))
+        if t_assign > until_s or row >= len(log):
+            break
+        cid, kept = clusterer.assign_frame(z_all[row], t_assign, float(log["v"].iloc[row]))
+        rows.append(row)
+        ids.append(cid)
+        evidence.append(clusterer.last_evidence)
+        triggered.append(kept)
+        k += 1
+    frames = log.iloc[rows].assign(
+        t_assign=np.arange(len(rows)) * rates.camera_period_s + rates.clustering_frame_offset_s,
+        id=np.asarray(ids, dtype=int),
+        evidence=evidence,
+        triggered=triggered,
+    )
+    return scenario, clusterer, frames
 
 
 def main() -> int:
@@ -36,40 +83,30 @@ def main() -> int:
     ap.add_argument("--at", type=float, default=10.0, help="replay up to this time [s]")
     ap.add_argument("--context", type=int, default=0)
     ap.add_argument("--terrain", default=None, help="frames whose distance to the members is shown")
+    ap.add_argument(
+        "--gate",
+        choices=("current", "plain"),
+        default="current",
+        help="the outlier gate to replay with: the shipped one, or the plain quantile the laps "
+        "before 2026-11-29 were driven with",
+    )
     args = ap.parse_args()
     if args.run is None:
         ap.error("give a run folder (RUN_DIR with scenario.yaml and drive_log.parquet)")
-    scenario = scenario_from_yaml_text((args.run / "scenario.yaml").read_text(), str(args.run))
+    if args.gate == "plain":
+        density_gate._scaled_quantile = plain_quantile
+    scenario, clusterer, frames = replay_clustering(args.run, args.at)
     params = scenario.clustering_params()
     rates = scenario.rates
     log = pd.read_parquet(args.run / "drive_log.parquet")
     features = [c for c in log.columns if c.startswith("f_")]
     times = log["t"].to_numpy(float)
-    clusterer = ContextClusterer(params)
-    next_recluster = rates.recluster_period_s
-    mismatches = 0
-    frames = 0
-    k = 0
-    while True:
-        taken = k * rates.camera_period_s
-        t_assign = taken + rates.clustering_frame_offset_s
-        while next_recluster <= taken + 1e-9:
-            clusterer.recluster(next_recluster)
-            next_recluster += rates.recluster_period_s
-        row = int(np.searchsorted(times, taken + 1e-6))
-        if t_assign > args.at or row >= len(log):
-            break
-        z = log[features].iloc[row].to_numpy(float)
-        cid, triggered = clusterer.assign_frame(z, t_assign, float(log["v"].iloc[row]))
-        logged = int(log["context"].iloc[row])
-        mismatches += cid != logged
-        frames += 1
-        if t_assign >= args.t_from:
-            print(
-                f"{t_assign:8.3f} s  {log['terrain'].iloc[row]:14s} id {cid:3d} (logged "
-                f"{logged:3d})  {clusterer.last_evidence}{'  re-clustered' if triggered else ''}"
-            )
-        k += 1
+    mismatches = int((frames["id"] != frames["context"]).sum())
+    for f in frames[frames["t_assign"] >= args.t_from].itertuples():
+        print(
+            f"{f.t_assign:8.3f} s  {f.terrain:14s} id {f.id:3d} (logged {f.context:3d})  "
+            f"{f.evidence}{'  re-clustered' if f.triggered else ''}"
+        )
     index = clusterer._index  # the gate index: members and gates of the active contexts
     if args.context not in index.bounds:
         print(f"context {args.context} is not active at {args.at} s")
@@ -98,8 +135,8 @@ def main() -> int:
         for j in order:
             print(f"  member at {member_t[j]:.1f} s ({terrain[j]}): {kth[j]:.4f}")
     result = {
-        "frames": frames,
-        "ids_differing_from_log": int(mismatches),
+        "frames": len(frames),
+        "ids_differing_from_log": mismatches,
         "context": args.context,
         "members": int(len(members)),
         "member_terrains": counts,

@@ -29,52 +29,20 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from cluster_gate import plain_quantile, replay_clustering  # this folder's (the script's path)
 
 from pcvfe_drake.contexts import density_gate
-from pcvfe_drake.contexts.clustering import ContextClusterer
-from pcvfe_drake.diagrams.scenario_io import scenario_from_yaml_text
 
-
-def plain_quantile(kth: np.ndarray, params) -> float:
-    """The gate before 2026-11-29 without its rounding floor: the plain quantile."""
-    return params.gate_scale * float(np.quantile(kth, params.gate_quantile))
-
-
-def few_cannot_set(kth: np.ndarray, params) -> float:
-    """The variant's gate without its rounding floor (module docstring)."""
-    m = kth.size
-    q = min(params.gate_quantile, 1.0 - (params.gate_neighbours - 1) / m) if m else 0.0
-    return params.gate_scale * float(np.quantile(kth, max(q, 0.0)))
+# The gate as shipped now (``density_gate._scaled_quantile``: the quantile at
+# ``min(gate_quantile, 1 - (k - 1) / M)``), kept before the replays swap the function.
+few_cannot_set = density_gate._scaled_quantile
 
 
 def replay(run: Path, variant: bool) -> dict:
     density_gate._scaled_quantile = few_cannot_set if variant else plain_quantile
-    scenario = scenario_from_yaml_text((run / "scenario.yaml").read_text(), str(run))
+    scenario, _, frames = replay_clustering(run)
     rates = scenario.rates
-    log = pd.read_parquet(run / "drive_log.parquet")
-    features = [c for c in log.columns if c.startswith("f_")]
-    z_all = log[features].to_numpy(float)
-    times = log["t"].to_numpy(float)
-    clusterer = ContextClusterer(scenario.clustering_params())
-    next_recluster = rates.recluster_period_s
-    ids, rows = [], []
-    k = 0
-    while True:
-        taken = k * rates.camera_period_s
-        while next_recluster <= taken + 1e-9:
-            clusterer.recluster(next_recluster)
-            next_recluster += rates.recluster_period_s
-        row = int(np.searchsorted(times, taken + 1e-6))
-        if row >= len(log):
-            break
-        cid, _ = clusterer.assign_frame(
-            z_all[row], taken + rates.clustering_frame_offset_s, float(log["v"].iloc[row])
-        )
-        ids.append(cid)
-        rows.append(row)
-        k += 1
-    ids = np.asarray(ids)
-    frames = log.iloc[rows]
+    ids = frames["id"].to_numpy(int)
     terrain = frames["terrain"].astype(str).to_numpy()
     mu = frames["mu_true"].to_numpy(float)
     dt = rates.camera_period_s
