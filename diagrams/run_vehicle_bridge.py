@@ -18,12 +18,12 @@ it, not braked by the vehicle's watchdog to a crawl (which the station's first c
 while states arrived late, then turned into reversing).
 
 Before it holds, :func:`warm_up` computes once, on a throwaway context, what the first step
-computes (the plant's derivatives, the state and camera messages): a process's first call of the
-compiled tyre model loads numba's machinery and the first frame is rendered from scratch, about
-a second together. Paid after the hold, that second stalls the car's clock: its state stamps
-fall behind the held ones by it and catch up only as fast as the bridge can run ahead of real
-time, and the station's watchdog, which judges each delay against the smallest seen, rejects
-every state as ``late`` until they do.
+computes (the plant's derivatives or discrete update, the state and camera messages): a
+process's first call of the compiled tyre model loads numba's machinery and the first frame is
+rendered from scratch, about a second together. Paid after the hold, that second stalls the
+car's clock: its state stamps fall behind the held ones by it and catch up only as fast as the
+bridge can run ahead of real time, and the station's watchdog, which judges each delay against
+the smallest seen, rejects every state as ``late`` until they do.
 """
 
 from __future__ import annotations
@@ -50,6 +50,7 @@ from pcvfe_drake.diagrams.world_io import scenario_world
 from pcvfe_drake.hardware.latency import LatencyRecorder
 from pcvfe_drake.lcmtypes import lcmt_vehicle_actuation, lcmt_vehicle_state
 from pcvfe_drake.runs.scenario import Scenario
+from pcvfe_drake.systems.vehicle_plant import VehiclePlant
 from pcvfe_drake.vehicle.mb_truth import MbSingularity
 from pcvfe_drake.vehicle.single_track import STATE_NAMES
 
@@ -185,15 +186,19 @@ def run_vehicle_bridge(
 
 
 def warm_up(diagram) -> float:
-    """Evaluate, on a throwaway context of ``diagram``, its time derivatives and every
+    """Evaluate, on a throwaway context of ``diagram``, its time derivatives, each
+    ``VehiclePlant``'s discrete update (the multi-body truth's default state) and every
     ``LcmPublisherSystem``'s input (the messages the first step sends), so that one-off costs of
     a process's first evaluation (module and compiled-code loading, the renderer's first frame)
     are paid before the car's clock starts. Publishes nothing. Returns the wall time it took
     [s]."""
     t0 = time.perf_counter()
     context = diagram.CreateDefaultContext()
-    diagram.EvalTimeDerivatives(context)
+    if context.num_continuous_states():
+        diagram.EvalTimeDerivatives(context)
     for system in all_systems(diagram):
+        if isinstance(system, VehiclePlant) and system.mb_integration == "discrete":
+            system.EvalUniquePeriodicDiscreteUpdate(system.GetMyContextFromRoot(context))
         if isinstance(system, LcmPublisherSystem):
             # EvalAbstract: the C++ image message has no Python value type.
             system.get_input_port().EvalAbstract(system.GetMyContextFromRoot(context))

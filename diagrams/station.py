@@ -108,6 +108,8 @@ def MakeVehicleStation(
             truth=scenario.truth_model,
             x0=x0,
             friction_scaling=scenario.friction_mapping,
+            # the MB state advances on the grid every periodic reader samples on
+            mb_period_s=scenario.rates.fitter_sample_period_s,
         ),
     )
     camera = builder.AddNamedSystem(

@@ -7,9 +7,17 @@ import math
 import numpy as np
 from pydrake.systems.framework import BasicVector, LeafSystem
 
-from pcvfe_drake.vehicle.mb_truth import MbSingularity, MbTruth, st_state
+from pcvfe_drake.vehicle.mb_truth import INTEGRATION_METHODS, MbSingularity, MbTruth, st_state
 from pcvfe_drake.vehicle.params import TRUTH_MODELS, VehicleParams, ford_escort
 from pcvfe_drake.vehicle.single_track import INPUT_NAMES, NX, STATE_NAMES, st_dynamics
+
+MB_UPDATE_OFFSET_S = 1e-6
+"""The discrete multi-body update runs this long [s] after each multiple of its period.
+Drake computes each periodic event's times from its own period, so a controller's update at a
+multiple of 0.05 s and the plant's at the same multiple of 0.01 s can differ in the last bits;
+where the plant's came first it would read the command before that update and apply it a
+period late (about one in six of the controller's updates). 1 us later it always follows, and
+a reader sampling on the grid sees the state 1 us ahead (12 um at 12 m/s)."""
 
 
 class VehiclePlant(LeafSystem):
@@ -47,14 +55,18 @@ class VehiclePlant(LeafSystem):
         transcription, ``pcvfe_drake.vehicle.mb_kernel``), tire friction scaled to the mu under
         the car. Two state realisations (``mb_integration``):
 
-        * ``"continuous"`` (default): 29 continuous states, integrated by the simulator's
-          integrator (Drake's default error-controlled RK3 is the recommended one).
-        * ``"discrete"``: 29 discrete states advanced every ``mb_period_s`` (e.g. 0.01 s, the
-          public PC-VFE simulator's 100 Hz), each update integrating the MB equations over the
-          period with ``mb_method`` (``"rk4"``, default: 1 ms RK4 substeps with wheel speeds
-          kept >= 0; ``"lsoda"``: stiff-aware, restarted every period) with the input and mu
-          sampled at the update. The outputs hold between updates; independent of the
-          simulator's integrator settings.
+        * ``"discrete"`` (default): 29 discrete states advanced every ``mb_period_s`` (the
+          scenario's fitter sampling period, 0.01 s: every periodic reader of the state samples
+          on that grid), each update integrating the MB equations over the period with the
+          input and mu sampled at the update, by ``mb_method``: ``"rk23"`` (default: compiled
+          error-controlled Bogacki-Shampine steps, ``MbTruth.advance``, the step carried from
+          one update to the next in a second discrete state), ``"rk4"`` (1 ms RK4 substeps,
+          stable above ~2 m/s) or ``"lsoda"`` (stiff-aware, restarted every period). The
+          outputs hold between updates; independent of the simulator's integrator settings.
+          The update runs :data:`MB_UPDATE_OFFSET_S` after each multiple of the period, so a
+          command the NMPC computes on the grid is applied from its instant.
+        * ``"continuous"``: 29 continuous states, integrated by the simulator's integrator
+          (Drake's error-controlled RK3; mu looked up at every derivative).
 
         How the integrators compare (measured): ``docs/simulation.md``, "The plant's
         integrators".
@@ -80,9 +92,10 @@ class VehiclePlant(LeafSystem):
             along +x. :meth:`set_initial_state` sets it in a given context.
         mb_vehicle: CommonRoad vehicle name for the MB truth (default ``params.name``).
         friction_scaling: MB tire friction mapping, see ``pcvfe_drake.vehicle.mb_truth``.
-        mb_integration: ``"continuous"`` or ``"discrete"`` (MB only).
+        mb_integration: ``"discrete"`` or ``"continuous"`` (MB only).
         mb_period_s: period of the MB discrete update [s] (``"discrete"`` only).
-        mb_method: ``"rk4"`` or ``"lsoda"``, the integrator inside a discrete MB update.
+        mb_method: ``"rk23"``, ``"rk4"`` or ``"lsoda"``, the integrator inside a discrete MB
+            update.
     """
 
     def __init__(
@@ -94,9 +107,9 @@ class VehiclePlant(LeafSystem):
         *,
         mb_vehicle: str | None = None,
         friction_scaling: str = "peak_and_stiffness",
-        mb_integration: str = "continuous",
+        mb_integration: str = "discrete",
         mb_period_s: float = 0.01,
-        mb_method: str = "rk4",
+        mb_method: str = "rk23",
     ) -> None:
         super().__init__()
         if truth not in TRUTH_MODELS:
@@ -113,8 +126,10 @@ class VehiclePlant(LeafSystem):
         self.truth = truth
         self.mb_integration = mb_integration if truth == "mb" else None
         self.mb_period_s = float(mb_period_s)
-        if mb_method not in ("lsoda", "rk4"):
-            raise ValueError(f"VehiclePlant: mb_method={mb_method!r}; choose 'lsoda' or 'rk4'")
+        if mb_method not in INTEGRATION_METHODS:
+            raise ValueError(
+                f"VehiclePlant: mb_method={mb_method!r}; choose one of {INTEGRATION_METHODS}"
+            )
         self.mb_method = mb_method
         x0 = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]) if x0 is None else x0
         x0 = self._checked_st_state(x0, "x0")
@@ -142,8 +157,13 @@ class VehiclePlant(LeafSystem):
                 state_ticket = self.xc_ticket()
             else:
                 self._state_index = self.DeclareDiscreteState(self._x0)
+                # rk23's next step [s], carried from update to update (in the context, so a
+                # cloned or reset context integrates alike).
+                self._step_index = self.DeclareDiscreteState(np.array([self.mb_period_s]))
                 self.DeclarePeriodicDiscreteUpdateEvent(
-                    period_sec=self.mb_period_s, offset_sec=0.0, update=self._mb_discrete_update
+                    period_sec=self.mb_period_s,
+                    offset_sec=MB_UPDATE_OFFSET_S,
+                    update=self._mb_discrete_update,
                 )
                 state_ticket = self.xd_ticket()
 
@@ -177,6 +197,7 @@ class VehiclePlant(LeafSystem):
             context.SetContinuousState(x)
         else:
             context.SetDiscreteState(self._state_index, x)
+            context.SetDiscreteState(self._step_index, np.array([self.mb_period_s]))
 
     # ------------------------------------------------------------------ helpers
     def _mu_index(self, x) -> tuple[float, int]:
@@ -218,6 +239,8 @@ class VehiclePlant(LeafSystem):
 
     # ------------------------------------------------------------------ dynamics
     def DoCalcTimeDerivatives(self, context, derivatives) -> None:  # noqa: N802 (Drake's name)
+        if self._state_index is not None:  # a discrete MB state: nothing continuous
+            return
         x = self._raw_state(context)
         u = self._actuation(context)
         if self.mb is None:
@@ -241,9 +264,16 @@ class VehiclePlant(LeafSystem):
     def _mb_discrete_update(self, context, discrete_state) -> None:
         x = context.get_discrete_state(self._state_index).CopyToVector()
         u = self._actuation(context)
-        mu, _ = self._mu_index(x)
+        mu, k = self._mu_index(x)
         try:
-            x_next = self.mb.integrate(x, u, mu, self.mb_period_s, method=self.mb_method)
+            if self.mb_method == "rk23":
+                step = context.get_discrete_state(self._step_index).GetAtIndex(0)
+                x_next, step = self.mb.advance(
+                    x, u, self._mb_parameters(mu, k), self.mb_period_s, step
+                )
+                discrete_state.get_mutable_vector(self._step_index).SetAtIndex(0, step)
+            else:
+                x_next = self.mb.integrate(x, u, mu, self.mb_period_s, method=self.mb_method)
         except MbSingularity as exc:
             raise exc.at(context.get_time()) from exc
         discrete_state.get_mutable_vector(self._state_index).SetFromVector(x_next)

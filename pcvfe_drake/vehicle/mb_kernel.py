@@ -48,94 +48,32 @@ KINEMATIC_BELOW_MPS = 0.1
 MB_PARAMETER_FIELDS = (
     # geometry [m]: CG to front/rear axle, track widths, wheel radius, heights of the sprung
     # mass's CG and of the front/rear roll axes
-    "a",
-    "b",
-    "T_f",
-    "T_r",
-    "R_w",
-    "h_s",
-    "h_raf",
-    "h_rar",
+    "a", "b", "T_f", "T_r", "R_w", "h_s", "h_raf", "h_rar",
     # masses [kg] (total, sprung, front/rear unsprung); inertias [kg m^2] (yaw, sprung
     # roll-yaw product, sprung roll, sprung pitch, front/rear unsprung roll, wheel spin)
-    "m",
-    "m_s",
-    "m_uf",
-    "m_ur",
-    "I_z",
-    "I_xz_s",
-    "I_Phi_s",
-    "I_y_s",
-    "I_uf",
-    "I_ur",
-    "I_y_w",
+    "m", "m_s", "m_uf", "m_ur", "I_z", "I_xz_s", "I_Phi_s", "I_y_s", "I_uf", "I_ur", "I_y_w",
     # suspension: spring [N/m] and damper [N s/m] front/rear, anti-roll bars [N m/rad],
     # compliant joint spring [N/m] and damper [N s/m], tire vertical stiffness [N/m], tire
     # lateral compliance [m/N], camber per suspension travel [rad/m] and [rad/m^2]
-    "K_sf",
-    "K_sdf",
-    "K_sr",
-    "K_sdr",
-    "K_tsf",
-    "K_tsr",
-    "K_ras",
-    "K_rad",
-    "K_zt",
-    "K_lt",
-    "D_f",
-    "E_f",
-    "D_r",
-    "E_r",
+    "K_sf", "K_sdf", "K_sr", "K_sdr", "K_tsf", "K_tsr", "K_ras", "K_rad", "K_zt", "K_lt", "D_f",
+    "E_f", "D_r", "E_r",
     # torque split to the front axle [-]: braking, engine
-    "T_sb",
-    "T_se",
+    "T_sb", "T_se",
     # steering limits: angle [rad], rate [rad/s]
-    "steering.min",
-    "steering.max",
-    "steering.v_min",
-    "steering.v_max",
+    "steering.min", "steering.max", "steering.v_min", "steering.v_max",
     # longitudinal limits: speed [m/s], speed above which the power limits acceleration
     # [m/s], acceleration [m/s^2]
-    "longitudinal.v_min",
-    "longitudinal.v_max",
-    "longitudinal.v_switch",
-    "longitudinal.a_max",
+    "longitudinal.v_min", "longitudinal.v_max", "longitudinal.v_switch", "longitudinal.a_max",
     # Pacejka magic formula (dimensionless coefficients; the package's tire_model):
     # longitudinal pure slip, longitudinal combined slip
-    "tire.p_cx1",
-    "tire.p_dx1",
-    "tire.p_dx3",
-    "tire.p_ex1",
-    "tire.p_kx1",
-    "tire.p_hx1",
-    "tire.p_vx1",
-    "tire.r_bx1",
-    "tire.r_bx2",
-    "tire.r_cx1",
-    "tire.r_ex1",
-    "tire.r_hx1",
+    "tire.p_cx1", "tire.p_dx1", "tire.p_dx3", "tire.p_ex1", "tire.p_kx1", "tire.p_hx1",
+    "tire.p_vx1", "tire.r_bx1", "tire.r_bx2", "tire.r_cx1", "tire.r_ex1", "tire.r_hx1",
     # lateral pure slip, lateral combined slip
-    "tire.p_cy1",
-    "tire.p_dy1",
-    "tire.p_dy3",
-    "tire.p_ey1",
-    "tire.p_ky1",
-    "tire.p_hy1",
-    "tire.p_hy3",
-    "tire.p_vy1",
-    "tire.p_vy3",
-    "tire.r_by1",
-    "tire.r_by2",
-    "tire.r_by3",
-    "tire.r_cy1",
-    "tire.r_ey1",
-    "tire.r_hy1",
-    "tire.r_vy1",
-    "tire.r_vy3",
-    "tire.r_vy4",
-    "tire.r_vy5",
-    "tire.r_vy6",
-)
+    "tire.p_cy1", "tire.p_dy1", "tire.p_dy3", "tire.p_ey1", "tire.p_ky1", "tire.p_hy1",
+    "tire.p_hy3", "tire.p_vy1", "tire.p_vy3", "tire.r_by1", "tire.r_by2", "tire.r_by3",
+    "tire.r_cy1", "tire.r_ey1", "tire.r_hy1", "tire.r_vy1", "tire.r_vy3", "tire.r_vy4",
+    "tire.r_vy5", "tire.r_vy6",
+)  # fmt: skip
 """The parameter vector's fields in order: attribute paths in a ``vehiclemodels`` parameter
 set (names and units as in CommonRoad's vehicle model documentation)."""
 (A, B, T_F, T_R, R_W, H_S, H_RAF, H_RAR,
@@ -630,3 +568,107 @@ def mb_derivative(x, steer_rate, accel, pv, out):
     out[27] = dot_delta_y_f
     out[28] = dot_delta_y_r
     return REGULAR
+
+
+STEP_TOO_SMALL = 4
+""":func:`mb_advance`'s code where its error control asked for a step below ``h_min_s`` (not
+a division by zero: a motion too fast to follow, e.g. a diverging one)."""
+
+# Bogacki-Shampine 3(2): the third-order solution's weights and the error weights (third
+# order minus the embedded second order), stages at 0, 1/2, 3/4, 1 (the last is FSAL: the
+# derivative at the accepted state starts the next step).
+_BS_B1, _BS_B2, _BS_B3 = 2.0 / 9.0, 1.0 / 3.0, 4.0 / 9.0
+_BS_E1, _BS_E2, _BS_E3, _BS_E4 = -5.0 / 72.0, 1.0 / 12.0, 1.0 / 9.0, -1.0 / 8.0
+
+
+_SINGULAR_STEP_S = 1e-6
+"""A stage that divides by zero with a step this short [s] or shorter ends the integration."""
+
+
+@jit
+def _stage(y, h, k, c, out):
+    for i in range(y.shape[0]):
+        out[i] = y[i] + c * h * k[i]
+
+
+@jit
+def mb_advance(x, steer_rate, accel, pv, duration_s, h_s, rtol, atol, h_min_s, out):
+    """Advance the multi-body state ``x`` (29,) by ``duration_s`` [s] with the input
+    ``[steer_rate rad/s, accel m/s^2]`` and parameters ``pv`` held, into ``out`` (29,).
+
+    Error-controlled Bogacki-Shampine 3(2) steps (three new derivatives per step): a step is
+    accepted where every component's local error is at most ``atol + rtol * |x_i|`` (the larger
+    of its start and end); the next step is scaled by ``0.9 * (1 / error)^(1/3)`` within
+    [0.2, 5]. ``h_s`` is the first step tried [s] (the previous call's answer: the wheel-spin
+    modes' stiffness sets it, and it changes slowly); a step cut short by the interval's end
+    does not shrink it. Wheel speeds are kept >= 0 after each step, as in the package.
+
+    Returns ``(code, next step [s], derivative evaluations)``: :data:`REGULAR` with the state
+    at ``duration_s`` in ``out``; a code of :data:`SINGULAR` where the state divides by zero,
+    or a stage does with a step of 1 us or less (``out`` holds that stage's state, as
+    ``MbTruth.rhs`` reports it; a longer step that leaves the model is tried shorter); or
+    :data:`STEP_TOO_SMALL` (``out`` holds the last accepted state).
+    """
+    n = x.shape[0]
+    y = x.copy()
+    k1 = np.empty(n)
+    k2 = np.empty(n)
+    k3 = np.empty(n)
+    k4 = np.empty(n)
+    stage = np.empty(n)
+    y_new = np.empty(n)
+    for i in range(n):
+        out[i] = y[i]
+    code = mb_derivative(y, steer_rate, accel, pv, k1)
+    evals = 1
+    if code != REGULAR:
+        return code, h_s, evals
+    t = 0.0
+    h_next = h_s
+    while t < duration_s * (1.0 - 1e-12):
+        last = t + h_next >= duration_s * (1.0 - 1e-12)
+        h = duration_s - t if last else h_next
+        _stage(y, h, k1, 0.5, stage)
+        code = mb_derivative(stage, steer_rate, accel, pv, k2)
+        if code == REGULAR:
+            _stage(y, h, k2, 0.75, stage)
+            code = mb_derivative(stage, steer_rate, accel, pv, k3)
+        if code == REGULAR:
+            for i in range(n):
+                y_new[i] = y[i] + h * (_BS_B1 * k1[i] + _BS_B2 * k2[i] + _BS_B3 * k3[i])
+            for i in range(23, 27):
+                if y_new[i] < 0.0:
+                    y_new[i] = 0.0
+            for i in range(n):
+                stage[i] = y_new[i]
+            code = mb_derivative(y_new, steer_rate, accel, pv, k4)
+        evals += 3
+        if code != REGULAR:
+            # A stage left the model. A trial step too long for the motion can do that where
+            # shorter steps would not: shorter steps first, the code once they are short.
+            if h <= _SINGULAR_STEP_S:
+                for i in range(n):
+                    out[i] = stage[i]
+                return code, h, evals
+            h_next = h * 0.2
+            continue
+        error = 0.0
+        for i in range(n):
+            e = h * (_BS_E1 * k1[i] + _BS_E2 * k2[i] + _BS_E3 * k3[i] + _BS_E4 * k4[i])
+            r = abs(e) / (atol + rtol * max(abs(y[i]), abs(y_new[i])))
+            if not r <= error:  # a NaN counts as too large
+                error = r
+        scale = 5.0 if error == 0.0 else 0.9 * error ** (-1.0 / 3.0)
+        scale = min(5.0, max(0.2, scale)) if scale == scale else 0.2
+        if error <= 1.0:
+            t = duration_s if last else t + h
+            for i in range(n):
+                y[i] = y_new[i]
+                k1[i] = k4[i]
+                out[i] = y[i]
+            h_next = max(h_next, h * scale) if last else h * scale
+        else:
+            h_next = h * scale
+            if h_next < h_min_s:
+                return STEP_TOO_SMALL, h_next, evals
+    return REGULAR, h_next, evals

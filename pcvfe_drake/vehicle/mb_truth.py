@@ -69,7 +69,14 @@ from scipy.integrate import solve_ivp
 from vehiclemodels.init_mb import init_mb
 
 from pcvfe_drake.vehicle import mb_kernel
-from pcvfe_drake.vehicle.mb_kernel import SINGULAR, mb_derivative, mb_parameter_vector
+from pcvfe_drake.vehicle.mb_kernel import (
+    REGULAR,
+    SINGULAR,
+    STEP_TOO_SMALL,
+    mb_advance,
+    mb_derivative,
+    mb_parameter_vector,
+)
 
 NX_MB = 29
 """Number of MB states."""
@@ -83,6 +90,17 @@ interval in fixed RK4 substeps is chattering (see :meth:`MbTruth.integrate`)."""
 RK4_MIN_SPEED_MPS = 2.0
 """Fixed RK4 substeps of 1 ms are stable above about this ``|v_x|`` (the wheel-spin modes,
 module docstring); below it a chattering interval stays with LSODA."""
+
+
+RK23_RTOL = 1e-5
+"""Relative local error per step of the compiled error-controlled integrator (``"rk23"``)."""
+RK23_ATOL = 1e-5
+"""Absolute local error per step of ``"rk23"`` (m, rad, m/s, rad/s: the MB state's units)."""
+RK23_MIN_STEP_S = 1e-8
+"""Least step of ``"rk23"`` [s]: error control asking for less means a motion the model
+cannot follow (raised as :class:`MbSingularity`)."""
+INTEGRATION_METHODS = ("rk23", "rk4", "lsoda")
+"""Methods of :meth:`MbTruth.integrate` (and of the plant's discrete MB update)."""
 
 
 class _Chatter(Exception):
@@ -299,6 +317,39 @@ class MbTruth:
             raise MbSingularity(detail, x)
         return out
 
+    def advance(self, x, u, p, duration_s: float, step_s: float) -> tuple[np.ndarray, float]:
+        """Unchecked fast path of ``method="rk23"``: the MB state after ``duration_s`` [s] from
+        ``x`` (float64 array, not changed) with ``u = [steer_rate, accel]`` and the parameter
+        vector ``p`` held, and the step [s] to try first next time (start with ``duration_s``).
+
+        Compiled error-controlled Bogacki-Shampine 3(2) steps (``mb_kernel.mb_advance``;
+        local errors within :data:`RK23_ATOL` + :data:`RK23_RTOL` |x|): the stiff wheel-spin
+        modes set the step (a few ms at speed, less near rest), and a whole period costs one
+        call. Raises :class:`MbSingularity` where the model ends."""
+        out = np.empty(NX_MB)
+        code, step, _ = mb_advance(
+            x,
+            float(u[0]),
+            float(u[1]),
+            p,
+            float(duration_s),
+            float(step_s),
+            RK23_RTOL,
+            RK23_ATOL,
+            RK23_MIN_STEP_S,
+            out,
+        )
+        if code == STEP_TOO_SMALL:
+            raise MbSingularity(
+                f"the integrator's error control asked for a step below {RK23_MIN_STEP_S:g} s "
+                f"(a motion too fast to follow) at v_x = {out[VX]:.3f} m/s",
+                out,
+            )
+        if code != REGULAR:
+            detail = singularity_detail(out, p) or f"the model divides by zero: {SINGULAR[code]}"
+            raise MbSingularity(detail, out)
+        return out, step
+
     def integrate(
         self,
         x,
@@ -314,7 +365,8 @@ class MbTruth:
 
         ``method="lsoda"`` (default) uses scipy's LSODA with tolerances ``rtol``/``atol``;
         ``method="rk4"`` takes fixed RK4 substeps of at most ``rk4_step_s`` (stable for
-        v >~ 2 m/s at 1 ms). Wheel speeds are kept >= 0 as in the package.
+        v >~ 2 m/s at 1 ms); ``method="rk23"`` the compiled error-controlled steps of
+        :meth:`advance` (its own tolerances). Wheel speeds are kept >= 0 as in the package.
 
         An LSODA interval that needs more than :data:`LSODA_CHATTER_FACTOR` times the
         right-hand-side evaluations of RK4 substeps is taken again in RK4 substeps, where
@@ -354,8 +406,10 @@ class MbTruth:
                 xn = sol.y[:, -1]
         elif method == "rk4":
             xn = self._rk4(x, ul, p, duration_s / n_rk4, n_rk4)
+        elif method == "rk23":
+            xn, _ = self.advance(np.array(x, dtype=np.float64), ul, p, duration_s, duration_s)
         else:
-            raise ValueError(f"method={method!r}; choose 'lsoda' or 'rk4'")
+            raise ValueError(f"method={method!r}; choose one of {INTEGRATION_METHODS}")
         np.maximum(xn[WHEEL_SPEEDS], 0.0, out=xn[WHEEL_SPEEDS])
         if not np.all(np.isfinite(xn)):
             raise RuntimeError(

@@ -320,3 +320,28 @@ def test_the_bridge_warms_up_its_first_step_without_publishing():
     simulator.AdvanceTo(0.015)  # the run itself publishes, from its own context
     lcm.HandleSubscriptions(0)
     assert len(heard) == 2
+
+
+def test_the_bridge_warms_up_a_discrete_multi_body_plant():
+    """The multi-body truth's default state is discrete: ``warm_up`` computes its first update
+    (where the compiled integrator is loaded), on the throwaway context."""
+    from pydrake.systems.primitives import ConstantVectorSource
+
+    from pcvfe_drake.diagrams.run_vehicle_bridge import warm_up
+    from pcvfe_drake.systems.vehicle_plant import VehiclePlant
+
+    builder = DiagramBuilder()
+    plant = builder.AddSystem(VehiclePlant(truth="mb", x0=[0.0, 0.0, 0.0, 5.0, 0.0, 0.0, 0.0]))
+    source = builder.AddSystem(ConstantVectorSource(np.array([0.0, 1.0])))
+    builder.Connect(source.get_output_port(), plant.get_actuation_input_port())
+    diagram = builder.Build()
+    advanced = []
+    advance = plant.mb.advance
+    plant.mb.advance = lambda *args: advanced.append(args[3]) or advance(*args)
+    simulator = Simulator(diagram)
+    context = plant.GetMyContextFromRoot(simulator.get_context())
+    before = context.get_discrete_state(0).CopyToVector()
+    assert diagram.EvalTimeDerivatives(simulator.get_context()).size() == 0
+    warm_up(diagram)
+    assert advanced == [plant.mb_period_s]
+    np.testing.assert_array_equal(context.get_discrete_state(0).CopyToVector(), before)

@@ -14,6 +14,7 @@ from pcvfe_drake.vehicle.mb_kernel import (
     MB_PARAMETER_FIELDS,
     REGULAR,
     SINGULAR,
+    WHEEL_AT_REST_OVER_GROUND,
     ZERO_TIRE_LOAD,
     mb_derivative,
     mb_parameter_vector,
@@ -225,6 +226,36 @@ def test_rk4_integration_is_the_package_s_rk4():
         xn = xn + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
         np.maximum(xn[23:27], 0.0, out=xn[23:27])
     np.testing.assert_array_equal(got, xn)
+
+
+def test_the_compiled_error_controlled_steps_meet_the_fine_reference_and_report_failures():
+    """``mb_advance`` (``method="rk23"``): 0.5 s of a braking bend within its tolerance of
+    0.1 ms RK4 substeps, in one call; a stage where the package divides by zero and a step
+    below the least both come back as codes, and ``MbTruth.advance`` raises them."""
+    truth = MbTruth("bmw_320i", "peak_and_stiffness")
+    pv = truth.parameter_vector_for_mu(0.5)
+    x0 = truth.initial_state([0.0, 0.0, 0.08, 9.0, 0.0, 0.4, 0.02])
+    u = [-0.1, -3.0]
+    fine = truth.integrate(x0, u, 0.5, 0.5, method="rk4", rk4_step_s=1e-4)
+    out = np.empty(NX_MB)
+    code, step, evals = mb_kernel.mb_advance(x0, -0.1, -3.0, pv, 0.5, 0.5, 1e-5, 1e-5, 1e-8, out)
+    assert code == REGULAR and 0 < step < 0.5 and evals % 3 == 1
+    np.testing.assert_allclose(out, fine, atol=2e-4)
+    assert np.hypot(*(out[:2] - fine[:2])) < 1e-4
+    x_before = x0.copy()
+    np.testing.assert_array_equal(truth.integrate(x0, u, 0.5, 0.5, method="rk23"), out)
+    np.testing.assert_array_equal(x0, x_before)  # not changed
+    # a step below the least: error control cannot meet 1e-12 with steps of 0.1 s or more
+    code, _, _ = mb_kernel.mb_advance(x0, -0.1, -3.0, pv, 0.5, 0.5, 1e-12, 1e-12, 0.1, out)
+    assert code == mb_kernel.STEP_TOO_SMALL
+    # reversing: the first derivative divides by zero
+    reversing = truth.initial_state([0.0, 0.0, 0.0, -0.5, 0.0, 0.0, 0.0])
+    code, _, evals = mb_kernel.mb_advance(
+        reversing, 0.0, 0.0, pv, 0.01, 0.01, 1e-5, 1e-5, 1e-8, out
+    )
+    assert code == WHEEL_AT_REST_OVER_GROUND and evals == 1
+    with pytest.raises(MbSingularity, match="reversing"):
+        truth.advance(reversing, [0.0, 0.0], pv, 0.01, 0.01)
 
 
 def test_the_parameter_vector_names_each_field_and_refuses_bad_ones():
