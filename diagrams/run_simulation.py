@@ -56,6 +56,7 @@ from pcvfe_drake.diagrams.debug_layers import LAYERS
 from pcvfe_drake.diagrams.meshcat_controls import MeshcatControls
 from pcvfe_drake.diagrams.release import release_diagram
 from pcvfe_drake.diagrams.simulation import MakeSimulation, course_xy
+from pcvfe_drake.diagrams.warm_up import warm_up
 from pcvfe_drake.hardware import scheduling
 from pcvfe_drake.runs.run_folder import (
     RunFolder,
@@ -442,6 +443,9 @@ def run_simulation(
     loop_priority.enter_context(
         scheduling.control_priority(control_priority, "hardware.control_priority")
     )
+    # The first step's one-off costs (the compiled multi-body model's loading or compiling, the
+    # first messages) before the loop, not in its clock or its CPU time (diagrams/warm_up.py).
+    warm_up(diagram)
     # What exists now (the diagram, its models, the imported modules: some hundred thousand
     # objects) lives through the loop: frozen, the cyclic collector's full passes during the
     # loop skip it instead of walking all of it again. Unfrozen when the loop ends.

@@ -40,17 +40,16 @@ import pandas as pd
 from pydrake.lcm import DrakeLcmParams
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.lcm import LcmBuses, LcmPublisherSystem
+from pydrake.systems.lcm import LcmBuses
 from pydrake.systems.primitives import LogVectorOutput
 
 from pcvfe_drake.diagrams.lcm_buses import shared_drake_lcm
-from pcvfe_drake.diagrams.release import all_systems
 from pcvfe_drake.diagrams.vehicle_bridge import MakeVehicleBridge
+from pcvfe_drake.diagrams.warm_up import warm_up
 from pcvfe_drake.diagrams.world_io import scenario_world
 from pcvfe_drake.hardware.latency import LatencyRecorder
 from pcvfe_drake.lcmtypes import lcmt_vehicle_actuation, lcmt_vehicle_state
 from pcvfe_drake.runs.scenario import Scenario
-from pcvfe_drake.systems.vehicle_plant import VehiclePlant
 from pcvfe_drake.vehicle.mb_truth import MbSingularity
 from pcvfe_drake.vehicle.single_track import STATE_NAMES
 
@@ -183,26 +182,6 @@ def run_vehicle_bridge(
         truth.to_csv(out_dir / "truth.csv", index=False)
         (out_dir / "bridge.json").write_text(json.dumps(result.to_dict(), indent=2))
     return result
-
-
-def warm_up(diagram) -> float:
-    """Evaluate, on a throwaway context of ``diagram``, its time derivatives, each
-    ``VehiclePlant``'s discrete update (the multi-body truth's default state) and every
-    ``LcmPublisherSystem``'s input (the messages the first step sends), so that one-off costs of
-    a process's first evaluation (module and compiled-code loading, the renderer's first frame)
-    are paid before the car's clock starts. Publishes nothing. Returns the wall time it took
-    [s]."""
-    t0 = time.perf_counter()
-    context = diagram.CreateDefaultContext()
-    if context.num_continuous_states():
-        diagram.EvalTimeDerivatives(context)
-    for system in all_systems(diagram):
-        if isinstance(system, VehiclePlant) and system.mb_integration == "discrete":
-            system.EvalUniquePeriodicDiscreteUpdate(system.GetMyContextFromRoot(context))
-        if isinstance(system, LcmPublisherSystem):
-            # EvalAbstract: the C++ image message has no Python value type.
-            system.get_input_port().EvalAbstract(system.GetMyContextFromRoot(context))
-    return time.perf_counter() - t0
 
 
 def hold_until_first_command(

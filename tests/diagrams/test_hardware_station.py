@@ -278,7 +278,7 @@ def test_the_bridge_warms_up_its_first_step_without_publishing():
     from pydrake.systems.framework import BasicVector, LeafSystem
     from pydrake.systems.lcm import LcmPublisherSystem
 
-    from pcvfe_drake.diagrams.run_vehicle_bridge import warm_up
+    from pcvfe_drake.diagrams.warm_up import warm_up
     from pcvfe_drake.systems.vehicle_state_sender import VehicleStateSender
 
     calls = {"derivatives": 0, "state": 0}
@@ -327,7 +327,7 @@ def test_the_bridge_warms_up_a_discrete_multi_body_plant():
     (where the compiled integrator is loaded), on the throwaway context."""
     from pydrake.systems.primitives import ConstantVectorSource
 
-    from pcvfe_drake.diagrams.run_vehicle_bridge import warm_up
+    from pcvfe_drake.diagrams.warm_up import warm_up
     from pcvfe_drake.systems.vehicle_plant import VehiclePlant
 
     builder = DiagramBuilder()

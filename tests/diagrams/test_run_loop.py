@@ -298,3 +298,27 @@ def test_the_first_monitor_that_ends_the_run_wins():
     assert both(None).severity() == ends and calls == ["quiet", "ends"]
     calm = run_module._first_termination([quiet, quiet])
     assert calm(None).severity() == EventStatus.Severity.kSucceeded
+
+
+def test_the_first_step_s_one_off_costs_are_paid_before_the_loop(tmp_path, monkeypatch):
+    """``run_simulation`` warms the diagram up (``diagrams/warm_up.py``) once, before the
+    simulator is initialized: the loop's CPU time counts its steady cost, not the compiled
+    model's loading."""
+    from pydrake.systems.analysis import Simulator
+
+    calls = []
+    real_warm_up = run_module.warm_up
+    real_initialize = Simulator.Initialize
+
+    def warm_up(diagram):
+        calls.append("warm_up")
+        return real_warm_up(diagram)
+
+    def initialize(self, *args):
+        calls.append("initialize")
+        return real_initialize(self, *args)
+
+    monkeypatch.setattr(run_module, "warm_up", warm_up)
+    monkeypatch.setattr(Simulator, "Initialize", initialize)
+    run_simulation(short(duration_s=0.2), RunFolder(tmp_path / "run"), progress=False)
+    assert calls == ["warm_up", "initialize"]
