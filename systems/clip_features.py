@@ -85,9 +85,8 @@ class ClipFeatures(LeafSystem):
 
     def _calc_features(self, context: Context, output: BasicVector) -> None:
         image = self._image_port.Eval(context)
-        rgb = np.asarray(image.data)[:, :, :3]
-        try:
-            z = self._extractor.extract_one(rgb)
+        try:  # RGBA: the extractor takes its RGB in one contiguous copy
+            z = self._extractor.extract_one(np.asarray(image.data))
         except BlankImageError:
             z = np.full(self._extractor.dim, np.nan)
         except ValueError as exc:

@@ -11,8 +11,10 @@ from pcvfe_drake.perception.features import (
     CAPTIONS,
     CLIP_MEAN,
     CLIP_STD,
+    BlankImageError,
     ClipFeatureExtractor,
     DescriptorExtractor,
+    as_image_batch,
     make_extractor,
     prompts,
 )
@@ -273,3 +275,25 @@ def test_cli_export_clip_explains_missing_torch(tmp_path, capsys):
         pytest.skip("torch and open_clip are installed here")
     assert main(["export-clip", "--out", str(tmp_path / "clip")]) == 2
     assert "needs torch and open_clip" in capsys.readouterr().err
+
+
+def test_an_rgba_frame_and_its_rgb_view_give_the_same_features_from_one_contiguous_copy():
+    """The camera's frames are RGBA: the batch holds their RGB as one C-contiguous copy (every
+    later step reads it; a strided view cost each of them a copy of its own), with the same
+    numbers as the RGB view, and an RGB image that is already contiguous is not copied."""
+    rng = np.random.default_rng(3)
+    rgba = rng.integers(0, 256, (64, 48, 4), dtype=np.uint8)
+    view = rgba[:, :, :3]
+    (from_rgba,) = as_image_batch([rgba])
+    (from_view,) = as_image_batch([view])
+    for rgb in (from_rgba, from_view):
+        assert rgb.flags.c_contiguous and rgb.shape == (64, 48, 3)
+        np.testing.assert_array_equal(rgb, view)
+    own = np.ascontiguousarray(view)
+    assert np.shares_memory(as_image_batch([own])[0], own)
+    extractor = DescriptorExtractor()
+    np.testing.assert_array_equal(extractor.extract_one(rgba), extractor.extract_one(view))
+    opaque_black = np.zeros((32, 32, 4), np.uint8)
+    opaque_black[..., 3] = 255  # alpha set, no colour: still blank
+    with pytest.raises(BlankImageError):
+        as_image_batch([opaque_black])
