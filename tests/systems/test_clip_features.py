@@ -112,3 +112,12 @@ def test_camera_to_features_in_a_diagram():
     z = features.GetOutputPort("features").Eval(ctx)
     expected = DescriptorExtractor().extract_one(camera.camera.render(-30.0, -20.0, 2.0))
     np.testing.assert_allclose(z, expected, atol=1e-12)
+
+
+def test_a_frame_becomes_an_opaque_drake_image_with_its_colours():
+    rgb = np.random.default_rng(5).integers(0, 256, (24, 40, 3), dtype=np.uint8)
+    for frame in (rgb, rgb[:, ::-1]):  # contiguous or a strided view
+        image = to_drake_image(frame)
+        assert (image.width(), image.height()) == (40, 24)
+        np.testing.assert_array_equal(image.data[:, :, :3], frame)
+        assert np.all(image.data[:, :, 3] == 255)
