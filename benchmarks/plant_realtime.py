@@ -125,7 +125,8 @@ def main() -> None:
 
     def share(key: str, call_s: float) -> float:
         r = results[key]
-        return round(r["derivative_evaluations"] * call_s / r["wall_s"], 2)  # Drake's only
+        # the evaluations Drake's integrator made: none for a discrete state
+        return round(r["derivative_evaluations"] * call_s / r["wall_s"], 2)
 
     out = {
         "benchmark": "plant_realtime",

@@ -24,8 +24,7 @@ def warm_up(diagram) -> float:
     the caller holds and publishes nothing. Returns the wall time it took [s]."""
     t0 = time.perf_counter()
     context = diagram.CreateDefaultContext()
-    if context.num_continuous_states():
-        diagram.EvalTimeDerivatives(context)
+    diagram.EvalTimeDerivatives(context)  # nothing where no state is continuous
     for system in all_systems(diagram):
         if isinstance(system, VehiclePlant) and system.mb_integration == "discrete":
             system.EvalUniquePeriodicDiscreteUpdate(system.GetMyContextFromRoot(context))

@@ -628,6 +628,7 @@ def mb_advance(x, steer_rate, accel, pv, duration_s, h_s, rtol, atol, h_min_s, o
     while t < duration_s * (1.0 - 1e-12):
         last = t + h_next >= duration_s * (1.0 - 1e-12)
         h = duration_s - t if last else h_next
+        evaluated = stage  # the state of the last derivative evaluated (reported on a code)
         _stage(y, h, k1, 0.5, stage)
         code = mb_derivative(stage, steer_rate, accel, pv, k2)
         if code == REGULAR:
@@ -639,8 +640,7 @@ def mb_advance(x, steer_rate, accel, pv, duration_s, h_s, rtol, atol, h_min_s, o
             for i in range(23, 27):
                 if y_new[i] < 0.0:
                     y_new[i] = 0.0
-            for i in range(n):
-                stage[i] = y_new[i]
+            evaluated = y_new
             code = mb_derivative(y_new, steer_rate, accel, pv, k4)
         evals += 3
         if code != REGULAR:
@@ -648,7 +648,7 @@ def mb_advance(x, steer_rate, accel, pv, duration_s, h_s, rtol, atol, h_min_s, o
             # shorter steps would not: shorter steps first, the code once they are short.
             if h <= _SINGULAR_STEP_S:
                 for i in range(n):
-                    out[i] = stage[i]
+                    out[i] = evaluated[i]
                 return code, h, evals
             h_next = h * 0.2
             continue
