@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
-from pcvfe_drake.shallow_copy import copied_generator, shallow_copy
+from pcvfe_drake.shallow_copy import CopiedOnDraw, shallow_copy
 
 
 @dataclass
@@ -39,10 +39,17 @@ def test_a_shallow_copy_takes_new_values_without_changing_the_original():
 @pytest.mark.parametrize(
     "bits", [np.random.PCG64, np.random.PCG64DXSM, np.random.MT19937, np.random.Philox]
 )
-def test_a_copied_generator_draws_what_a_deep_copy_draws_and_is_independent(bits):
+def test_a_copy_on_draw_draws_what_a_deep_copy_draws_and_is_independent(bits):
     rng = np.random.Generator(bits(7))
     rng.random(3)
-    mine, theirs = copied_generator(rng), copy.deepcopy(rng)
-    drawn = mine.random(5)
+    kept = CopiedOnDraw(rng)
+    mine, theirs = copy.deepcopy(kept), copy.deepcopy(rng)
+    of_copy = copy.deepcopy(mine)  # a copy of a copy that has not drawn yet
+    rng.random(2)  # the original draws after the copies were taken: they do not see it
+    drawn = mine.generator().random(5)
     assert np.array_equal(drawn, theirs.random(5))
-    assert np.array_equal(rng.random(5), drawn)  # the copy's draws left the original as it was
+    assert np.array_equal(of_copy.generator().random(5), drawn)
+    assert mine.generator() is mine.generator()  # built once
+    assert kept.generator() is rng
+    after = copy.deepcopy(mine)  # a copy of one that drew continues from where it stopped
+    assert np.array_equal(after.generator().random(2), mine.generator().random(2))

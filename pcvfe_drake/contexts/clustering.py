@@ -59,7 +59,7 @@ from pcvfe_drake.contexts.density_gate import (
     full_hdbscan_labels,
     hdbscan_labels,
 )
-from pcvfe_drake.shallow_copy import copied_generator, shallow_copy
+from pcvfe_drake.shallow_copy import CopiedOnDraw, shallow_copy
 
 __all__ = [
     "MAX_ABS_FEATURE",
@@ -95,7 +95,7 @@ class ContextClusterer:
 
     def __init__(self, params: ClusteringParams | None = None) -> None:
         self.params = params if params is not None else ClusteringParams()
-        self._rng = np.random.default_rng(self.params.seed)
+        self._rng = CopiedOnDraw(np.random.default_rng(self.params.seed))
         self._dim: int | None = None
         cap = self.params.max_stored
         self._x = np.zeros((0, 0))
@@ -140,7 +140,7 @@ class ContextClusterer:
             setattr(other, name, getattr(self, name).copy())
         other._count = dict(self._count)
         other._records = {k: shallow_copy(r) for k, r in self._records.items()}
-        other._rng = copied_generator(self._rng)
+        other._rng = copy.deepcopy(self._rng)
         return other
 
     # ----------------------------------------------------------------------------------------
@@ -382,8 +382,9 @@ class ContextClusterer:
         if slots.size < self._reservoir_capacity():
             self._put(self._free_slot(), z, t_s, context_id, 1.0, v)
             return
-        if self._rng.random() * self._count[context_id] < slots.size:
-            self._put(int(slots[self._rng.integers(slots.size)]), z, t_s, context_id, 1.0, v)
+        rng = self._rng.generator()
+        if rng.random() * self._count[context_id] < slots.size:
+            self._put(int(slots[rng.integers(slots.size)]), z, t_s, context_id, 1.0, v)
 
     def _store_noise(self, z: np.ndarray, t_s: float, v: float) -> None:
         """First-in-first-out window of the newest unclustered frames."""
@@ -598,7 +599,7 @@ class ContextClusterer:
                 continue
             if members.size > cap:
                 prob = w[members] / w[members].sum()
-                chosen = self._rng.choice(members.size, size=cap, replace=False, p=prob)
+                chosen = self._rng.generator().choice(members.size, size=cap, replace=False, p=prob)
                 drop = np.ones(members.size, dtype=bool)
                 drop[chosen] = False
                 keep[members[drop]] = False

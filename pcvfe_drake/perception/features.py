@@ -157,6 +157,21 @@ def _check_lambda(lambda_c: float) -> float:
 
 
 # --------------------------------------------------------------------------------- descriptor
+def percentiles_10_90(values: np.ndarray) -> np.ndarray:
+    """``np.percentile(values, (10, 90))`` to the last bit, from one sort: numpy's percentile
+    partitions at four places, which costs several times a sort of an image's 10^4 values.
+    The same order statistics, blended as numpy's linear method blends them (from the lower
+    one below a weight of 0.5, from the upper one from 0.5 on)."""
+    ordered = np.sort(values, axis=None)
+    at = np.array([0.1, 0.9]) * (ordered.size - 1)
+    lo = np.floor(at).astype(np.intp)
+    hi = np.minimum(lo + 1, ordered.size - 1)
+    a, b = ordered[lo], ordered[hi]
+    weight = at - lo
+    step = b - a
+    return np.where(weight >= 0.5, b - step * (1 - weight), a + step * weight)
+
+
 class DescriptorExtractor(FeatureExtractor):
     """Non-learned texture descriptor (20 numbers) in place of CLIP's z_s.
 
@@ -200,7 +215,7 @@ class DescriptorExtractor(FeatureExtractor):
         L = np.ascontiguousarray(lab[..., 0])
         ab = np.ascontiguousarray(lab[..., 1:])
         a, b = ab[..., 0], ab[..., 1]
-        p10, p90 = np.percentile(L, (10, 90))
+        p10, p90 = percentiles_10_90(L)
         chroma = np.sqrt(a * a + b * b)
         colour = [
             L.mean() / 100, a.mean() / 20, b.mean() / 20, L.std() / 25, a.std() / 10,

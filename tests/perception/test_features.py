@@ -16,6 +16,7 @@ from pcvfe_drake.perception.features import (
     DescriptorExtractor,
     as_image_batch,
     make_extractor,
+    percentiles_10_90,
     prompts,
 )
 from pcvfe_drake.perception.terrain import Terrain, TerrainMap
@@ -297,3 +298,17 @@ def test_an_rgba_frame_and_its_rgb_view_give_the_same_features_from_one_contiguo
     opaque_black[..., 3] = 255  # alpha set, no colour: still blank
     with pytest.raises(BlankImageError):
         as_image_batch([opaque_black])
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_percentiles_10_90_are_numpys_to_the_last_bit(dtype):
+    rng = np.random.default_rng(5)
+    for shape in [(1, 1), (1, 2), (3, 7), (56, 56), (112, 112), (17, 113)]:
+        for scale, decimals in ((100.0, None), (1e-3, None), (100.0, 0)):
+            values = (rng.random(shape) * scale).astype(dtype)
+            if decimals is not None:  # ties
+                values = np.round(values, decimals).astype(dtype)
+            expected = np.percentile(values, (10, 90))
+            got = percentiles_10_90(values)
+            assert got.dtype == expected.dtype
+            assert np.array_equal(got.view(np.int64), expected.view(np.int64))
