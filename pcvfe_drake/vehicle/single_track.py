@@ -403,7 +403,12 @@ def st_jacobians(x, u, params: VehicleParams, theta=None):
     """
     x2, u2, th, single = _as_batch(x, u, theta, params)
     _check_finite(x2, u2, th)
-    f, A, B, P = _in_blocks(x2, u2, th, params, with_jacobians=True)
+    from pcvfe_drake.vehicle import single_track_kernel as kernel  # it imports this module
+
+    if kernel.dynamic_rows is not None and x2.shape[0] and x2[:, V].min() >= V_BLEND_HI:
+        f, A, B, P = kernel.jacobians(x2, u2, th, params)
+    else:
+        f, A, B, P = _in_blocks(x2, u2, th, params, with_jacobians=True)
     if single:
         return f[0], A[0], B[0], P[0]
     return f, A, B, P

@@ -272,3 +272,63 @@ def test_single_state_path_equals_batch():
     single = np.array([st.st_dynamics(x[i], u[i], params) for i in range(len(x))])
     np.testing.assert_allclose(single, batch, rtol=1e-12, atol=1e-12)
     assert batch.shape == (300, 7)
+
+
+@pytest.mark.parametrize("vehicle", ["ford_escort", "bmw_320i", "vw_vanagon"])
+def test_compiled_jacobians_are_the_numpy_codes_to_the_last_bit(vehicle):
+    from pcvfe_drake.vehicle import single_track_kernel
+    from pcvfe_drake.vehicle.params import load_vehicle
+
+    if single_track_kernel.dynamic_rows is None:
+        pytest.skip("numba is not installed: st_jacobians runs the numpy code only")
+    p = load_vehicle(vehicle)
+    rng = np.random.default_rng(11)
+    for trial in range(60):
+        n = int(rng.integers(1, 80))
+        x = np.zeros((n, st.NX))
+        x[:, :2] = 50 * rng.standard_normal((n, 2))
+        x[:, st.DELTA] = rng.uniform(1.1 * p.delta_min, 1.1 * p.delta_max, n)
+        x[:, st.V] = st.V_BLEND_HI + 25 * rng.random(n)
+        x[:, st.PSI] = 3 * rng.standard_normal(n)
+        x[:, st.PSI_DOT] = 0.5 * rng.standard_normal(n)
+        x[:, st.BETA] = 0.1 * rng.standard_normal(n)
+        x[0, st.V] = st.V_BLEND_HI  # the range's edge: the blend weight's own rounding
+        x[-1, st.DELTA], x[-1, st.V] = p.delta_max, max(p.v_max, st.V_BLEND_HI)  # the stops
+        u = 1.2 * rng.standard_normal((n, st.NU)) * [p.delta_dot_max, p.a_max]
+        theta = (
+            p.theta * (0.5 + rng.random(3))
+            if trial % 2
+            else np.column_stack(
+                [
+                    rng.uniform(0.1, 1.2, n),
+                    p.C_Sf * (0.5 + rng.random(n)),
+                    p.C_Sr * (0.5 + rng.random(n)),
+                ]
+            )
+        )
+        compiled = st.st_jacobians(x, u, p, theta)
+        reference = st._in_blocks(*st._as_batch(x, u, theta, p)[:3], p, True)
+        for got, expected in zip(compiled, reference, strict=True):
+            assert got.shape == expected.shape
+            assert np.array_equal(got.view(np.int64), expected.view(np.int64))
+
+
+def test_compiled_jacobians_match_finite_differences():
+    params = ford_escort()
+    rng = np.random.default_rng(8)
+    x, u = random_states(rng, 2000, v_low=st.V_BLEND_HI + 0.1, v_high=30.0)
+    keep = _away_from_kinks(x, u, params)
+    x, u = x[keep], u[keep]
+    f, A, B, _ = st.st_jacobians(x, u, params)
+    np.testing.assert_allclose(f, st.st_dynamics(x, u, params))
+    eps = 1e-6
+    for j in range(st.NX):
+        d = np.zeros(st.NX)
+        d[j] = eps
+        fd = (st.st_dynamics(x + d, u, params) - st.st_dynamics(x - d, u, params)) / (2 * eps)
+        np.testing.assert_allclose(A[:, :, j], fd, rtol=1e-5, atol=1e-5, err_msg=f"A col {j}")
+    for j in range(st.NU):
+        d = np.zeros(st.NU)
+        d[j] = eps
+        fd = (st.st_dynamics(x, u + d, params) - st.st_dynamics(x, u - d, params)) / (2 * eps)
+        np.testing.assert_allclose(B[:, :, j], fd, rtol=1e-5, atol=1e-5, err_msg=f"B col {j}")
