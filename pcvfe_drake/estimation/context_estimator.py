@@ -54,7 +54,12 @@ from pcvfe_drake.estimation.fitting import fit_gauss_newton
 from pcvfe_drake.estimation.incremental_fit import WindowInformation
 from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 from pcvfe_drake.estimation.probe import DEFAULT_PROBE_USE_FRACTION, wheel_peak_share
-from pcvfe_drake.estimation.sample_store import NOISE, SampleStore, labels_from_frames
+from pcvfe_drake.estimation.sample_store import (
+    NOISE,
+    SampleStore,
+    labels_from_frames,
+    visit_members,
+)
 from pcvfe_drake.handing.handing import Handing
 from pcvfe_drake.models.data import NoiseScaleCache
 from pcvfe_drake.shallow_copy import shallow_copy
@@ -430,9 +435,11 @@ class ContextEstimator:
         slot = self._slots[ident]
         slot.changes_at_fit = slot.changes
         old = slot.estimate
-        mine = self._store.labels() == ident
-        if data_until_s is not None:
-            mine &= self._store.times() <= data_until_s + 1e-9
+        labels, times = self._store.labels(), self._store.times()
+        if data_until_s is not None:  # the data up to then (the store is in time order)
+            n = int(np.searchsorted(times, data_until_s + 1e-9, side="right"))
+            labels, times = labels[:n], times[:n]
+        mine = visit_members(labels, times, ident, cfg.handing.noise_hold_s)
         rows = np.flatnonzero(mine)[-self._capacity :]
         t, states, inputs = self._store.rows(rows)
         if self._effect_fitter is not None:

@@ -216,3 +216,45 @@ def labels_from_frames(
         if best >= 0 and best != old and 2 * counts.max() > counts.sum():
             new[of_old & ~covered] = best
     return new
+
+
+def visit_members(
+    labels: np.ndarray, times: np.ndarray, ident: int, noise_hold_s: float
+) -> np.ndarray:
+    """(N,) mask of the samples that belong to context ``ident``'s visits: its own samples and
+    the noise samples of each spell that left it and came back to it within ``noise_hold_s``
+    [s] (from the spell's first sample to the context's next; the handing's visit rule,
+    ``handing.visit_tracker``: such a spell is no switch, so its samples are the visit's).
+
+    Why: the online clustering calls a frame noise where it is not sure, also in the middle of
+    a terrain it knows, and a window of the fit never spans a sample of another label; noise
+    frames every half second leave a context no window of its horizon until a re-clustering
+    gives them its label (up to ten seconds later). A spell that does not return to the same
+    context within the hold (a new terrain, a transition) stays noise.
+
+    ``labels``, ``times``: the store's labels and times in time order.
+    """
+    labels = np.asarray(labels)
+    mine = labels == ident
+    noise = labels == NOISE
+    if not (noise.any() and mine.any() and noise_hold_s > 0):
+        return mine
+    edges = np.diff(noise.astype(np.int8))
+    first = np.flatnonzero(edges == 1) + 1  # a spell's first sample (not the store's first)
+    last = np.flatnonzero(edges == -1)  # a spell's last sample (not the store's last)
+    if noise[0]:
+        last = last[1:]
+    if noise[-1]:
+        first = first[:-1]
+    times = np.asarray(times, dtype=float)
+    held = (
+        (labels[first - 1] == ident)
+        & (labels[last + 1] == ident)
+        & (times[last + 1] - times[first] <= noise_hold_s + TIME_TOL_S)
+    )
+    if held.any():
+        marks = np.zeros(labels.size + 1, dtype=np.int64)
+        np.add.at(marks, first[held], 1)
+        np.add.at(marks, last[held] + 1, -1)
+        mine |= np.cumsum(marks[:-1]) > 0
+    return mine

@@ -34,6 +34,7 @@ from pcvfe_drake.estimation.probe import (
     probe_update,
     unknown_probe_update,
 )
+from pcvfe_drake.estimation.sample_store import visit_members
 from pcvfe_drake.handing.config import HandingConfig, Probe
 from pcvfe_drake.handing.context_state import (
     ContextHanding,
@@ -255,7 +256,7 @@ class Handing:
             state.handed_fit_end_s = math.nan
             return
         labels, times = store.labels(), store.times()
-        mine = labels == ident
+        mine = visit_members(labels, times, ident, self.config.noise_hold_s)
         if not state.probe.started and carried.started:
             after = labels[times >= carried.last_step_s]
             state.probe = carried_probe(carried, after, ident) or state.probe

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 
 import numpy as np
 import pytest
@@ -11,7 +12,7 @@ from pcvfe_drake.contexts.clustering import ClusteringParams, ContextClusterer
 from pcvfe_drake.estimation.context_estimator import ContextEstimator
 from pcvfe_drake.estimation.live_fit_config import LiveFitConfig
 from pcvfe_drake.estimation.probe import ProbeState
-from pcvfe_drake.estimation.sample_store import SampleStore, labels_from_frames
+from pcvfe_drake.estimation.sample_store import SampleStore, labels_from_frames, visit_members
 from pcvfe_drake.handing.config import HandingConfig, Prior, Probe
 from pcvfe_drake.handing.context_state import ContextHanding
 from pcvfe_drake.models.synthetic_drive import s_curve_drive
@@ -246,3 +247,39 @@ def test_relabel_with_a_real_clusterer_gives_the_new_terrain_its_noise_frames(pa
     assert table.get(new_id).samples == gained[new_id]
     a_id = clusterer.table().active_ids[0]
     assert table.get(a_id).samples >= 1190  # A's noise samples before 10 s joined it too
+
+
+def test_visit_members_take_the_noise_spells_that_return_to_the_context_within_the_hold():
+    labels = np.array([-1, 0, 0, -1, -1, 0, 1, -1, 0, -1, -1, -1, 0, -1])
+    times = 0.1 * np.arange(labels.size)
+    # the spell at 0.3-0.4 s is back at 0.5 s (0.2 s away), the one at 0.9-1.1 s at 1.2 s
+    # (0.3 s); 0.7 s lies between contexts 1 and 0; the first and the last sample have no side
+    np.testing.assert_array_equal(
+        visit_members(labels, times, 0, 0.3), [0, 1, 1, 1, 1, 1, 0, 0, 1, 1, 1, 1, 1, 0]
+    )
+    np.testing.assert_array_equal(
+        visit_members(labels, times, 0, 0.2), [0, 1, 1, 1, 1, 1, 0, 0, 1, 0, 0, 0, 1, 0]
+    )
+    np.testing.assert_array_equal(visit_members(labels, times, 0, 0.0), labels == 0)
+    np.testing.assert_array_equal(visit_members(labels, times, 1, 1.0), labels == 1)
+    np.testing.assert_array_equal(visit_members(labels, times, 7, 1.0), labels == 7)
+
+
+@pytest.mark.parametrize("hold_s, fitted", [(1.0, True), (0.0, False)])
+def test_a_context_chopped_by_short_noise_spells_is_fitted_on_its_visit(params, hold_s, fitted):
+    """8 s on mu 0.8 with a noise frame (0.1 s) every 0.3 s, as an online clustering unsure of
+    a terrain it knows reports it: with the visit rule the fit has its windows at once; with
+    the spells left out no window fits between two of them."""
+    t, S, U = s_curve_drive(params, [0.8], duration_s=8.0)
+    ids = np.where((np.arange(t.size) % 30) >= 20, -1, 4)
+    ids[-1] = 4
+    cfg = LiveFitConfig(handing=HandingConfig(unknown=Prior(), noise_hold_s=hold_s))
+    cfg = dataclasses.replace(cfg, horizon_steps=50, stride_steps=25, min_windows=10)
+    est = ContextEstimator(params, cfg)
+    for k in range(t.size):
+        est.add_sample(round(float(t[k]), 6), S[0][k], U[0][k], [ids[k]])
+    est.refit(8.0)
+    entry = est.table().get(4)
+    assert entry.fitted is fitted
+    if fitted:
+        assert abs(entry.mu - 0.8) < 0.02 and entry.n_windows >= 20
