@@ -1,15 +1,18 @@
 """PC-VFE against the oracle over several `pcvfe evaluate` folders of generated worlds.
 
-    python studies/fresh_worlds/summary.py DIR[:SOURCE] [DIR[:SOURCE] ...] [--worst 3]
+    python studies/fresh_worlds/summary.py DIR[:SOURCE][@ORACLE_DIR] [...] [--worst 3]
 
 ``SOURCE`` names the PC-VFE source in that folder (default ``pcvfe``; an older folder may hold
-today's default under another name). Prints one row per (world, car) cell: the PC-VFE / oracle
-mean speed, failures and seconds above the true friction limit of both, PC-VFE's contexts
-within 0.05 after 20 s and covered by their 95 % interval; then, over the cells the oracle
-drives, the median, the worst and the median of each world's worst car; and for the ``--worst``
-cells each terrain visit: its true mu, how long it lasted, the seconds lost to the oracle at
-the same arc length (in all and in the visit's first 8 s) and the handed mu's 10th / 50th /
-90th percentiles. A frozen study script: it reads the stored tables and drive logs only.
+today's default under another name); ``ORACLE_DIR`` a folder of the same worlds whose oracle
+runs are compared (default: the oracle in ``DIR``; the oracle's laps do not depend on the
+estimator's code, so a PC-VFE-only run of changed code reuses them). Prints one row per
+(world, car) cell: the PC-VFE / oracle mean speed, failures and seconds above the true
+friction limit of both, PC-VFE's contexts within 0.05 after 20 s and covered by their 95 %
+interval; then, over the cells the oracle drives, the median, the worst and the median of each
+world's worst car; and for the ``--worst`` cells each terrain visit: its true mu, how long it
+lasted, the seconds lost to the oracle at the same arc length (in all and in the visit's first
+8 s) and the handed mu's 10th / 50th / 90th percentiles. A frozen study script: it reads the
+stored tables and drive logs only.
 Last stdout line: one JSON object.
 """
 
@@ -25,13 +28,16 @@ import pandas as pd
 from pcvfe_drake.evaluation.entry_latency import terrain_lag
 
 
-def cells(folder: Path, source: str) -> pd.DataFrame:
+def cells(folder: Path, source: str, oracle_folder: Path | None = None) -> pd.DataFrame:
     runs = pd.read_parquet(folder / "runs.parquet")
     ctx = pd.read_parquet(folder / "contexts.parquet")
+    oracle_folder = oracle_folder or folder
+    oracles = pd.read_parquet(oracle_folder / "runs.parquet")
+    oracles = {r.scenario: r for r in oracles[oracles.source == "oracle"].itertuples()}
     rows = []
     for cell, group in runs.groupby("scenario"):
         by = {r.source: r for r in group.itertuples()}
-        pc, oracle = by.get(source), by.get("oracle")
+        pc, oracle = by.get(source), oracles.get(cell)
         if pc is None or oracle is None:
             continue
         mine = ctx[(ctx.run_id == pc.run_id) & ctx.true_mu.notna()]
@@ -50,7 +56,7 @@ def cells(folder: Path, source: str) -> pd.DataFrame:
                 "covered": int(mine.covered_95.fillna(False).sum()),
                 "contexts": len(mine),
                 "run": folder / "runs" / pc.run_id,
-                "reference": folder / "runs" / oracle.run_id,
+                "reference": oracle_folder / "runs" / oracle.run_id,
             }
         )
     return pd.DataFrame(rows)
@@ -81,13 +87,14 @@ def visits(run: Path, reference: Path) -> list[dict]:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("folders", nargs="+", help="DIR or DIR:SOURCE")
+    ap.add_argument("folders", nargs="+", help="DIR, DIR:SOURCE, DIR@ORACLE_DIR")
     ap.add_argument("--worst", type=int, default=3, help="cells whose visits are printed")
     args = ap.parse_args()
     parts = []
     for spec in args.folders:
+        spec, _, oracle = spec.partition("@")
         folder, _, source = spec.partition(":")
-        parts.append(cells(Path(folder), source or "pcvfe"))
+        parts.append(cells(Path(folder), source or "pcvfe", Path(oracle) if oracle else None))
     table = pd.concat(parts, ignore_index=True)
     pd.set_option("display.width", 220)
     shown = table.drop(columns=["run", "reference"])
