@@ -76,6 +76,16 @@ N_CONSTANTS = 26
 """The kernel's constants (:func:`kernel_constants` forms them)."""
 
 
+def _dynamic_row(A, B, i, row, w, d_delta, d_beta, d_r, d_vd, d_acc, dvd_dv, d_acc_dv, d_acc_du1):
+    """The dynamic part of row ``row`` (yaw acceleration or slip rate) of state ``i``'s A and B
+    from its partial derivatives (``_evaluate``'s loop over the two rows)."""
+    A[i, row, DELTA] = w * d_delta
+    A[i, row, BETA] = w * d_beta
+    A[i, row, PSI_DOT] = w * d_r
+    A[i, row, V] = w * (d_vd * dvd_dv + d_acc * d_acc_dv)
+    B[i, row, 1] = w * d_acc * d_acc_du1
+
+
 def _rows(x, u, theta, k, f, A, B, P):  # pragma: no cover - compiled; tested through st_jacobians
     """f (N,7), A (N,7,7), B (N,7,2), P (N,7,3) of the dynamic range's rows; A, B and P are
     zeros on entry. ``theta`` has one row or N."""
@@ -179,22 +189,17 @@ def _rows(x, u, theta, k, f, A, B, P):  # pragma: no cover - compiled; tested th
         A[i, PSI, PSI_DOT] = w
         A[i, PSI, DELTA] = wk * d_psi_dot_k_ddelta
         A[i, PSI, V] = wk * gk / wheelbase + dw * (r - psi_dot_k)
-        A[i, PSI_DOT, DELTA] = w * psi_delta
-        A[i, PSI_DOT, BETA] = w * psi_beta
-        A[i, PSI_DOT, PSI_DOT] = w * psi_r
-        A[i, PSI_DOT, V] = w * (psi_vd * dvd_dv + psi_acc * d_acc_dv)
-        B[i, PSI_DOT, 1] = w * psi_acc * d_acc_du1
-        P[i, PSI_DOT, 0] = w * psi_mu
-        P[i, PSI_DOT, 1] = w * psi_c_sf
-        P[i, PSI_DOT, 2] = w * psi_c_sr
-        A[i, BETA, DELTA] = w * beta_delta
-        A[i, BETA, BETA] = w * beta_beta
-        A[i, BETA, PSI_DOT] = w * beta_r
-        A[i, BETA, V] = w * (beta_vd * dvd_dv + beta_acc * d_acc_dv)
-        B[i, BETA, 1] = w * beta_acc * d_acc_du1
-        P[i, BETA, 0] = w * beta_mu
-        P[i, BETA, 1] = w * beta_c_sf
-        P[i, BETA, 2] = w * beta_c_sr
+        _dynamic_row(
+            A, B, i, PSI_DOT, w, psi_delta, psi_beta, psi_r, psi_vd, psi_acc, dvd_dv, d_acc_dv,
+            d_acc_du1,
+        )  # fmt: skip
+        _dynamic_row(
+            A, B, i, BETA, w, beta_delta, beta_beta, beta_r, beta_vd, beta_acc, dvd_dv, d_acc_dv,
+            d_acc_du1,
+        )  # fmt: skip
+        P[i, PSI_DOT, 0], P[i, BETA, 0] = w * psi_mu, w * beta_mu
+        P[i, PSI_DOT, 1], P[i, BETA, 1] = w * psi_c_sf, w * beta_c_sf
+        P[i, PSI_DOT, 2], P[i, BETA, 2] = w * psi_c_sr, w * beta_c_sr
         A[i, PSI_DOT, DELTA] += wk * d_dd_psi_kin_ddelta
         A[i, PSI_DOT, V] += wk * ((d_acc_dv * gk + gk_t * sec2 * steer) / wheelbase) + dw * (
             dd_psi_dyn - dd_psi_kin
@@ -206,6 +211,8 @@ def _rows(x, u, theta, k, f, A, B, P):  # pragma: no cover - compiled; tested th
         B[i, BETA, 0] = wk * slip_rate_k * d_steer
 
 
+if numba is not None:
+    _dynamic_row = numba.njit(cache=True, nogil=True)(_dynamic_row)
 dynamic_rows = (
     numba.njit(cache=True, nogil=True, error_model="numpy")(_rows) if numba is not None else None
 )
