@@ -232,7 +232,9 @@ class ContextFitter(LeafSystem):
         self._inputs = _SampleInputs.declare(self)
         self._frame_labels_port = self._inputs.frame_labels
         self._estimator_index = self.DeclareAbstractState(AbstractValue.Make(estimator))
-        self._theta_index = self.DeclareDiscreteState(BasicVector(estimator.prior_theta))
+        # From the start what the handing gives with no sample yet (the unknown value): the
+        # controller's first update reads this state before the first decision is made.
+        self._theta_index = self.DeclareDiscreteState(BasicVector(estimator.theta_for()))
         schedule = np.array([-math.inf, self._period_s])
         self._schedule_index = self.DeclareDiscreteState(BasicVector(schedule))
         self._held_port = None
@@ -301,7 +303,7 @@ class ContextFitter(LeafSystem):
     def _set_theta(self, state: State, estimator: ContextEstimator) -> None:
         theta = estimator.theta_for()
         if theta.shape != (NTHETA,) or not np.all(np.isfinite(theta)):
-            theta = estimator.prior_theta
+            theta = estimator.unknown_theta()
         state.get_mutable_discrete_state(self._theta_index).SetFromVector(theta)
 
     @property

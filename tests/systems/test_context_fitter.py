@@ -38,7 +38,11 @@ def test_ports_and_prior_with_fixed_inputs(params):
     ]
     assert fitter.GetOutputPort("theta_hat").size() == 3
     context = fitter.CreateDefaultContext()
-    np.testing.assert_array_equal(fitter.GetOutputPort("theta_hat").Eval(context), params.theta)
+    # Before any sample (the controller's first update reads it before the first decision):
+    # what the handing gives an unknown terrain (the default policy: the floor mu 0.3 with the
+    # prior's small-slip stiffness mu * C_S), never the prior's dry friction.
+    unknown = [0.3, params.C_Sf * params.mu / 0.3, params.C_Sr * params.mu / 0.3]
+    np.testing.assert_array_equal(fitter.GetOutputPort("theta_hat").Eval(context), unknown)
     assert not fitter.HasAnyDirectFeedthrough()
 
     state = np.array([0.0, 0.0, 0.02, 8.0, 0.0, 0.1, 0.01])
@@ -54,8 +58,7 @@ def test_ports_and_prior_with_fixed_inputs(params):
     assert entry.status == "prior" and not entry.fitted
     # No fit yet: the default unknown-context policy ("conservative"): the floor mu 0.3, with the
     # prior's small-slip stiffness mu * C_S.
-    expected = [0.3, params.C_Sf * params.mu / 0.3, params.C_Sr * params.mu / 0.3]
-    np.testing.assert_array_equal(fitter.GetOutputPort("theta_hat").Eval(context), expected)
+    np.testing.assert_array_equal(fitter.GetOutputPort("theta_hat").Eval(context), unknown)
 
     # Non-finite state: not stored, and the output stays finite.
     fitter.GetInputPort("state").FixValue(context, np.full(7, np.nan))
