@@ -93,6 +93,16 @@ class _ContextSlot:
     (``fit_quality.peak_check``; forgotten with ``fit_info``'s windows)."""
 
 
+def window_members(n: int, windows) -> np.ndarray:
+    """(n,) mask of the samples that some window of a fit holds (``windows``: an effect fit's
+    ``(data, starts, horizon, burn_in)``; a window spans samples ``start .. start + horizon``)."""
+    _, starts, horizon, _ = windows
+    marks = np.zeros(n + 1, dtype=np.int64)
+    np.add.at(marks, np.asarray(starts, dtype=np.int64), 1)
+    np.add.at(marks, np.minimum(np.asarray(starts, dtype=np.int64) + horizon + 1, n), -1)
+    return np.cumsum(marks[:-1]) > 0
+
+
 def effect_fitter(params: VehicleParams, config: LiveFitConfig) -> EffectFitter:
     """The effect-model fitter a context estimator with ``config`` refits its contexts with
     (``config.effects``, its windows, iterations and model-error budget)."""
@@ -582,17 +592,27 @@ class ContextEstimator:
             untrusted=untrusted,
             **judged,
         )
-        self._published(slot, t, result.data_end_s, t_now)
+        self._published(slot, t, result.data_end_s, t_now, window_members(t.size, result.windows))
 
-    def _published(self, slot: _ContextSlot, t: np.ndarray, data_end_s: float, t_now: float):
+    def _published(
+        self,
+        slot: _ContextSlot,
+        t: np.ndarray,
+        data_end_s: float,
+        t_now: float,
+        used: np.ndarray | None = None,
+    ):
         """A fit using the samples up to ``data_end_s`` is published at ``t_now``: the samples
         newer than the previous fit's data waited ``t_now - t_sample``; the entry gets
         ``data_end_s`` and the waits' p50 and p99, over all samples and over those a refit
         published (after the context's first fit: what the refits' cadence costs, without the
-        wait for the first fit's data)."""
+        wait for the first fit's data). ``used``: which of ``t`` the fit's windows hold (None:
+        all); a sample no window holds (the end of a visit, shorter than a window's stride)
+        reaches no estimate and has no wait to count."""
         previous = slot.estimate_data_end_s
         refit = math.isfinite(previous)
-        new = t[(t > previous) & (t <= data_end_s + 1e-9)] if refit else t[t <= data_end_s + 1e-9]
+        keep = (t > previous) & (t <= data_end_s + 1e-9) if refit else t <= data_end_s + 1e-9
+        new = t[keep if used is None else keep & used]
         slot.delay_counts = add_waits(slot.delay_counts, t_now - new)
         if refit:
             slot.refit_delay_counts = add_waits(slot.refit_delay_counts, t_now - new)

@@ -63,7 +63,8 @@ class ContextEstimate:
         data_end_s: the newest sample time the published fit used [s] (NaN if none).
         sample_to_estimate_s: ``(p50, p99, samples)``: how long [s] the context's samples
             waited, from their time to the publication of the first fit that used them
-            (samples newer than the previous fit's data; ``ContextEstimator``).
+            (samples newer than the previous fit's data that a window of the fit holds;
+            ``ContextEstimator``).
         sample_to_refit_s: the same over the samples a refit published, after the context's
             first fit (the refits' cadence, without the wait for enough data for a first fit).
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pcvfe_drake.estimation.context_estimator import ContextEstimator
+from pcvfe_drake.estimation.context_estimator import ContextEstimator, window_members
 from pcvfe_drake.estimation.effect_fit import EffectFitter
 from pcvfe_drake.estimation.incremental_fit import (
     MAX_REJECTIONS,
@@ -188,3 +188,35 @@ def test_estimator_resets_on_relabel_and_publishes_after_the_declared_latency(dr
     assert est._slots[0].fit_info is not None
     est.relabel(t[:n], np.full(n, -1), 0.02, version=1)  # the samples leave the context
     assert est._slots[0].fit_info.keys.size == 0  # every window re-evaluated next time
+
+
+def test_window_members_mark_the_samples_a_window_holds():
+    windows = (None, np.array([0, 5, 20]), 4, 1)
+    expected = np.zeros(30, dtype=bool)
+    expected[0:10] = True  # windows 0..4 and 5..9
+    expected[20:25] = True
+    np.testing.assert_array_equal(window_members(30, windows), expected)
+    np.testing.assert_array_equal(window_members(22, windows), expected[:22])  # cut at the end
+
+
+def test_samples_no_window_holds_are_not_counted_as_waiting(drive):
+    """A visit's end shorter than a window's stride reaches no estimate: its samples have no
+    wait (counted at the next visit's fit they would read the time between the visits)."""
+    t, S, U = drive
+    config = LiveFitConfig(
+        model=EffectModel(effects=SHIPPED), sample_period_s=0.02, effect_min_windows=5
+    )
+    est = ContextEstimator(ford_escort(), config)
+    end1, start2 = int(np.searchsorted(t, 6.3)), int(np.searchsorted(t, 9.0))
+    for k in range(t.size):  # a first visit to 6.3 s, 2.7 s of noise, a second from 9 s
+        est.add_sample(t[k], S[k], U[k], 0 if k < end1 or k >= start2 else -1)
+        if k == end1 - 1 or (k >= start2 and (k - start2) % 25 == 24):  # refits at 2 Hz
+            est.refit(float(t[k]))
+    entry = est.table().get(0)
+    first_end = 6.0  # the first visit's last window (1 s horizon, 0.5 s stride) ends there
+    trailing = int(np.sum((t > first_end + 1e-9) & (t < 6.3)))
+    assert trailing > 5 and entry.fits > 20
+    mine = (t < 6.3) | (t >= 9.0 - 1e-9)
+    up_to_end = int(np.sum(mine & (t <= entry.data_end_s + 1e-9)))
+    assert entry.sample_to_estimate_s[2] <= up_to_end - trailing
+    assert entry.sample_to_refit_s[1] < 2.0  # none waited the 2.7 s between the visits
