@@ -48,11 +48,13 @@ def watch():
         taken[round(float(t) * 100)] = int(round(cid)) if math.isfinite(cid) and cid >= 0 else -1
         return add_sample(self, t, state, inputs, context_id)
 
-    def publish(self, slot, t, data_end_s, t_now):
+    def publish(self, slot, t, data_end_s, t_now, used=None):
         previous = slot.estimate_data_end_s
         first = not math.isfinite(previous)
-        newer = t <= data_end_s + 1e-9
-        new = t[newer] if first else t[(t > previous) & newer]
+        keep = t <= data_end_s + 1e-9
+        if not first:
+            keep &= t > previous
+        new = t[keep if used is None else keep & used]
         ident = slot.estimate.context_id
         for ts in new:
             if first:
@@ -65,7 +67,7 @@ def watch():
                     else ("noise, relabelled in" if label < 0 else "other id, relabelled in")
                 )
             waits[cause].append(t_now - ts)
-        return published(self, slot, t, data_end_s, t_now)
+        return published(self, slot, t, data_end_s, t_now, used)
 
     ce.ContextEstimator.add_sample = add
     ce.ContextEstimator._published = publish
