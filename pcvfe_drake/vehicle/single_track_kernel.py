@@ -45,7 +45,6 @@ except ImportError:  # pragma: no cover - exercised only without numba
     numba = None
 
 (
-    K_G,
     K_M,
     K_LF,
     K_LR,
@@ -63,7 +62,6 @@ except ImportError:  # pragma: no cover - exercised only without numba
     K_DELTA_MAX,
     K_DELTA_DOT_MIN,
     K_DELTA_DOT_MAX,
-    K_A_MAX,
     K_NEG_A_MAX,
     K_V_SWITCH,
     K_A_MAX_V_SWITCH,
@@ -71,8 +69,8 @@ except ImportError:  # pragma: no cover - exercised only without numba
     K_V_MAX,
     K_V_BLEND_LO,
     K_SPAN,
-) = range(26)
-N_CONSTANTS = 26
+) = range(24)
+N_CONSTANTS = 24
 """The kernel's constants (:func:`kernel_constants` forms them)."""
 
 
@@ -227,7 +225,7 @@ def kernel_constants(params: VehicleParams) -> np.ndarray:
     g, m, iz, lf, lr, h = p.g, p.m, p.I_z, p.lf, p.lr, p.h
     wheelbase = lf + lr
     k = np.empty(N_CONSTANTS)
-    k[[K_G, K_M, K_LF, K_LR, K_H, K_WHEELBASE]] = g, m, lf, lr, h, wheelbase
+    k[[K_M, K_LF, K_LR, K_H, K_WHEELBASE]] = m, lf, lr, h, wheelbase
     k[[K_G_LR, K_G_LF, K_IZ_WHEELBASE]] = g * lr, g * lf, iz * wheelbase
     k[[K_LF2, K_LR2, K_NEG_LF, K_NEG_LF2]] = lf**2, lr**2, -lf, -(lf**2)
     k[K_M_IZ_WHEELBASE] = m / (iz * wheelbase)
@@ -237,8 +235,7 @@ def kernel_constants(params: VehicleParams) -> np.ndarray:
         p.delta_dot_min,
         p.delta_dot_max,
     )
-    k[[K_A_MAX, K_NEG_A_MAX, K_V_SWITCH, K_A_MAX_V_SWITCH]] = (
-        p.a_max,
+    k[[K_NEG_A_MAX, K_V_SWITCH, K_A_MAX_V_SWITCH]] = (
         -p.a_max,
         p.v_switch,
         p.a_max * p.v_switch,
