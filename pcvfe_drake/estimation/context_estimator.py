@@ -36,7 +36,7 @@ import numpy as np
 
 from pcvfe_drake.blas_threads import one_blas_thread
 from pcvfe_drake.estimation.effect_fit import EffectFitter, identifiability
-from pcvfe_drake.estimation.estimate_latency import add_waits, wait_quantiles
+from pcvfe_drake.estimation.estimate_latency import add_waits, newly_used, wait_quantiles
 from pcvfe_drake.estimation.estimate_table import ContextEstimate, EstimateTable
 from pcvfe_drake.estimation.fit_answer import distrust
 from pcvfe_drake.estimation.fit_dataset import (
@@ -58,6 +58,7 @@ from pcvfe_drake.estimation.sample_store import (
     NOISE,
     SampleStore,
     labels_from_frames,
+    ranges_mask,
     visit_members,
 )
 from pcvfe_drake.handing.handing import Handing
@@ -97,10 +98,8 @@ def window_members(n: int, windows) -> np.ndarray:
     """(n,) mask of the samples that some window of a fit holds (``windows``: an effect fit's
     ``(data, starts, horizon, burn_in)``; a window spans samples ``start .. start + horizon``)."""
     _, starts, horizon, _ = windows
-    marks = np.zeros(n + 1, dtype=np.int64)
-    np.add.at(marks, np.asarray(starts, dtype=np.int64), 1)
-    np.add.at(marks, np.minimum(np.asarray(starts, dtype=np.int64) + horizon + 1, n), -1)
-    return np.cumsum(marks[:-1]) > 0
+    starts = np.asarray(starts, dtype=np.int64)
+    return ranges_mask(n, starts, starts + horizon)
 
 
 def effect_fitter(params: VehicleParams, config: LiveFitConfig) -> EffectFitter:
@@ -607,12 +606,10 @@ class ContextEstimator:
         ``data_end_s`` and the waits' p50 and p99, over all samples and over those a refit
         published (after the context's first fit: what the refits' cadence costs, without the
         wait for the first fit's data). ``used``: which of ``t`` the fit's windows hold (None:
-        all); a sample no window holds (the end of a visit, shorter than a window's stride)
-        reaches no estimate and has no wait to count."""
+        all; :func:`estimate_latency.newly_used`)."""
         previous = slot.estimate_data_end_s
         refit = math.isfinite(previous)
-        keep = (t > previous) & (t <= data_end_s + 1e-9) if refit else t <= data_end_s + 1e-9
-        new = t[keep if used is None else keep & used]
+        new = newly_used(t, previous, data_end_s, used)
         slot.delay_counts = add_waits(slot.delay_counts, t_now - new)
         if refit:
             slot.refit_delay_counts = add_waits(slot.refit_delay_counts, t_now - new)

@@ -34,3 +34,16 @@ def wait_quantiles(counts: np.ndarray | None) -> tuple[float, float, int]:
     cum = np.cumsum(counts)
     p50, p99 = (float((np.searchsorted(cum, q * total) + 1) * BIN_S) for q in (0.5, 0.99))
     return p50, p99, total
+
+
+def newly_used(
+    t: np.ndarray, previous_end_s: float, data_end_s: float, used: np.ndarray | None = None
+) -> np.ndarray:
+    """The times [s] of the samples ``t`` that a fit on the data up to ``data_end_s`` uses for
+    the first time, the previous fit's data having ended at ``previous_end_s`` (NaN: none);
+    ``used``: which of ``t`` the fit's windows hold (None: all). A sample no window holds (the
+    end of a visit, shorter than a window's stride) reaches no estimate and is not among them."""
+    keep = t <= data_end_s + 1e-9
+    if math.isfinite(previous_end_s):
+        keep &= t > previous_end_s
+    return t[keep if used is None else keep & used]

@@ -253,8 +253,15 @@ def visit_members(
         & (times[last + 1] - times[first] <= noise_hold_s + TIME_TOL_S)
     )
     if held.any():
-        marks = np.zeros(labels.size + 1, dtype=np.int64)
-        np.add.at(marks, first[held], 1)
-        np.add.at(marks, last[held] + 1, -1)
-        mine |= np.cumsum(marks[:-1]) > 0
+        mine |= ranges_mask(labels.size, first[held], last[held])
     return mine
+
+
+def ranges_mask(n: int, first: np.ndarray, last: np.ndarray) -> np.ndarray:
+    """(n,) mask of the indices in the ranges ``first[i] .. last[i]`` (both ends included; a
+    range may overlap others and run past ``n - 1``)."""
+    first = np.asarray(first, dtype=np.int64)
+    marks = np.zeros(n + 1, dtype=np.int64)
+    np.add.at(marks, first, 1)
+    np.add.at(marks, np.minimum(np.asarray(last, dtype=np.int64) + 1, n), -1)
+    return np.cumsum(marks[:-1]) > 0

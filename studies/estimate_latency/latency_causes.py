@@ -38,6 +38,7 @@ def watch():
     """Patch the estimator's sample intake and publication; returns the dict of waits by
     cause it fills."""
     from pcvfe_drake.estimation import context_estimator as ce
+    from pcvfe_drake.estimation.estimate_latency import newly_used
 
     taken: dict[int, int] = {}  # sample time [10 ms ticks] -> the id it was taken with
     waits: dict[str, list] = defaultdict(list)
@@ -51,10 +52,7 @@ def watch():
     def publish(self, slot, t, data_end_s, t_now, used=None):
         previous = slot.estimate_data_end_s
         first = not math.isfinite(previous)
-        keep = t <= data_end_s + 1e-9
-        if not first:
-            keep &= t > previous
-        new = t[keep if used is None else keep & used]
+        new = newly_used(t, previous, data_end_s, used)
         ident = slot.estimate.context_id
         for ts in new:
             if first:
