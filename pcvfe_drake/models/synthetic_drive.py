@@ -34,7 +34,9 @@ def s_curve_drive(
 
     Args:
         params: the vehicle (its stiffnesses are used; mu is replaced per drive).
-        mu: friction coefficient(s), scalar or (D,).
+        mu: friction coefficient(s): scalar, (D,) one per drive, or (D, N) one per drive and
+            sample (the friction under the car from that sample to the next: a strip of another
+            terrain planted in a drive).
         duration_s: length of each drive [s].
         dt: sample and integration step [s] (RK4).
         speed_mps: cruise speed [m/s].
@@ -48,12 +50,17 @@ def s_curve_drive(
         ``(t (N,), states (D, N, 7), inputs (D, N, 2))`` with N = duration_s / dt + 1 samples;
         ``inputs[:, i]`` is held from ``t[i]`` to ``t[i+1]`` (the last row repeats the one before).
     """
-    mu = np.atleast_1d(np.asarray(mu, dtype=float))
-    n_drives = mu.shape[0]
-    phase = np.broadcast_to(np.asarray(phase_rad, dtype=float), (n_drives,))
+    mu = np.asarray(mu, dtype=float)
     n = int(round(duration_s / dt)) + 1
+    if mu.ndim == 2 and mu.shape[1] != n:
+        raise ValueError(f"s_curve_drive: mu per sample needs {n} columns, got {mu.shape[1]}")
+    mu_of = mu if mu.ndim == 2 else np.repeat(np.atleast_1d(mu)[:, None], n, axis=1)
+    n_drives = mu_of.shape[0]
+    phase = np.broadcast_to(np.asarray(phase_rad, dtype=float), (n_drives,))
     t = np.arange(n) * dt
-    theta = np.stack([mu, np.full(n_drives, params.C_Sf), np.full(n_drives, params.C_Sr)], axis=1)
+    theta = np.stack(
+        [mu_of[:, 0], np.full(n_drives, params.C_Sf), np.full(n_drives, params.C_Sr)], axis=1
+    )
     omega = 2.0 * np.pi * steer_freq_hz
     states = np.zeros((n_drives, n, NX))
     inputs = np.zeros((n_drives, n, 2))
@@ -77,6 +84,7 @@ def s_curve_drive(
             u = np.stack([steer_rate, accel], axis=1)
         inputs[:, i] = u
         if i + 1 < n:
+            theta[:, 0] = mu_of[:, i]
             x = rk4_step(x, u, params, dt, theta=theta)
     return t, states, inputs
 

@@ -283,3 +283,36 @@ def test_a_context_chopped_by_short_noise_spells_is_fitted_on_its_visit(params, 
     assert entry.fitted is fitted
     if fitted:
         assert abs(entry.mu - 0.8) < 0.02 and entry.n_windows >= 20
+
+
+@pytest.mark.parametrize(
+    "mu, strip_mu, strip_s", [(0.3, 0.8, 0.3), (0.3, 0.8, 0.9), (0.8, 0.25, 0.9)]
+)
+def test_a_strip_of_another_terrain_held_into_a_visit_widens_the_fit_instead_of_misleading_it(
+    params, mu, strip_mu, strip_s
+):
+    """The visit rule's risk: a strip of another friction shorter than the hold, which the
+    camera calls noise, enters the context's fit as part of its visit. Its samples pull the
+    estimate (up where the strip grips more: the unsafe side), but the windows that span it
+    fit worse, and the interval widens with them: the 95 % interval still holds the context's
+    friction. Without the hold the strip is left out and the fit is as tight as the data."""
+    duration_s = 12.0
+    t = np.arange(round(duration_s / 0.01) + 1) * 0.01
+    strip = (t >= 4.8) & (t < 4.8 + strip_s)  # in the second bend
+    t, S, U = s_curve_drive(params, np.where(strip, strip_mu, mu)[None, :], duration_s=duration_s)
+    ids = np.where(strip, -1, 4)
+    fits = {}
+    for hold_s in (1.0, 0.0):
+        cfg = LiveFitConfig(handing=HandingConfig(unknown=Prior(), noise_hold_s=hold_s))
+        cfg = dataclasses.replace(cfg, horizon_steps=50, stride_steps=25, min_windows=10)
+        est = ContextEstimator(params, cfg)
+        for k in range(t.size):
+            est.add_sample(round(float(t[k]), 6), S[0][k], U[0][k], [ids[k]])
+        est.refit(duration_s)
+        fits[hold_s] = est.table().get(4)
+    held, left_out = fits[1.0], fits[0.0]
+    assert held.n_windows > left_out.n_windows  # the strip's windows are in the held fit
+    assert abs(held.mu - mu) > 0.005  # and they pull it ...
+    assert abs(held.mu - mu) <= 1.96 * held.theta_std[0]  # ... within its widened interval
+    assert held.theta_std[0] > 3.0 * left_out.theta_std[0]
+    assert abs(left_out.mu - mu) <= max(1.96 * left_out.theta_std[0], 0.01)
