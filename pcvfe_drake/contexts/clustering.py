@@ -134,10 +134,14 @@ class ContextClusterer:
         # An independent clusterer, copying only what its methods write into: the store's
         # arrays (written row by row), the records (their fields are updated), the counts and
         # the random generator. The parameters, the gate index and the members' speeds are never
-        # written (they are rebuilt whole), so the copies share them.
+        # written (they are rebuilt whole), so the copies share them. The feature store (2000
+        # rows of a frame's features) is shared read-only and copied by the first write
+        # (``_put``): most frames write none of it (a full reservoir keeps a frame with the
+        # probability of its share), and Drake copies the state at every frame.
         other = shallow_copy(self)
-        for name in ("_x", "_t", "_v", "_w", "_label", "_used"):
+        for name in ("_t", "_v", "_w", "_label", "_used"):
             setattr(other, name, getattr(self, name).copy())
+        self._x.flags.writeable = False
         other._count = dict(self._count)
         other._records = {k: shallow_copy(r) for k, r in self._records.items()}
         other._rng = copy.deepcopy(self._rng)
@@ -364,6 +368,8 @@ class ContextClusterer:
     def _put(
         self, slot: int, z: np.ndarray, t_s: float, label: int, weight: float, v: float
     ) -> None:
+        if not self._x.flags.writeable:  # shared with a copy (``__deepcopy__``)
+            self._x = self._x.copy()
         self._x[slot] = z
         self._t[slot] = t_s
         self._v[slot] = v

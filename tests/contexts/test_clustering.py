@@ -217,9 +217,10 @@ def _rows(table) -> list[tuple]:
 
 
 def test_a_copy_goes_on_exactly_as_the_original_and_shares_nothing_written():
-    """The clusterer's own ``__deepcopy__`` copies only what its methods write into: a copy fed
-    the same frames gives the same ids, tables and store as the original, and frames fed to one
-    (through the store's reservoir draws and re-clusterings) leave the other as it was."""
+    """The clusterer's own ``__deepcopy__`` copies only what its methods write into (the
+    feature store at its first write): a copy fed the same frames gives the same ids, tables
+    and store as the original, and frames fed to one (through the store's reservoir draws and
+    re-clusterings) leave the other as it was."""
     stream = synthetic_feature_stream(n_laps=2, late_terrain_from_lap=1, seed=5)
     params = ClusteringParams(max_stored=300)  # a full store: the reservoir draws at random
     clusterer = ContextClusterer(params)
@@ -230,12 +231,15 @@ def test_a_copy_goes_on_exactly_as_the_original_and_shares_nothing_written():
             clusterer.recluster(t)
     twin = copy.deepcopy(clusterer)
     frozen = copy.deepcopy(clusterer)
+    # the feature store is shared read-only until a copy writes a row into it
+    assert twin._x is clusterer._x is frozen._x and not clusterer._x.flags.writeable
     snapshot = (frozen._x.copy(), frozen._label.copy(), _rows(frozen.table()))
     for i, (t, z) in enumerate(zip(stream.t_s[half:], stream.z[half:], strict=True)):
         assert twin.assign_frame(z, t) == clusterer.assign_frame(z, t)
         if i % 100 == 99:
             assert _rows(twin.recluster(t)) == _rows(clusterer.recluster(t))
     assert np.array_equal(twin._x, clusterer._x) and np.array_equal(twin._w, clusterer._w)
+    assert twin._x is not clusterer._x and twin._x.flags.writeable
     assert _rows(twin.table()) == _rows(clusterer.table())
     assert np.array_equal(frozen._x, snapshot[0]) and np.array_equal(frozen._label, snapshot[1])
     assert _rows(frozen.table()) == snapshot[2] != _rows(clusterer.table())
