@@ -322,9 +322,13 @@ class EffectFitter:
         self.model, self.fixed, self.theta_init = build_model(self.vehicle, self.effects)
         self._free_cols = np.flatnonzero(~self.fixed)
         self.mu_is_peak = friction_is_peak(self.model)
-        # the compiled rollout loaded when the fitter is built, not in its first refit (which
-        # would wait for numba's import and disk cache inside the loop)
+        # the compiled rollout and the noise scales' kernels loaded when the fitter is built,
+        # not in its first refit (which would wait for numba's import and disk cache inside
+        # the loop)
+        from pcvfe_drake.models import noise_kernel
+
         self.model.load_compiled_rollout()
+        noise_kernel.load()
 
     def hac_lag(self) -> int | None:
         """Lag in windows of the ``hac`` covariance (windows starting within a window's span

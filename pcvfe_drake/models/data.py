@@ -121,22 +121,10 @@ def _fourth_differences(yt: np.ndarray, stride: int, lo: int, hi: int) -> np.nda
 
 def _sorted_mads(values: np.ndarray) -> np.ndarray:
     """``np.median(np.abs(v - np.median(v)))`` of each sorted, finite row ``v`` of ``values``
-    (k, m), from order statistics alone. Along a sorted row the deviations from its median
-    fall, then rise (rounding is monotone), so any ``w`` consecutive ones have their largest
-    at an end, the ``w`` smallest of the row are consecutive, and the ``w``-th smallest is the
-    least over all windows of ``w`` of the larger end. A median of an even count is the mean
-    of the two middle elements, added and halved as ``np.median`` does."""
-    m = values.shape[1]
-    h = m // 2
-    med = values[:, h] if m % 2 else (values[:, h - 1] + values[:, h]) / 2
-    dev = np.abs(values - med[:, None])
+    (k, m), from order statistics alone (``noise_kernel.sorted_mads``)."""
+    from pcvfe_drake.models.noise_kernel import sorted_mads
 
-    def smallest(w: int) -> np.ndarray:
-        return np.min(np.maximum(dev[:, : m - w + 1], dev[:, w - 1 :]), axis=1)
-
-    if m % 2:
-        return smallest(h + 1)
-    return (smallest(h) + smallest(h + 1)) / 2
+    return sorted_mads(np.ascontiguousarray(values, dtype=float))
 
 
 class NoiseScaleCache:
@@ -214,29 +202,15 @@ def _continued(last: tuple | None, t: np.ndarray, yt: np.ndarray, max_stride: in
 
 def _merge_differences(values: np.ndarray, gone: np.ndarray, new: np.ndarray) -> np.ndarray:
     """The sorted rows of ``values`` (k, m) without the values ``gone`` (k, g; each present)
-    and with the values ``new`` (k, a), still sorted (one delete and one insert on the
-    flattened rows)."""
-    k, m = values.shape
-    if gone.shape[1]:
-        gone = np.sort(gone, axis=1)
-        at = np.empty(gone.shape, dtype=np.int64)
-        for r in range(k):
-            first = np.searchsorted(gone[r], gone[r], side="left")  # equal values: next places
-            at[r] = np.searchsorted(values[r], gone[r], side="left") + np.arange(first.size)
-            at[r] -= first
-        m -= gone.shape[1]
-        values = np.delete(values.ravel(), (at + (np.arange(k) * values.shape[1])[:, None]).ravel())
-        values = values.reshape(k, m)
-    if new.shape[1]:
-        new = np.sort(new, axis=1)
-        at = np.empty(new.shape, dtype=np.int64)
-        for r in range(k):
-            at[r] = np.searchsorted(values[r], new[r], side="left")
-        # a row's values at its end go before the next row's first: np.insert keeps the order
-        # of values given for one place
-        flat = np.insert(values.ravel(), (at + (np.arange(k) * m)[:, None]).ravel(), new.ravel())
-        values = flat.reshape(k, m + new.shape[1])
-    return values
+    and with the values ``new`` (k, a), still sorted (``noise_kernel.merge_rows``: one pass
+    per row)."""
+    from pcvfe_drake.models.noise_kernel import merge_rows
+
+    return merge_rows(
+        np.ascontiguousarray(values, dtype=float),
+        np.ascontiguousarray(gone, dtype=float),
+        np.ascontiguousarray(new, dtype=float),
+    )
 
 
 @dataclass

@@ -40,14 +40,31 @@ def _buffer(n: int, seed: int = 0):
     return t, x, u
 
 
-@pytest.mark.parametrize("m", [5, 6, 7, 40, 41])
+@pytest.mark.parametrize("m", [1, 2, 3, 4, 5, 6, 7, 40, 41, 1000, 1001])
 def test_mads_from_sorted_rows_equal_numpys(m):
     rng = np.random.default_rng(m)
-    values = np.round(rng.standard_normal((6, m)), 1)  # many ties
+    values = np.round(rng.standard_normal((8, m)), 1)  # many ties
     values[5] = 0.0
+    values[6] = rng.standard_normal(m)  # no ties
+    values[7] = np.round(rng.exponential(size=m), 0)  # one-sided, few distinct values
     values.sort(axis=1)
     expected = np.median(np.abs(values - np.median(values, axis=1, keepdims=True)), axis=1)
     np.testing.assert_array_equal(_bits(D._sorted_mads(values)), _bits(expected))
+
+
+@pytest.mark.parametrize("gone, new", [(0, 0), (3, 0), (0, 4), (5, 7), (20, 20)])
+def test_merged_rows_equal_the_sorted_multiset(gone, new):
+    rng = np.random.default_rng(gone + 10 * new)
+    rows = np.round(rng.standard_normal((7, 30)), 1)  # many ties, zeros among them
+    rows.sort(axis=1)
+    take = np.stack([rng.choice(30, gone, replace=False) for _ in range(7)])
+    dropped = np.take_along_axis(rows, take, axis=1)
+    added = np.round(rng.standard_normal((7, new)), 1)
+    got = D._merge_differences(rows, dropped, added)
+    keep = np.ones(rows.shape, bool)
+    np.put_along_axis(keep, take, False, axis=1)
+    expected = np.sort(np.hstack([rows[keep].reshape(7, 30 - gone), added]), axis=1)
+    np.testing.assert_array_equal(got, expected)
 
 
 def test_cache_equals_the_uncached_scales_on_a_buffer_that_grows_drops_and_turns_nan(
