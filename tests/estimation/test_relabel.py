@@ -265,6 +265,18 @@ def test_visit_members_take_the_noise_spells_that_return_to_the_context_within_t
     np.testing.assert_array_equal(visit_members(labels, times, 7, 1.0), labels == 7)
 
 
+def _fit_labelled_drive(params, t, states, inputs, ids, hold_s: float):
+    """The estimate table after a drive's samples, each with its context id, and one refit at
+    its end; the visit rule's hold ``hold_s`` [s], windows of 0.5 s every 0.25 s."""
+    cfg = LiveFitConfig(handing=HandingConfig(unknown=Prior(), noise_hold_s=hold_s))
+    cfg = dataclasses.replace(cfg, horizon_steps=50, stride_steps=25, min_windows=10)
+    est = ContextEstimator(params, cfg)
+    for k in range(t.size):
+        est.add_sample(round(float(t[k]), 6), states[k], inputs[k], [ids[k]])
+    est.refit(float(t[-1]))
+    return est.table()
+
+
 @pytest.mark.parametrize("hold_s, fitted", [(1.0, True), (0.0, False)])
 def test_a_context_chopped_by_short_noise_spells_is_fitted_on_its_visit(params, hold_s, fitted):
     """8 s on mu 0.8 with a noise frame (0.1 s) every 0.3 s, as an online clustering unsure of
@@ -273,13 +285,7 @@ def test_a_context_chopped_by_short_noise_spells_is_fitted_on_its_visit(params, 
     t, S, U = s_curve_drive(params, [0.8], duration_s=8.0)
     ids = np.where((np.arange(t.size) % 30) >= 20, -1, 4)
     ids[-1] = 4
-    cfg = LiveFitConfig(handing=HandingConfig(unknown=Prior(), noise_hold_s=hold_s))
-    cfg = dataclasses.replace(cfg, horizon_steps=50, stride_steps=25, min_windows=10)
-    est = ContextEstimator(params, cfg)
-    for k in range(t.size):
-        est.add_sample(round(float(t[k]), 6), S[0][k], U[0][k], [ids[k]])
-    est.refit(8.0)
-    entry = est.table().get(4)
+    entry = _fit_labelled_drive(params, t, S[0], U[0], ids, hold_s).get(4)
     assert entry.fitted is fitted
     if fitted:
         assert abs(entry.mu - 0.8) < 0.02 and entry.n_windows >= 20
@@ -301,16 +307,9 @@ def test_a_strip_of_another_terrain_held_into_a_visit_widens_the_fit_instead_of_
     strip = (t >= 4.8) & (t < 4.8 + strip_s)  # in the second bend
     t, S, U = s_curve_drive(params, np.where(strip, strip_mu, mu)[None, :], duration_s=duration_s)
     ids = np.where(strip, -1, 4)
-    fits = {}
-    for hold_s in (1.0, 0.0):
-        cfg = LiveFitConfig(handing=HandingConfig(unknown=Prior(), noise_hold_s=hold_s))
-        cfg = dataclasses.replace(cfg, horizon_steps=50, stride_steps=25, min_windows=10)
-        est = ContextEstimator(params, cfg)
-        for k in range(t.size):
-            est.add_sample(round(float(t[k]), 6), S[0][k], U[0][k], [ids[k]])
-        est.refit(duration_s)
-        fits[hold_s] = est.table().get(4)
-    held, left_out = fits[1.0], fits[0.0]
+    held, left_out = (
+        _fit_labelled_drive(params, t, S[0], U[0], ids, hold_s).get(4) for hold_s in (1.0, 0.0)
+    )
     assert held.n_windows > left_out.n_windows  # the strip's windows are in the held fit
     assert abs(held.mu - mu) > 0.005  # and they pull it ...
     assert abs(held.mu - mu) <= 1.96 * held.theta_std[0]  # ... within its widened interval
