@@ -6,7 +6,8 @@ was run (the command that made it, when, the experiment as run: scenarios, sourc
 overrides, seeds, run length), the package versions it recorded, the table per scenario (every
 metric as the mean over seeds with its 95 % interval, and the paired difference of mean speed to
 the reference source), and, where the runs were made on several worlds (any ``world`` column of
-the runs table), each source's median and worst world. A section sits between two marker
+the runs table), each source's median and worst world: a scenario named per world
+(``NAME@WORLD``) makes one table over its worlds. A section sits between two marker
 comments that name the experiment's folder, so updating the page from one folder replaces that
 section and keeps the others: the page is the sum of the stored runs it was written from.
 """
@@ -80,6 +81,20 @@ def _world_rows(runs: pd.DataFrame, sources: list[str]) -> list[list[str]]:
     return rows
 
 
+def _without_world(runs: pd.DataFrame) -> pd.Series:
+    """Each run's scenario without its world: an experiment over worlds names a scenario
+    ``NAME@WORLD`` per world, and its runs on every world make one table (with the median and
+    the worst world) instead of one table per world."""
+    names = runs["scenario"].astype(str)
+    if GROUP_COLUMN not in runs.columns:
+        return names
+    suffixes = "@" + runs[GROUP_COLUMN].astype(str)
+    return pd.Series(
+        [n[: -len(x)] if n.endswith(x) else n for n, x in zip(names, suffixes, strict=True)],
+        index=runs.index,
+    )
+
+
 def _settings(exp: dict) -> list[str]:
     length = (
         f"{exp['duration_s']:g} s per run"
@@ -150,8 +165,9 @@ def experiment_section(root: str | Path, page: str | Path = "PAGE") -> tuple[str
         for m in METRICS
         if m.column in done.columns and np.isfinite(done[m.column].astype(float)).any()
     ]
-    for sc in sorted(done["scenario"].unique()):
-        here = done[done["scenario"] == sc]
+    groups = _without_world(done)
+    for sc in sorted(groups.unique()):
+        here = done[groups == sc]
         out += ["", f"### {sc}", ""]
         header = ["source", "runs"]
         header += [f"{m.label}{f' [{m.unit}]' if m.unit else ''}" for m in metrics]

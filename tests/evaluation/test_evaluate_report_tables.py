@@ -161,8 +161,9 @@ def test_interval_calibration_and_coverage_by_hand():
         ic.parse_seeds("0-2,x")
 
 
-def _store(root, worlds: bool = False) -> None:
-    """A tiny results folder: two sources x three seeds (x two worlds), numbers by hand."""
+def _store(root, worlds: bool = False, world_in_name: bool = False) -> None:
+    """A tiny results folder: two sources x three seeds (x two worlds, each its own scenario
+    ``paper_eval@WORLD`` with ``world_in_name``, as generated worlds are), numbers by hand."""
     root.mkdir(parents=True)
     rows = []
     for seed in (0, 1, 2):
@@ -172,7 +173,7 @@ def _store(root, worlds: bool = False) -> None:
                 rows.append(
                     {
                         "run_id": f"s__{source}__s{seed:03d}",
-                        "scenario": "paper_eval",
+                        "scenario": f"paper_eval@{world}" if world_in_name else "paper_eval",
                         "source": source,
                         "seed": seed,
                         "spec_hash": f"h{seed}",
@@ -227,6 +228,16 @@ def test_results_page_from_stored_tables(tmp_path):
     out = page.read_text()
     assert out.count("## tiny") == 2 and out.index(key) < out.index(str(tmp_path / "b"))
     assert "| pcvfe | 2 | w_flat: 6.1 m/s, 0 failures per run | w_hills: 5.1 m/s, 0.333" in out
+
+
+def test_a_scenario_named_per_world_is_one_table_over_its_worlds(tmp_path):
+    _store(tmp_path / "c", worlds=True, world_in_name=True)
+    _, text = experiment_section(tmp_path / "c")
+    assert text.count("### ") == 1 and "### paper_eval\n" in text and "@w_" not in text
+    assert "| pcvfe | 6 |" in text  # three seeds on each of the two worlds
+    # paired by seed and world: oracle minus pcvfe is 1.0 in each of the six pairs
+    assert "| 1 [1, 1] |" in text
+    assert "| pcvfe | 2 | w_flat: 6.1 m/s, 0 failures per run | w_hills: 5.1 m/s, 0.333" in text
 
 
 def test_report_options_from_the_command_line(tmp_path, capsys):
