@@ -17,7 +17,9 @@ def free_port() -> int:
 
 
 def pcvfe(*args):
-    return [sys.executable, "-m", "pcvfe_drake.cli", *args]
+    # -X faulthandler: a native crash prints every thread's Python stack to stderr, which the
+    # assertions show (the station once died with SIGSEGV after connecting, stack unknown)
+    return [sys.executable, "-X", "faulthandler", "-m", "pcvfe_drake.cli", *args]
 
 
 def test_pipeline_drives_the_bridged_car_in_another_process(tmp_path):
