@@ -2,9 +2,9 @@
 
 ``NoiseScaleCache`` keeps, per stride, the 4th differences of each state column sorted; at every
 refit of a context it removes the differences of the samples that left the buffer, merges in
-those of the new samples, and reads each row's median absolute deviation. Done with
-``np.delete``, ``np.insert`` and whole-row ``np.abs`` / ``np.minimum`` passes, that took most of
-a refit's data preparation (10 strides x 7 columns x a 60 s buffer at every refit). Per row:
+those of the new samples, and reads each row's median absolute deviation: 10 strides x 7 columns
+x a 60 s buffer at every refit, where whole-row numpy passes would touch every value several
+times. Per row:
 
 * :func:`merge_rows`: the places of the values gone and of the new ones by bisection, and the
   runs between them copied whole;
