@@ -207,6 +207,28 @@ def world_table(runs: pd.DataFrame, metric, sources: list[str]) -> list[dict]:
     return out
 
 
+WORLD_COLUMN = "world"
+"""A runs-table column that, when present, splits a scenario's runs into worlds."""
+
+
+def scenario_groups(runs: pd.DataFrame) -> pd.Series:
+    """Each run's scenario without its world: an experiment over worlds names a scenario
+    ``NAME@WORLD`` per world, and its runs on every world make one group (one table, with the
+    median and the worst world) instead of one per world."""
+    names = runs["scenario"].astype(str)
+    if WORLD_COLUMN not in runs.columns:
+        return names
+    suffixes = "@" + runs[WORLD_COLUMN].astype(str)
+    return pd.Series(
+        [n[: -len(x)] if n.endswith(x) else n for n, x in zip(names, suffixes, strict=True)],
+        index=runs.index,
+    )
+
+
+def _has_worlds(runs: pd.DataFrame) -> bool:
+    return WORLD_COLUMN in runs.columns and (runs[WORLD_COLUMN].astype(str) != "").any()
+
+
 def oracle_failed_worlds(runs: pd.DataFrame) -> list[str]:
     """The worlds where a finished run of the ``oracle`` source had a catastrophic failure:
     knowing the friction under the car exactly was not enough there (typically a friction drop
@@ -219,18 +241,20 @@ def oracle_failed_worlds(runs: pd.DataFrame) -> list[str]:
     return sorted(str(w) for w in mine.loc[mine["failures"].fillna(0) > 0, "world"].unique())
 
 
-def _worlds_section(doc: _Doc, runs: pd.DataFrame, sources: list[str], metrics) -> None:
-    """Results over the worlds of the world axis: per source, each metric's per-world mean
-    (over seeds), its median and its worst world, since a mean over worlds hides the world a
-    method fails in."""
-    if "world" not in runs.columns or not (runs["world"].astype(str) != "").any():
+def _worlds_section(
+    doc: _Doc, runs: pd.DataFrame, sources: list[str], metrics, level: int = 3
+) -> None:
+    """Results of one scenario over the worlds of the world axis: per source, each metric's
+    per-world mean (over seeds), its median and its worst world, since a mean over worlds hides
+    the world a method fails in; then each world's mean speed and failures per source."""
+    if not _has_worlds(runs):
         return
-    doc.h(2, "Over worlds")
     n_worlds = runs.loc[runs["world"].astype(str) != "", "world"].nunique()
+    doc.h(level, f"Over its {n_worlds} world{'s' if n_worlds != 1 else ''}")
     doc.p(
-        f"{n_worlds} world{'s' if n_worlds != 1 else ''}. Per source and metric: the mean over "
-        "seeds in each world, then the median and the mean of those over the worlds, and the "
-        "worst world (the lowest, or the highest where lower is better) with its value."
+        "Per source and metric: the mean over seeds in each world, then the median and the "
+        "mean of those over the worlds, and the worst world (the lowest, or the highest where "
+        "lower is better) with its value."
     )
     header = ["metric", "source", "worlds", "median", "mean", "worst world", "worst"]
     rows = []
@@ -258,12 +282,21 @@ def _worlds_section(doc: _Doc, runs: pd.DataFrame, sources: list[str], metrics) 
         )
     done = runs[(runs["status"] == "done") & (runs["world"].astype(str) != "")]
     per = done.pivot_table(index="world", columns="source", values="mean_speed_mps", aggfunc="mean")
-    if not per.empty:
-        cols = [s for s in sources if s in per.columns]
-        doc.p("Per world: mean speed [m/s] (mean over seeds).")
-        doc.table(
-            ["world", *cols], [[w] + [fmt_number(per.loc[w, c]) for c in cols] for w in per.index]
-        )
+    if per.empty:
+        return
+    fails = done.pivot_table(index="world", columns="source", values="failures", aggfunc="sum")
+    cols = [s for s in sources if s in per.columns]
+
+    def cell(w, c) -> str:
+        n = fails.loc[w, c] if w in fails.index and c in fails.columns else math.nan
+        lost = f" ({fmt_number(n)} failed)" if math.isfinite(n) and n > 0 else ""
+        return fmt_number(per.loc[w, c]) + lost
+
+    doc.p(
+        "Per world: mean speed [m/s] (mean over seeds), with the failures summed over its "
+        "seeds where there were any."
+    )
+    doc.table(["world", *cols], [[w] + [cell(w, c) for c in cols] for w in per.index])
 
 
 def _terrain_table(doc: _Doc, rows: list[dict], sources: list[str]) -> None:
@@ -281,9 +314,6 @@ def _terrain_table(doc: _Doc, rows: list[dict], sources: list[str]) -> None:
         "which is what the within column scores)."
     )
 
-    def share(k: int, n: int) -> str:
-        return f"{k} of {n}" if n else "-"
-
     order = {s: i for i, s in enumerate(sources)}
     out = []
     for src in sorted({r["source"] for r in rows}, key=lambda s: order.get(s, len(order))):
@@ -295,8 +325,8 @@ def _terrain_table(doc: _Doc, rows: list[dict], sources: list[str]) -> None:
                     str(r["terrain"]),
                     fmt_number(r["true_mu"]),
                     str(r["pairs"]),
-                    share(r["within"], r["scored"]),
-                    share(r["covered"], r["interval_known"]),
+                    _share(r["within"], r["scored"]),
+                    _share(r["covered"], r["interval_known"]),
                     f"{fmt_number(r['mu_hat_min'])}-{fmt_number(r['mu_hat_max'])}",
                 ]
             )
@@ -308,8 +338,8 @@ def _terrain_table(doc: _Doc, rows: list[dict], sources: list[str]) -> None:
                 "all",
                 "",
                 str(total["pairs"]),
-                share(total["within"], total["scored"]),
-                share(total["covered"], total["interval_known"]),
+                _share(total["within"], total["scored"]),
+                _share(total["covered"], total["interval_known"]),
                 "",
             ]
         )
@@ -325,6 +355,61 @@ def _terrain_table(doc: _Doc, rows: list[dict], sources: list[str]) -> None:
         ],
         out,
     )
+
+
+def _per_seed_tables(doc: _Doc, diffs: dict, sources: list[str], ref: str) -> None:
+    """The paired differences of mean speed and failures to ``ref``, seed by seed."""
+    for col, label in (("mean_speed_mps", "mean speed [m/s]"), ("failures", "failures")):
+        if col not in diffs:
+            continue
+        d = diffs[col].pivot_table(index="seed", columns="source", values="diff")
+        if d.empty:
+            continue
+        doc.p(f"Per seed: {label}, source minus {ref}.")
+        cols = [s for s in sources if s in d.columns]
+        doc.table(
+            ["seed", *cols],
+            [[str(seed)] + [fmt_number(d.loc[seed, c]) for c in cols] for seed in d.index],
+        )
+
+
+def _terrain_totals(doc: _Doc, rows: list[dict], sources: list[str]) -> None:
+    """The friction estimates of one scenario over its worlds, per source (``terrain_rows`` of
+    each world's scenario, summed): a terrain's name has another friction in each world, so
+    the rows per terrain stay in the contexts table."""
+    if not rows:
+        return
+    doc.h(3, "Friction estimates over the worlds")
+    doc.p(
+        f"Per (context, world, seed) triple, summed over the worlds' terrains: within "
+        f"{MU_TOLERANCE:g} = |mu_hat - mu| stayed <= {MU_TOLERANCE:g} from the context's 20th "
+        "second of driving on (of those driven that long); covered = the run's 95 % interval "
+        "held the truth. Per terrain and world: contexts.parquet."
+    )
+    order = {s: i for i, s in enumerate(sources)}
+    out = []
+    for src in sorted({r["source"] for r in rows}, key=lambda s: order.get(s, len(order))):
+        mine = [r for r in rows if r["source"] == src]
+        total = {
+            k: sum(r[k] for r in mine)
+            for k in ("pairs", "within", "scored", "covered", "interval_known")
+        }
+        out.append(
+            [
+                src,
+                str(total["pairs"]),
+                _share(total["within"], total["scored"]),
+                _share(total["covered"], total["interval_known"]),
+            ]
+        )
+    doc.table(
+        ["source", "contexts", f"within {MU_TOLERANCE:g} after 20 s", "95 % interval covers"],
+        out,
+    )
+
+
+def _share(k: int, n: int) -> str:
+    return f"{k} of {n} ({k / n:.2f})" if n else "-"
 
 
 MU_PLOT_COLUMNS = ("t", "mu_hat", "mu_true")
@@ -363,9 +448,14 @@ def build_report(root: str | Path) -> tuple[Path, Path]:
     doc.h(1, f"Experiment {name}")
     if exp.get("description"):
         doc.p(exp["description"])
+    names = sorted(scenario_groups(runs).unique())
+    worlds = (
+        runs.loc[runs[WORLD_COLUMN].astype(str) != "", WORLD_COLUMN] if _has_worlds(runs) else []
+    )
+    on_worlds = f", each on {len(set(worlds))} worlds (NAME@WORLD)" if len(worlds) else ""
     doc.p(
         f"{len(runs)} runs: {len(done)} done, {len(failed)} failed; scenarios "
-        f"{', '.join(sorted(runs['scenario'].unique()))}; sources {', '.join(sources)}; seeds "
+        f"{', '.join(names)}{on_worlds}; sources {', '.join(sources)}; seeds "
         f"{', '.join(str(s) for s in sorted(runs['seed'].unique()))}. Every cell is the mean over "
         f"seeds with its {LEVEL:.0%} confidence interval (Student t) in brackets; differences are "
         f"paired by seed against {ref}."
@@ -373,21 +463,31 @@ def build_report(root: str | Path) -> tuple[Path, Path]:
     if missing:
         doc.p(f"Not in these runs' summary.json (not shown): {', '.join(missing)}.")
     terrain = terrain_rows(store.table("contexts"))
-    for sc in sorted(done["scenario"].unique()):
-        here = done[done["scenario"] == sc]
+    groups = scenario_groups(done)
+    failed_groups = scenario_groups(failed)
+    for sc in sorted(groups.unique()):
+        here = done[groups == sc]
+        over_worlds = _has_worlds(here) and here[WORLD_COLUMN].nunique() > 1
         doc.h(2, f"Scenario {sc}")
+        if over_worlds:
+            doc.p(
+                f"Over {here[WORLD_COLUMN].nunique()} worlds (scenarios {sc}@WORLD): every cell "
+                "is the mean over the worlds and seeds, differences are paired by seed and world."
+            )
         header = ["source", "runs"] + [_label(m) for m in metrics]
         rows = []
         for src in sources:
             r = here[here["source"] == src]
-            n_failed = int(((failed["scenario"] == sc) & (failed["source"] == src)).sum())
+            n_failed = int(((failed_groups == sc) & (failed["source"] == src)).sum())
             count = f"{len(r)}" + (f" (+{n_failed} failed)" if n_failed else "")
             rows.append([src, count] + [ci_text(r[m.column].astype(float)) for m in metrics])
         doc.table(header, rows)
-        doc.h(3, f"Paired difference to {ref} (source minus {ref}, same seed)")
+        same = "same seed and world" if over_worlds else "same seed"
+        doc.h(3, f"Paired difference to {ref} (source minus {ref}, {same})")
         header = ["source", "pairs"] + [_label(m) for m in metrics]
         rows = []
-        diffs = {m.column: paired_differences(here, m.column, ref) for m in metrics}
+        by = ("seed", WORLD_COLUMN) if over_worlds else ("seed",)
+        diffs = {m.column: paired_differences(here, m.column, ref, by=by) for m in metrics}
         for src in sources:
             if src == ref:
                 continue
@@ -395,19 +495,16 @@ def build_report(root: str | Path) -> tuple[Path, Path]:
             pairs = max((len(d) for d in mine), default=0)
             rows.append([src, str(pairs)] + [ci_text(d) for d in mine])
         doc.table(header, rows)
-        for col, label in (("mean_speed_mps", "mean speed [m/s]"), ("failures", "failures")):
-            if col not in diffs:
-                continue
-            d = diffs[col].pivot_table(index="seed", columns="source", values="diff")
-            if d.empty:
-                continue
-            doc.p(f"Per seed: {label}, source minus {ref}.")
-            cols = [s for s in sources if s in d.columns]
-            doc.table(
-                ["seed", *cols],
-                [[str(seed)] + [fmt_number(d.loc[seed, c]) for c in cols] for seed in d.index],
-            )
-        _terrain_table(doc, [r for r in terrain if r["scenario"] == sc], sources)
+        if over_worlds:
+            _worlds_section(doc, here, sources, metrics)
+        else:
+            _per_seed_tables(doc, diffs, sources, ref)
+        scenarios = set(here["scenario"])
+        mine = [r for r in terrain if r["scenario"] in scenarios]
+        if over_worlds:
+            _terrain_totals(doc, mine, sources)
+        else:
+            _terrain_table(doc, mine, sources)
         stopped = here[here["error"].astype(str) != ""]
         if len(stopped):
             doc.p(
@@ -415,8 +512,6 @@ def build_report(root: str | Path) -> tuple[Path, Path]:
                 "time before it): "
                 + "; ".join(f"{r.run_id}: {r.error}" for r in stopped.itertuples())
             )
-
-    _worlds_section(doc, runs, sources, metrics)
 
     doc.h(2, "Figures")
     bars = plots.plot_bars(runs, sources, store.figures / "speed_failures.png")

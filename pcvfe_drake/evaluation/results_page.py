@@ -21,14 +21,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pcvfe_drake.evaluation.report import ci_text, fmt_number
+from pcvfe_drake.evaluation.report import WORLD_COLUMN, ci_text, fmt_number, scenario_groups
 from pcvfe_drake.evaluation.stats import LEVEL, paired_differences
 from pcvfe_drake.evaluation.store import ResultStore
 from pcvfe_drake.evaluation.tables import METRICS
 
-GROUP_COLUMN = "world"
-"""A runs-table column that, when present, splits a scenario's runs into worlds: the page then
-gives each source's median and worst world (by failures, then mean speed)."""
+GROUP_COLUMN = WORLD_COLUMN
+"""The column that splits a scenario's runs into worlds: the page then gives each source's
+median and worst world (by failures, then mean speed)."""
 
 TITLE = "# Results"
 INTRO = (
@@ -79,20 +79,6 @@ def _world_rows(runs: pd.DataFrame, sources: list[str]) -> list[list[str]]:
 
         rows.append([src, str(len(per_world)), _world(per_world, median), _world(per_world, worst)])
     return rows
-
-
-def _without_world(runs: pd.DataFrame) -> pd.Series:
-    """Each run's scenario without its world: an experiment over worlds names a scenario
-    ``NAME@WORLD`` per world, and its runs on every world make one table (with the median and
-    the worst world) instead of one table per world."""
-    names = runs["scenario"].astype(str)
-    if GROUP_COLUMN not in runs.columns:
-        return names
-    suffixes = "@" + runs[GROUP_COLUMN].astype(str)
-    return pd.Series(
-        [n[: -len(x)] if n.endswith(x) else n for n, x in zip(names, suffixes, strict=True)],
-        index=runs.index,
-    )
 
 
 def _settings(exp: dict) -> list[str]:
@@ -165,7 +151,7 @@ def experiment_section(root: str | Path, page: str | Path = "PAGE") -> tuple[str
         for m in METRICS
         if m.column in done.columns and np.isfinite(done[m.column].astype(float)).any()
     ]
-    groups = _without_world(done)
+    groups = scenario_groups(done)
     for sc in sorted(groups.unique()):
         here = done[groups == sc]
         out += ["", f"### {sc}", ""]

@@ -61,7 +61,12 @@ def test_runs_are_stored_per_world_and_the_report_gives_median_and_worst_world(s
     assert set(runs["world"]) == {"paper_small", "generated_s0100", "generated_s0101"}
     md, _ = build_report(sweep["store"].root)
     text = md.read_text()
-    assert "## Over worlds" in text and "3 worlds" in text
+    # one section for the scenario over its worlds, not one per world
+    assert text.count("## Scenario ") == 1 and "## Scenario roboracer\n" in text
+    assert "### Over its 3 worlds" in text and "same seed and world" in text
+    assert "each on 3 worlds" in text
+    for world in ("paper_small", "generated_s0100", "generated_s0101"):
+        assert f"| {world} | " in text  # its row of the per-world speeds
     speed = {r["source"]: r for r in _world_rows(runs, "mean_speed_mps")}
     per_world = runs[runs["source"] == "oracle"].groupby("world")["mean_speed_mps"].mean()
     assert speed["oracle"]["worst_world"] == per_world.idxmin()
@@ -88,6 +93,29 @@ def test_worlds_the_oracle_fails_are_named_in_the_report():
     _worlds_section(doc, runs, ["oracle", "pcvfe"], [metric])
     text = " ".join(b[1] for b in doc.blocks if b[0] == "p")
     assert "The oracle itself failed in 1 world: w2." in text
+
+
+def test_a_scenario_over_worlds_is_one_group_and_its_estimates_are_summed():
+    from pcvfe_drake.evaluation.report import _Doc, _terrain_totals, scenario_groups
+
+    runs = pd.DataFrame(
+        {"scenario": ["a@w1", "a@w2", "b@w1", "c"], "world": ["w1", "w2", "w1", ""]}
+    )
+    assert list(scenario_groups(runs)) == ["a", "a", "b", "c"]
+    assert list(scenario_groups(runs.drop(columns="world"))) == list(runs["scenario"])
+    row = dict(pairs=2, within=1, scored=2, covered=2, interval_known=2)
+    rows = [
+        {**row, "source": "pcvfe", "scenario": "a@w1"},
+        {**row, "source": "pcvfe", "scenario": "a@w2", "within": 0},
+        {**row, "source": "lookup", "scenario": "a@w1", "interval_known": 0, "covered": 0},
+    ]
+    doc = _Doc()
+    _terrain_totals(doc, rows, ["pcvfe", "lookup"])
+    table = next(b for b in doc.blocks if b[0] == "table")
+    assert table[2] == [
+        ["pcvfe", "4", "1 of 4 (0.25)", "4 of 4 (1.00)"],
+        ["lookup", "2", "1 of 2 (0.50)", "-"],
+    ]
 
 
 def _world_rows(runs: pd.DataFrame, column: str):
