@@ -520,7 +520,11 @@ class ContextEstimator:
             untrusted=untrusted,
             **judged,
         )
-        self._published(slot, t, float(t[-1]), t_now)
+        # the windows fitted (in time order, indices into t): the newest one's end is the
+        # newest sample the fit used, and only samples some window holds reached it
+        windows = (data, data.start, data.horizon, 0)
+        end_s = float(t[int(data.start[-1]) + data.horizon])
+        self._published(slot, t, end_s, t_now, window_members(t.size, windows))
 
     def _refit_effects(self, slot: _ContextSlot, t, states, inputs, t_now: float) -> None:
         """``fitter.effects``: refit the context with the workbench's effect model."""

@@ -220,3 +220,25 @@ def test_samples_no_window_holds_are_not_counted_as_waiting(drive):
     up_to_end = int(np.sum(mine & (t <= entry.data_end_s + 1e-9)))
     assert entry.sample_to_estimate_s[2] <= up_to_end - trailing
     assert entry.sample_to_refit_s[1] < 2.0  # none waited the 2.7 s between the visits
+
+
+def test_the_single_track_fit_counts_only_the_samples_its_windows_hold(drive):
+    """The paper's single-track fitter (no effect model) publishes the end of its newest window
+    as the data it used, and a sample no window holds (the end of a visit) has no wait."""
+    t, S, U = drive
+    est = ContextEstimator(
+        ford_escort(), LiveFitConfig(model=EffectModel(effects=[]), sample_period_s=0.02)
+    )
+    assert est._effect_fitter is None
+    end1, start2 = int(np.searchsorted(t, 6.3)), int(np.searchsorted(t, 9.0))
+    for k in range(t.size):  # a first visit to 6.3 s, 2.7 s of noise, a second from 9 s
+        est.add_sample(t[k], S[k], U[k], 0 if k < end1 or k >= start2 else -1)
+        if k == end1 - 1 or (k >= start2 and (k - start2) % 25 == 24):  # refits at 2 Hz
+            est.refit(float(t[k]))
+    entry = est.table().get(0)
+    assert entry.fitted and entry.fits > 20
+    assert entry.data_end_s < t[-1]  # the newest window ends before the newest sample
+    held = est._slots[0]
+    mine = (t < 6.3) | (t >= 9.0 - 1e-9)
+    assert entry.sample_to_estimate_s[2] < int(np.sum(mine & (t <= held.estimate_data_end_s)))
+    assert entry.sample_to_refit_s[1] < 2.0  # none waited the 2.7 s between the visits
