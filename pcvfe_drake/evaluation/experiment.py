@@ -32,6 +32,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 EXPERIMENT_DIR = Path(__file__).resolve().parents[1] / "data" / "experiments"
 """Folder of the shipped experiment files."""
 
@@ -285,9 +287,37 @@ def apply_overrides(scenario: dict, overrides: dict[str, Any], source: str) -> d
     return out
 
 
+FILE_FIELDS = ("world", "course")
+"""Scenario fields that may name a file (a world or course YAML): the run depends on the
+file's content, not on where it lies."""
+
+
+def _file_digest(path: Path) -> str:
+    """``sha256:`` of a world or course file's bytes, with those of the course file a world
+    names beside it (a generated world's ``course: NAME_course.yaml``)."""
+    data = path.read_bytes()
+    digest = hashlib.sha256(data)
+    try:
+        named = yaml.safe_load(data)
+    except yaml.YAMLError:
+        named = None  # not YAML that parses: its bytes alone
+    course = named.get("course") if isinstance(named, dict) else None
+    if isinstance(course, str) and course and (path.parent / course).is_file():
+        digest.update((path.parent / course).read_bytes())
+    return "sha256:" + digest.hexdigest()
+
+
 def spec_hash(scenario: dict) -> str:
-    """Short hash of a complete scenario mapping: a run is the same run iff this is equal."""
-    text = json.dumps(scenario, sort_keys=True, default=str)
+    """Short hash of a complete scenario mapping: a run is the same run iff this is equal. A
+    world or course given as a file path counts by its content (:func:`_file_digest`), so a
+    results folder whose generated worlds moved with it (copied, renamed, on another machine)
+    still resumes: its runs are the same runs."""
+    keyed = dict(scenario)
+    for name in FILE_FIELDS:
+        value = keyed.get(name)
+        if isinstance(value, str) and value.endswith((".yaml", ".yml")) and Path(value).is_file():
+            keyed[name] = _file_digest(Path(value))
+    text = json.dumps(keyed, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 

@@ -1,6 +1,8 @@
 """`pcvfe evaluate` over worlds: listed and generated worlds make a world axis, and the report
 gives each source's median and worst world (a tiny grid on an in-process Dask cluster)."""
 
+from pathlib import Path
+
 import pandas as pd
 import pytest
 
@@ -210,3 +212,23 @@ def test_a_bad_floor_offset_is_named():
     bad = FLOOR.replace("{name: above, floor_offset: 0.1}", "{name: above, floor_offset: .nan}")
     with pytest.raises(ValueError, match=r"variants\[1\].floor_offset=nan"):
         experiment_from_yaml_text(bad, "exp.yaml")
+
+
+def test_a_results_folder_moved_elsewhere_resumes_with_nothing_to_run(sweep, tmp_path):
+    """A run's identity holds a generated world by its content, not its path: the folder
+    copied to another place (another machine) plans the same runs, all done."""
+    import shutil
+
+    from pcvfe_drake.evaluation.experiment import spec_hash
+
+    moved = tmp_path / "moved"
+    shutil.copytree(sweep["store"].root, moved)
+    exp, path = load_experiment(sweep["root"] / "worlds.yaml")
+    specs = run_specs(exp, path, worlds_dir=moved / "worlds")
+    assert all(str(moved) in s.scenario["world"] for s in specs if "generated" in s.world)
+    assert ResultStore(moved).pending(specs) == []
+    # a world whose content changed is another run
+    spec = next(s for s in specs if "generated" in s.world)
+    world = Path(spec.scenario["world"])
+    world.write_text(world.read_text().replace("mu: ", "mu: 0", 1))
+    assert spec_hash(spec.scenario) != spec.spec_hash
