@@ -22,7 +22,9 @@ sign of it. The estimate takes over as soon as the fit is identifiable
   needed for their force over the slip a linear tyre would need; over a bend whose demand peaks
   at a fraction ``q`` of a magic-formula tyre's peak it is :func:`sine_bend_ratio`), by at most
   ``fast_step_rel``, while the ratio is at most ``linear_ratio`` (the ratio at the planner's
-  share); without evidence (no bend driven at the level) the level is kept;
+  share); the implied peak is the one consistent with the stiffness it implies where the
+  car's stiffness follows the friction (:func:`implied_level_ratio`); without evidence (no
+  bend driven at the level) the level is kept;
 * **toward a tight fit**: a level tried in a bend with no sign of saturation is raised at least
   to a fit whose std is small but whose data never came near its peak, one fast step at most;
 * **bounded** by ``(mu_lower_bound + max_excess) / use_fraction`` (the planner is never asked for
@@ -347,10 +349,41 @@ def implied_peak_fraction(bend: float, shape: float = MF_SHAPE) -> float:
     """The inverse of :func:`sine_bend_ratio`: the fraction ``q`` of a magic-formula tyre's peak
     that a bend's demand reached, from its bend ratio (0.01 at or below a ratio of 1, 0.99 at or
     above that of q = 0.99)."""
+    return float(np.interp(bend, _sine_ratios(shape), _Q_GRID))
+
+
+def _sine_ratios(shape: float = MF_SHAPE) -> np.ndarray:
+    """:func:`sine_bend_ratio` over ``_Q_GRID`` (computed once, for the default shape)."""
     global _SINE_RATIOS
+    if shape != MF_SHAPE:
+        return np.array([sine_bend_ratio(q, shape) for q in _Q_GRID])
     if _SINE_RATIOS is None:
         _SINE_RATIOS = np.array([sine_bend_ratio(q, shape) for q in _Q_GRID])
-    return float(np.interp(bend, _SINE_RATIOS, _Q_GRID))
+    return _SINE_RATIOS
+
+
+def implied_level_ratio(bend: float, use_fraction: float, stiffness_law: float = 0.0) -> float:
+    """The peak a level's bend ratio implies, over that level: ``r = mu / level``.
+
+    The bend ratio scales with the small-slip stiffness it is read with. Where that is the
+    stiffness the car's model states for the level (a context without a fit, the unknown
+    value: :func:`~pcvfe_drake.handing.unknown.with_friction`) and the model's stiffness
+    follows the friction (``stiffness_law`` k: stiffness ~ mu^k), a level below the peak
+    assumes a softer tyre than the car has, the tyre reads more linear than it is, and the
+    peak read as ``use_fraction / q(bend)`` lies above the truth. (Read with a fit's own
+    stiffness, which the data set, k is 0.) The implied peak is the one consistent
+    with its own stiffness: ``sine_bend_ratio(use_fraction / r) = bend * r^k`` (a bend whose
+    demand is ``use_fraction`` of the level reaches ``use_fraction / r`` of a peak ``r``
+    times the level, and read at that peak's stiffness its ratio is ``bend * r^k``). k = 0:
+    ``use_fraction / implied_peak_fraction(bend)``. Clipped to the grid of peak fractions
+    (0.01-0.99)."""
+    if not math.isfinite(bend):
+        return math.nan
+    if stiffness_law == 0.0:
+        return use_fraction / implied_peak_fraction(bend)
+    q = _Q_GRID
+    h = _sine_ratios() - float(bend) * (use_fraction / q) ** float(stiffness_law)
+    return float(use_fraction / np.interp(0.0, h, q))
 
 
 def peak_slip_rad(mu: float, stiffness_per_rad, shape: float = MF_SHAPE):
@@ -421,6 +454,7 @@ def probe_step(
     start_mu: float = math.nan,
     fit_mu: float = math.nan,
     start_since_s: float = math.nan,
+    stiffness_law: float = 0.0,
 ) -> ProbeState:
     """The probe after one update at ``t_now`` (see the module docstring). ``bend``: the larger
     of the current level's axle bend ratios (NaN: no evidence); at most ``linear_ratio``: the
@@ -435,7 +469,9 @@ def probe_step(
     saturation) is raised at least to it, still at most one fast step and within the bounds.
     ``start_since_s``: the time [s] from which the context's data were driven at ``start_mu``
     (NaN: not known); a probe that starts at that level counts it from then (its hold and its
-    evidence take in those data): the level is not new, the car has driven it since."""
+    evidence take in those data): the level is not new, the car has driven it since.
+    ``stiffness_law``: how the car's small-slip stiffness follows the friction; the peak a bend
+    implies is the one consistent with it (:func:`implied_level_ratio`)."""
     is_saturated = is_saturated or bool(bend > bend_limit)
     lb = lower_bound if math.isfinite(lower_bound) else 0.0
     base = probe_base(lb, floor_mu, prior_mu)
@@ -451,7 +487,7 @@ def probe_step(
             return start  # bent (and no fit above the base), or no evidence (NaN): the base
         implied = 0.0
         if start_bend <= linear_ratio:
-            implied = use_fraction / implied_peak_fraction(start_bend) * start_mu
+            implied = implied_level_ratio(start_bend, use_fraction, stiffness_law) * start_mu
         cap = min(prior_mu, (lb + max_excess) / use_fraction)
         raised = min(start_mu * (1.0 + fast_step_rel), max(implied, target), cap)
         if raised <= base:
@@ -478,8 +514,9 @@ def probe_step(
         # to the peak the bend implies (the planner's demand, use_fraction of the handed mu, at
         # the fraction q of it), at most the fast step; bent beyond linear_ratio, or no
         # evidence (a straight): stay
-        q = implied_peak_fraction(bend)
-        implied = use_fraction / q - 1.0 if bend <= linear_ratio else 0
+        implied = 0.0
+        if bend <= linear_ratio:
+            implied = implied_level_ratio(bend, use_fraction, stiffness_law) - 1.0
         if bend <= bend_limit and math.isfinite(fit_mu):  # tried in a bend, not saturated
             implied = max(implied, fit_mu / state.mu - 1.0)
         step = min(fast_step_rel, implied)
@@ -536,6 +573,7 @@ def probe_update(
     prior_mu: float,
     drove_mu: float = math.nan,
     fit_mu: float = math.nan,
+    stiffness_law: float = 0.0,
 ) -> ProbeState:
     """One step of a fitted, not identifiable context's probe (:func:`probe_step`) with the
     evidence of its own samples: ``since(t0)`` returns the context's ``(times, states)`` from
@@ -545,7 +583,9 @@ def probe_update(
     it: :func:`probe_after_fit`); the bend ratio on the current level's data, all of it (the
     newest ``hold_s`` before the first step); with ``settings.start_evidence`` the first step
     also gets the bend ratio of all the context's data, driven at the stated floor; ``fit_mu``:
-    the tight fit's peak the level rises to (NaN: none)."""
+    the tight fit's peak the level rises to (NaN: none); ``stiffness_law``: how ``handed``'s
+    small-slip stiffness follows its mu (the model's law for a level handed without a fit, 0
+    for a fit's own stiffness; :func:`implied_level_ratio`)."""
     use = settings.use_fraction
     t_recent, recent = since(t_now - WINDOW_S)
     level = state.last_step_s if state.started else t_now - settings.hold_s
@@ -581,6 +621,7 @@ def probe_update(
         start_mu=start_mu,
         fit_mu=fit_mu,
         start_since_s=start_since,
+        stiffness_law=stiffness_law,
     )
 
 
@@ -593,6 +634,7 @@ def unknown_probe_update(
     stiffness_per_rad,
     since,
     prior_mu: float,
+    stiffness_law: float = 0.0,
 ) -> ProbeState:
     """One step of the unknown phase's probe (``!StatedFloor``): while the controller gets the
     unknown-context value (the stated floor), the bends driven since the phase began are read as
@@ -600,10 +642,10 @@ def unknown_probe_update(
     one fast step above the floor (:func:`probe_step`'s rules; ``used``: the lateral friction
     used in the level's data, ``stiffness_per_rad``: the small-slip stiffness the unknown value
     hands, ``since(t0)``: all samples' ``(times, states)`` from ``t0`` on, whatever their
-    label). One step and no more: the terrain under a noise frame is unknown and may change
-    under it, and a level one fast step above the stated floor asks the car for at most about
-    the floor. A sign of saturation backs it off to the floor, where it stays for the rest of
-    the phase."""
+    label; ``stiffness_law``: how that stiffness follows the friction). One step and no more:
+    the terrain under a noise frame is unknown and may change under it, and a level one fast
+    step above the stated floor asks the car for at most about the floor. A sign of saturation
+    backs it off to the floor, where it stays for the rest of the phase."""
     floor, use = settings.floor_mu, settings.use_fraction
     if not state.started:
         return ProbeState(mu=floor, last_step_s=t_now)
@@ -622,6 +664,7 @@ def unknown_probe_update(
         use_fraction=use,
         bend=bend,
         **_step_settings(settings),
+        stiffness_law=stiffness_law,
     )
     if new.backoffs > state.backoffs:  # back to the floor for the rest of the phase
         return ProbeState(floor, floor, t_now, max(new.steps, 1), new.backoffs, True)

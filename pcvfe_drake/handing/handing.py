@@ -279,6 +279,7 @@ class Handing:
                 self.unfitted_theta(ident, fits),
                 since,
                 self.prior_theta[0],
+                stiffness_law=self.stiffness_law,  # the model's stiffness at the level
             )
             return
         hold_s = self.probe_settings.hold_s
@@ -342,5 +343,6 @@ class Handing:
             prior[0] * prior[1:] * law,  # the unknown value's small-slip stiffness
             since,
             prior[0],
+            stiffness_law=self.stiffness_law,
         )
         return True

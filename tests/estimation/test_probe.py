@@ -2,6 +2,7 @@
 the policy's steps, its bounds and back-off on a synthetic context, the saturation signs, the
 estimator's use of it, and the impossible case of a peak fitted below the used friction."""
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -311,9 +312,10 @@ def test_back_offs_never_go_below_the_start_nor_judge_noise():
     assert saturated(_times(x), x, vp.lf, vp.lr, 0.002)
 
 
-def _mf_slalom(peak, amplitude_rad, seconds=6.0, v=6.0, noise=False, seed=0):
+def _mf_slalom(peak, amplitude_rad, seconds=6.0, v=6.0, noise=False, seed=0, stiffness=1.0):
     """States (N, 7) at 100 Hz of a single-track car at constant speed on magic-formula tyres
-    (shape 1.35, the Ford Escort's stiffness per unit load, friction peak ``peak``), steered
+    (shape 1.35, ``stiffness`` times the Ford Escort's stiffness per unit load at mu = 1, i.e.
+    ``peak`` where the stiffness follows the friction, friction peak ``peak``), steered
     ``amplitude_rad sin(2 pi t / 6 s)`` (a bend every 3 s, as the paper's slalom at 6 m/s);
     ``noise``: INS-like noise on the side slip (0.005 rad) and yaw rate (0.01 rad/s)."""
     from pcvfe_drake.estimation.probe import MF_SHAPE
@@ -321,7 +323,7 @@ def _mf_slalom(peak, amplitude_rad, seconds=6.0, v=6.0, noise=False, seed=0):
     vp = ford_escort()
     L = vp.lf + vp.lr
     fz = np.array([vp.lr, vp.lf]) / L * vp.m * 9.81
-    k = 1.0 * np.array([vp.C_Sf, vp.C_Sr])  # small-slip stiffness per unit load at mu = 1
+    k = stiffness * np.array([vp.C_Sf, vp.C_Sr])  # small-slip stiffness per unit load
     dt, beta, r, rows = 1e-3, 0.0, 0.0, []
     for i in range(int(seconds / dt)):
         t = i * dt
@@ -363,6 +365,38 @@ def test_bend_ratio_reads_how_far_along_the_tyre_curve_the_car_works():
     # straight running: no force, no evidence
     t, x, k = _mf_slalom(2.0, 0.0)
     assert all(np.isnan(b) for b in bend_ratios(t, x, vp.lf, vp.lr, vp.I_z / vp.m, k, 0.1))
+
+
+def test_the_implied_peak_is_consistent_with_a_stiffness_that_follows_the_friction():
+    """Where the car's stiffness follows the friction (``peak_and_stiffness``), a level below
+    the peak reads the bends with a softer tyre than the car has: the ratio reads nearly
+    linear and the peak read without the law (0) lies far above the truth. Read with the law
+    (1), the implied peak is the truth (the slalom's own demand over the level as the share)."""
+    from pcvfe_drake.estimation.probe import (
+        axle_force_per_load,
+        bend_ratios,
+        implied_level_ratio,
+        implied_peak_fraction,
+    )
+
+    vp = ford_escort()
+    cases = ((0.67, 0.62, 0.2), (0.67, 0.62, 0.3), (0.9, 0.5, 0.2), (0.5, 0.6, 0.2))
+    for peak, level, amp in cases:  # (true peak, level handed, steering amplitude [rad])
+        t, x, k = _mf_slalom(peak, amp, stiffness=peak)
+        _, f_f, f_r = axle_force_per_load(t, x, vp.lf, vp.lr, vp.I_z / vp.m)
+        demand = float(np.quantile(np.maximum(np.abs(f_f), np.abs(f_r)), 0.99))
+        share = demand / level
+        stiffness_at_level = level * k / peak  # mu * C_S at the level handed
+        bend = max(bend_ratios(t, x, vp.lf, vp.lr, vp.I_z / vp.m, stiffness_at_level, demand / 2))
+        consistent = implied_level_ratio(bend, share, stiffness_law=1.0) * level
+        assert consistent == pytest.approx(peak, abs=0.01)
+        without = implied_level_ratio(bend, share, stiffness_law=0.0) * level
+        assert without == pytest.approx(share / implied_peak_fraction(bend) * level)
+        if level < peak:
+            assert without > 1.2 * peak  # a fast step past the truth
+        else:
+            assert without < peak  # above the truth it reads too low (a back-off's side)
+    assert math.isnan(implied_level_ratio(float("nan"), 0.64, 1.0))
 
 
 def test_magic_formula_bend_ratios_behind_the_thresholds():
@@ -610,17 +644,17 @@ def test_probe_takes_its_first_step_at_the_id_on_the_data_driven_at_the_floor():
 
     rules = {**RULES, "max_excess": 0.12, **FAST, "fast_step_rel": 0.4}
 
-    def start(bend, lb=0.2, sat=False, **kw):
+    def start(bend, lb=0.2, sat=False, floor_mu=0.3, start_mu=0.3, **kw):
         kw = {**rules, **kw}
         return probe_step(
             ProbeState(),
             10.0,
             lower_bound=lb,
-            floor_mu=0.3,
+            floor_mu=floor_mu,
             prior_mu=1.05,
             is_saturated=sat,
             start_bend=bend,
-            start_mu=0.3,
+            start_mu=start_mu,
             **kw,
         )
 
@@ -645,6 +679,14 @@ def test_probe_takes_its_first_step_at_the_id_on_the_data_driven_at_the_floor():
         s = start(bend, sat=sat)  # bent, no evidence, sliding: the base
         assert s.mu == pytest.approx(0.3) and s.steps == 0
     assert start(1.0, fast_step_rel=None).mu == pytest.approx(0.3)  # the bend not in use
+    # a floor near the peak on a car whose stiffness follows the friction: bends at 0.64 of a
+    # floor 0.62 on a peak 0.67, read with the floor's stiffness, look linear (the ratio of
+    # q = 0.59 times 0.62 / 0.67); without the law that is a full fast step (40 % above the
+    # floor, 30 % above the peak), with it the step stops at the peak
+    bend = sine_bend_ratio(0.64 * 0.62 / 0.67) * 0.62 / 0.67
+    floor_near = {"lb": 0.45, "floor_mu": 0.62, "start_mu": 0.62}
+    assert start(bend, **floor_near).mu == pytest.approx(0.62 * 1.4)
+    assert start(bend, **floor_near, stiffness_law=1.0).mu == pytest.approx(0.67, abs=0.003)
     # once started the start evidence is not read again
     later = probe_step(
         ProbeState(mu=0.3, last_step_s=0.0),
@@ -967,3 +1009,40 @@ def test_estimator_hands_the_probe_a_tight_fit_as_its_target(monkeypatch):
         est.update_probe(1.0)
         got = seen.pop()
         assert got == pytest.approx(expected) if expected else np.isnan(got)
+
+
+def test_the_stiffness_law_reads_only_a_level_handed_with_the_models_stiffness(monkeypatch):
+    """A level handed before a context's fit (and the unknown value) has the stiffness the
+    car's model states for it, so its bends are read by the model's law; a fitted context's
+    level keeps the fit's own stiffness, which the data set: no law between them."""
+    import pcvfe_drake.handing.handing as updates
+
+    laws = {"fitted": [], "unfitted": [], "unknown": []}
+    original, original_unknown = updates.probe_update, updates.unknown_probe_update
+
+    def spy(*args, **kwargs):
+        fitted = "fit_mu" in kwargs  # only a fitted context's update has a fit to rise to
+        laws["fitted" if fitted else "unfitted"].append(kwargs.get("stiffness_law", 0.0))
+        return original(*args, **kwargs)
+
+    def spy_unknown(*args, **kwargs):
+        laws["unknown"].append(kwargs.get("stiffness_law", 0.0))
+        return original_unknown(*args, **kwargs)
+
+    monkeypatch.setattr(updates, "probe_update", spy)
+    monkeypatch.setattr(updates, "unknown_probe_update", spy_unknown)
+    est = ContextEstimator(ford_escort(), probing(floor_stated=True, sample_period_s=0.01))
+    est.handing.stiffness_law = 1.0  # as a peak_and_stiffness model states
+    t, x, _ = _mf_slalom(2.0, 0.2, seconds=8.0)
+    for now in range(9):
+        for ti, xi in zip(t, x, strict=True):
+            if now - 1 < ti <= now:
+                est.add_sample(float(ti), xi, [0, 0], [0 if ti > 3.0 else -1])
+        est.update_probe(float(now))
+    assert laws["unfitted"] and set(laws["unfitted"]) == {1.0}
+    assert laws["unknown"] and set(laws["unknown"]) == {1.0}
+    est, _ = _fitted_estimator()
+    est.handing.stiffness_law = 1.0
+    _feed(est, 0.02, 1.0)
+    est.update_probe(1.0)
+    assert laws["fitted"] == [0.0]
