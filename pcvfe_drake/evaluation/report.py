@@ -314,10 +314,8 @@ def _terrain_table(doc: _Doc, rows: list[dict], sources: list[str]) -> None:
         "which is what the within column scores)."
     )
 
-    order = {s: i for i, s in enumerate(sources)}
     out = []
-    for src in sorted({r["source"] for r in rows}, key=lambda s: order.get(s, len(order))):
-        mine = [r for r in rows if r["source"] == src]
+    for src, mine in _by_source(rows, sources):
         for r in mine:
             out.append(
                 [
@@ -386,10 +384,8 @@ def _terrain_totals(doc: _Doc, rows: list[dict], sources: list[str]) -> None:
         "second of driving on (of those driven that long); covered = the run's 95 % interval "
         "held the truth. Per terrain and world: contexts.parquet."
     )
-    order = {s: i for i, s in enumerate(sources)}
     out = []
-    for src in sorted({r["source"] for r in rows}, key=lambda s: order.get(s, len(order))):
-        mine = [r for r in rows if r["source"] == src]
+    for src, mine in _by_source(rows, sources):
         total = {
             k: sum(r[k] for r in mine)
             for k in ("pairs", "within", "scored", "covered", "interval_known")
@@ -406,6 +402,14 @@ def _terrain_totals(doc: _Doc, rows: list[dict], sources: list[str]) -> None:
         ["source", "contexts", f"within {MU_TOLERANCE:g} after 20 s", "95 % interval covers"],
         out,
     )
+
+
+def _by_source(rows: list[dict], sources: list[str]):
+    """``(source, its rows)`` per source of ``rows``, in the order of ``sources`` (others
+    after them)."""
+    order = {s: i for i, s in enumerate(sources)}
+    for src in sorted({r["source"] for r in rows}, key=lambda s: order.get(s, len(order))):
+        yield src, [r for r in rows if r["source"] == src]
 
 
 def _share(k: int, n: int) -> str:

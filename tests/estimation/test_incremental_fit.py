@@ -199,6 +199,16 @@ def test_window_members_mark_the_samples_a_window_holds():
     np.testing.assert_array_equal(window_members(22, windows), expected[:22])  # cut at the end
 
 
+def _two_visits(est, t, S, U) -> None:
+    """Feed ``est`` a first visit of context 0 to 6.3 s, 2.7 s of noise and a second visit
+    from 9 s, refitting at the first visit's end and at 2 Hz in the second."""
+    end1, start2 = int(np.searchsorted(t, 6.3)), int(np.searchsorted(t, 9.0))
+    for k in range(t.size):
+        est.add_sample(t[k], S[k], U[k], 0 if k < end1 or k >= start2 else -1)
+        if k == end1 - 1 or (k >= start2 and (k - start2) % 25 == 24):
+            est.refit(float(t[k]))
+
+
 def test_samples_no_window_holds_are_not_counted_as_waiting(drive):
     """A visit's end shorter than a window's stride reaches no estimate: its samples have no
     wait (counted at the next visit's fit they would read the time between the visits)."""
@@ -207,11 +217,7 @@ def test_samples_no_window_holds_are_not_counted_as_waiting(drive):
         model=EffectModel(effects=SHIPPED), sample_period_s=0.02, effect_min_windows=5
     )
     est = ContextEstimator(ford_escort(), config)
-    end1, start2 = int(np.searchsorted(t, 6.3)), int(np.searchsorted(t, 9.0))
-    for k in range(t.size):  # a first visit to 6.3 s, 2.7 s of noise, a second from 9 s
-        est.add_sample(t[k], S[k], U[k], 0 if k < end1 or k >= start2 else -1)
-        if k == end1 - 1 or (k >= start2 and (k - start2) % 25 == 24):  # refits at 2 Hz
-            est.refit(float(t[k]))
+    _two_visits(est, t, S, U)
     entry = est.table().get(0)
     first_end = 6.0  # the first visit's last window (1 s horizon, 0.5 s stride) ends there
     trailing = int(np.sum((t > first_end + 1e-9) & (t < 6.3)))
@@ -230,11 +236,7 @@ def test_the_single_track_fit_counts_only_the_samples_its_windows_hold(drive):
         ford_escort(), LiveFitConfig(model=EffectModel(effects=[]), sample_period_s=0.02)
     )
     assert est._effect_fitter is None
-    end1, start2 = int(np.searchsorted(t, 6.3)), int(np.searchsorted(t, 9.0))
-    for k in range(t.size):  # a first visit to 6.3 s, 2.7 s of noise, a second from 9 s
-        est.add_sample(t[k], S[k], U[k], 0 if k < end1 or k >= start2 else -1)
-        if k == end1 - 1 or (k >= start2 and (k - start2) % 25 == 24):  # refits at 2 Hz
-            est.refit(float(t[k]))
+    _two_visits(est, t, S, U)
     entry = est.table().get(0)
     assert entry.fitted and entry.fits > 20
     assert entry.data_end_s < t[-1]  # the newest window ends before the newest sample
