@@ -58,6 +58,7 @@ controller as a LeafSystem.
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -584,6 +585,7 @@ class NmpcController:
         x_plan = lin.x_bar + z[: lay.n_x].reshape(n + 1, NX)
         u_plan = lin.u_bar + z[lay.off_u : lay.off_sf].reshape(n, NU)
         u = np.clip(u_plan[0], lin.u_lo[0], lin.u_hi[0])
+        u[1] = self.clip_to_friction(u[1], x, float(th[0]))
         slack = z[lay.off_sf :]
         new = dataclasses.replace(
             memory,
@@ -601,6 +603,19 @@ class NmpcController:
             new, x, th, prof, "qp", status + (f"; {note}" if note else ""), t_start, res, lin
         )
         return u, new, diag
+
+    def clip_to_friction(self, accel_mps2: float, x: np.ndarray, mu: float) -> float:
+        """The applied acceleration [m/s^2] within the friction circle (``friction_clip``): at
+        most ``sqrt(R^2 - a_y^2)`` in magnitude, with ``R = friction_margin * mu g`` and the
+        measured lateral acceleration ``a_y = v psi_dot`` (0 where a_y alone reaches R); only
+        a positive one with ``"drive"``; unchanged with ``""``."""
+        cfg = self.config
+        if not cfg.friction_clip or (cfg.friction_clip == "drive" and accel_mps2 <= 0):
+            return accel_mps2
+        radius = cfg.friction_margin * mu * self.params.g
+        lateral = float(x[V] * x[PSI_DOT])
+        room = math.sqrt(max(radius * radius - lateral * lateral, 0.0))
+        return float(np.clip(accel_mps2, -room, room))
 
     def _fallback(self, x, th, memory: NmpcMemory, reason: str, t_start: float, lin=None):
         cfg, p = self.config, self.params

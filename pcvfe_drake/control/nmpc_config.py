@@ -12,6 +12,11 @@ MODELS = ("st", "ks")
 """Prediction models: ``"st"`` single track with theta_hat, ``"ks"`` kinematic (KMPC)."""
 
 
+FRICTION_CLIPS = ("", "drive", "both")
+"""What of the applied acceleration :attr:`NmpcConfig.friction_clip` keeps within the friction
+circle: nothing, a positive (drive) acceleration, or both signs."""
+
+
 MAX_HORIZON = 400
 """Most prediction steps: 400 steps of 50 ms look 20 s ahead, farther than any braking the
 course needs, while the QP's size and solve time grow with every step."""
@@ -52,6 +57,11 @@ class NmpcConfig:
             the limit is left for correcting tracking errors). 0: no such limit (the speed
             profile then depends on friction alone).
         friction_margin: radius of the QP's friction polygon, fraction of mu_hat g.
+        friction_clip: what of the applied acceleration is kept within the friction circle the
+            measured lateral acceleration ``v psi_dot`` leaves of ``friction_margin * mu_hat
+            g``: ``""`` nothing (the polygon alone, soft), ``"drive"`` a positive acceleration,
+            ``"both"`` also braking. The prediction model has no combined slip, so a plan may
+            ask for a longitudinal force the tyres cannot give while they turn at the limit.
         corridor_fraction: soft corridor half-width, fraction of the course half-width.
         slack_linear, slack_quadratic: penalties on the slacks (per unit, per unit^2).
         v_lin_min_mps: the linearisation speed is clamped to at least this [m/s].
@@ -85,6 +95,7 @@ class NmpcConfig:
     max_speed_mps: float | None = None
     steer_rate_fraction: float = 0.8
     friction_margin: float = 0.9
+    friction_clip: str = ""
     corridor_fraction: float = 0.5
     slack_linear: float = 100.0
     slack_quadratic: float = 1000.0
@@ -132,6 +143,7 @@ class NmpcConfig:
         )
         need(self.dt_s > 0, "dt_s", "> 0")
         need(self.model in MODELS, "model", f"one of {MODELS}")
+        need(self.friction_clip in FRICTION_CLIPS, "friction_clip", f"one of {FRICTION_CLIPS}")
         for name in (
             "course_angle_scale_rad",
             "accel_scale_mps2",

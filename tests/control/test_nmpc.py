@@ -341,3 +341,26 @@ def test_the_closed_loop_ends_on_the_multibody_truths_singularity(course, params
     res = simulate_closed_loop(ctrl, x0, 2.0, truth=MbTruthPlant(), stop_on_failure=False)
     assert "truth model singular" in res.failure and "reversing" in res.failure
     assert res.t[-1] < 1.0
+
+
+def test_friction_clip_keeps_the_applied_acceleration_within_the_circle_left(course, params):
+    """``friction_clip``: the applied acceleration at most what the friction circle of radius
+    friction_margin * mu g leaves after the measured lateral acceleration v psi_dot."""
+    mu, g = 0.5, params.g
+    radius = CFG.friction_margin * mu * g
+    x = np.zeros(7)
+    x[V], x[PSI_DOT] = 10.0, 0.6 * radius / 10.0  # a_y = 0.6 R: room 0.8 R
+    room = 0.8 * radius
+    off = NmpcController(course, params, CFG)
+    drive = NmpcController(course, params, dataclasses.replace(CFG, friction_clip="drive"))
+    both = NmpcController(course, params, dataclasses.replace(CFG, friction_clip="both"))
+    for a in (-4.0, -1.0, 1.0, 4.0):
+        assert off.clip_to_friction(a, x, mu) == a
+    assert drive.clip_to_friction(4.0, x, mu) == pytest.approx(room)
+    assert drive.clip_to_friction(-4.0, x, mu) == -4.0  # braking left to the polygon
+    assert drive.clip_to_friction(1.0, x, mu) == 1.0
+    assert both.clip_to_friction(-4.0, x, mu) == pytest.approx(-room)
+    x[PSI_DOT] = -1.2 * radius / 10.0  # turning beyond the circle: no room either way
+    assert both.clip_to_friction(-4.0, x, mu) == 0.0 and drive.clip_to_friction(2.0, x, mu) == 0.0
+    with pytest.raises(ValueError, match="friction_clip"):
+        NmpcController(course, params, dataclasses.replace(CFG, friction_clip="brake"))
