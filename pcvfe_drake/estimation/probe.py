@@ -470,8 +470,9 @@ def probe_step(
     ``start_since_s``: the time [s] from which the context's data were driven at ``start_mu``
     (NaN: not known); a probe that starts at that level counts it from then (its hold and its
     evidence take in those data): the level is not new, the car has driven it since.
-    ``stiffness_law``: how the car's small-slip stiffness follows the friction; the peak a bend
-    implies is the one consistent with it (:func:`implied_level_ratio`)."""
+    ``stiffness_law``: how the small-slip stiffness the level's bends were read with follows
+    the level (the model's law for a level handed with the model's stiffness, 0 for a fit's
+    own); the peak a bend implies is the one consistent with it (:func:`implied_level_ratio`)."""
     is_saturated = is_saturated or bool(bend > bend_limit)
     lb = lower_bound if math.isfinite(lower_bound) else 0.0
     base = probe_base(lb, floor_mu, prior_mu)
