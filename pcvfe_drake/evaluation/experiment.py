@@ -292,17 +292,31 @@ FILE_FIELDS = ("world", "course")
 file's content, not on where it lies."""
 
 
+_NAMED_COURSE: dict[str, str] = {}
+"""The course file a world file names (``""``: none), by the sha256 of the world file's bytes:
+every run of a grid over worlds hashes its world, and parsing a world's YAML costs far more than
+reading it."""
+
+
+def _named_course(data: bytes, key: str) -> str:
+    """The ``course`` a world file's ``data`` (sha256 ``key``) names, ``""`` where none."""
+    if key not in _NAMED_COURSE:
+        try:
+            named = yaml.safe_load(data)
+        except yaml.YAMLError:
+            named = None  # not YAML that parses: its bytes alone
+        course = named.get("course") if isinstance(named, dict) else None
+        _NAMED_COURSE[key] = course if isinstance(course, str) else ""
+    return _NAMED_COURSE[key]
+
+
 def _file_digest(path: Path) -> str:
     """``sha256:`` of a world or course file's bytes, with those of the course file a world
     names beside it (a generated world's ``course: NAME_course.yaml``)."""
     data = path.read_bytes()
     digest = hashlib.sha256(data)
-    try:
-        named = yaml.safe_load(data)
-    except yaml.YAMLError:
-        named = None  # not YAML that parses: its bytes alone
-    course = named.get("course") if isinstance(named, dict) else None
-    if isinstance(course, str) and course and (path.parent / course).is_file():
+    course = _named_course(data, digest.hexdigest())
+    if course and (path.parent / course).is_file():
         digest.update((path.parent / course).read_bytes())
     return "sha256:" + digest.hexdigest()
 
