@@ -225,8 +225,11 @@ def scenario_groups(runs: pd.DataFrame) -> pd.Series:
     )
 
 
-def _has_worlds(runs: pd.DataFrame) -> bool:
-    return WORLD_COLUMN in runs.columns and (runs[WORLD_COLUMN].astype(str) != "").any()
+def _worlds(runs: pd.DataFrame) -> set[str]:
+    """The worlds the runs were made on (empty without a world axis)."""
+    if WORLD_COLUMN not in runs.columns:
+        return set()
+    return set(runs[WORLD_COLUMN].astype(str)) - {""}
 
 
 def oracle_failed_worlds(runs: pd.DataFrame) -> list[str]:
@@ -241,16 +244,14 @@ def oracle_failed_worlds(runs: pd.DataFrame) -> list[str]:
     return sorted(str(w) for w in mine.loc[mine["failures"].fillna(0) > 0, "world"].unique())
 
 
-def _worlds_section(
-    doc: _Doc, runs: pd.DataFrame, sources: list[str], metrics, level: int = 3
-) -> None:
+def _worlds_section(doc: _Doc, runs: pd.DataFrame, sources: list[str], metrics) -> None:
     """Results of one scenario over the worlds of the world axis: per source, each metric's
     per-world mean (over seeds), its median and its worst world, since a mean over worlds hides
     the world a method fails in; then each world's mean speed and failures per source."""
-    if not _has_worlds(runs):
+    n_worlds = len(_worlds(runs))
+    if not n_worlds:
         return
-    n_worlds = runs.loc[runs["world"].astype(str) != "", "world"].nunique()
-    doc.h(level, f"Over its {n_worlds} world{'s' if n_worlds != 1 else ''}")
+    doc.h(3, f"Over its {n_worlds} world{'s' if n_worlds != 1 else ''}")
     doc.p(
         "Per source and metric: the mean over seeds in each world, then the median and the "
         "mean of those over the worlds, and the worst world (the lowest, or the highest where "
@@ -453,10 +454,8 @@ def build_report(root: str | Path) -> tuple[Path, Path]:
     if exp.get("description"):
         doc.p(exp["description"])
     names = sorted(scenario_groups(runs).unique())
-    worlds = (
-        runs.loc[runs[WORLD_COLUMN].astype(str) != "", WORLD_COLUMN] if _has_worlds(runs) else []
-    )
-    on_worlds = f", each on {len(set(worlds))} worlds (NAME@WORLD)" if len(worlds) else ""
+    worlds = _worlds(runs)
+    on_worlds = f", each on {len(worlds)} worlds (NAME@WORLD)" if worlds else ""
     doc.p(
         f"{len(runs)} runs: {len(done)} done, {len(failed)} failed; scenarios "
         f"{', '.join(names)}{on_worlds}; sources {', '.join(sources)}; seeds "
@@ -471,11 +470,12 @@ def build_report(root: str | Path) -> tuple[Path, Path]:
     failed_groups = scenario_groups(failed)
     for sc in sorted(groups.unique()):
         here = done[groups == sc]
-        over_worlds = _has_worlds(here) and here[WORLD_COLUMN].nunique() > 1
+        n_worlds = len(_worlds(here))
+        over_worlds = n_worlds > 1
         doc.h(2, f"Scenario {sc}")
         if over_worlds:
             doc.p(
-                f"Over {here[WORLD_COLUMN].nunique()} worlds (scenarios {sc}@WORLD): every cell "
+                f"Over {n_worlds} worlds (scenarios {sc}@WORLD): every cell "
                 "is the mean over the worlds and seeds, differences are paired by seed and world."
             )
         header = ["source", "runs"] + [_label(m) for m in metrics]
@@ -499,15 +499,13 @@ def build_report(root: str | Path) -> tuple[Path, Path]:
             pairs = max((len(d) for d in mine), default=0)
             rows.append([src, str(pairs)] + [ci_text(d) for d in mine])
         doc.table(header, rows)
-        if over_worlds:
-            _worlds_section(doc, here, sources, metrics)
-        else:
-            _per_seed_tables(doc, diffs, sources, ref)
         scenarios = set(here["scenario"])
         mine = [r for r in terrain if r["scenario"] in scenarios]
         if over_worlds:
+            _worlds_section(doc, here, sources, metrics)
             _terrain_totals(doc, mine, sources)
         else:
+            _per_seed_tables(doc, diffs, sources, ref)
             _terrain_table(doc, mine, sources)
         stopped = here[here["error"].astype(str) != ""]
         if len(stopped):

@@ -26,10 +26,6 @@ from pcvfe_drake.evaluation.stats import LEVEL, paired_differences
 from pcvfe_drake.evaluation.store import ResultStore
 from pcvfe_drake.evaluation.tables import METRICS
 
-GROUP_COLUMN = WORLD_COLUMN
-"""The column that splits a scenario's runs into worlds: the page then gives each source's
-median and worst world (by failures, then mean speed)."""
-
 TITLE = "# Results"
 INTRO = (
     "Generated from stored experiment folders by `pcvfe evaluate --report DIR --results-page "
@@ -69,7 +65,7 @@ def _world_rows(runs: pd.DataFrame, sources: list[str]) -> list[list[str]]:
         if mine.empty:
             continue
         per_world = (
-            mine.groupby(GROUP_COLUMN)[["failures", "mean_speed_mps"]]
+            mine.groupby(WORLD_COLUMN)[["failures", "mean_speed_mps"]]
             .mean(numeric_only=True)
             .sort_values(["failures", "mean_speed_mps"], ascending=[False, True])
         )
@@ -158,7 +154,7 @@ def experiment_section(root: str | Path, page: str | Path = "PAGE") -> tuple[str
         header = ["source", "runs"]
         header += [f"{m.label}{f' [{m.unit}]' if m.unit else ''}" for m in metrics]
         rows = []
-        by = ("seed", GROUP_COLUMN) if GROUP_COLUMN in here.columns else ("seed",)
+        by = ("seed", WORLD_COLUMN) if WORLD_COLUMN in here.columns else ("seed",)
         diffs = paired_differences(here, "mean_speed_mps", ref, by=by)
         for src in sources:
             r = here[here["source"] == src]
@@ -171,10 +167,10 @@ def experiment_section(root: str | Path, page: str | Path = "PAGE") -> tuple[str
                 d = diffs[diffs["source"] == row[0]]["diff"]
                 row.append("" if row[0] == ref else ci_text(d))
         out += _table(header, rows)
-        if GROUP_COLUMN in here.columns and here[GROUP_COLUMN].nunique() > 1:
-            out += ["", f"Per {GROUP_COLUMN} (means over its seeds):", ""]
+        if WORLD_COLUMN in here.columns and here[WORLD_COLUMN].nunique() > 1:
+            out += ["", f"Per {WORLD_COLUMN} (means over its seeds):", ""]
             out += _table(
-                ["source", f"{GROUP_COLUMN}s", f"median {GROUP_COLUMN}", f"worst {GROUP_COLUMN}"],
+                ["source", f"{WORLD_COLUMN}s", f"median {WORLD_COLUMN}", f"worst {WORLD_COLUMN}"],
                 _world_rows(here, sources),
             )
     return key, "\n".join(out)
